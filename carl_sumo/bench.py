@@ -1,0 +1,88 @@
+"""``carl-sumo bench``: controlled env steps/s beside a bare libsumo loop, as a ratio from one run.
+
+The bare loop does the same libsumo reads and writes per step as :class:`PlatoonSim` (per
+follower: setSpeed, getSpeed, getDistance; for the leader: setSpeed, moveTo, setPreviousSpeed;
+one simulationStep) with constant speeds and no other work. The env step adds the IDM base, the
+controller's adjustment (zero), the observation and the reward. Both run the same scenario (a
+leader cruising at 15 m/s, 20 m gaps), alternating in rounds so machine noise hits both alike.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from carl_sumo.config import DT_S
+from carl_sumo.data.events import Event
+from carl_sumo.env import PlatoonEnv
+from carl_sumo.sumo import DEFAULT_NET
+
+
+def cruise_event(n_steps: int, speed_mps: float = 15.0, gap_m: float = 20.0) -> Event:
+    """A leader at constant speed, followers starting at ``gap_m``: the benchmark scenario."""
+    speed = np.full(n_steps + 1, speed_mps)
+    pos = np.arange(n_steps + 1) * speed_mps * DT_S
+    return Event("bench_cruise", "carl_sumo_bench", "bench", pos, speed, 5.0, speed.copy(),
+                 np.full(n_steps + 1, gap_m))
+
+
+def _bare_loop(env: PlatoonEnv, steps: int) -> float:
+    """Seconds for ``steps`` bare libsumo steps with the env's reads and writes."""
+    import libsumo
+
+    sim = env.sim
+    env.reset_array(event=env.events[0])
+    ids, leader = sim.ids, sim.leader_id
+    lanes, lane_pos, lead_speed = sim._leader_lane, sim._leader_lane_pos, sim._leader_speed
+    set_speed, get_speed = libsumo.vehicle.setSpeed, libsumo.vehicle.getSpeed
+    get_distance, move_to = libsumo.vehicle.getDistance, libsumo.vehicle.moveTo
+    set_previous_speed, sim_step = libsumo.vehicle.setPreviousSpeed, libsumo.simulationStep
+    speed = lead_speed[0]
+    start = time.perf_counter()
+    for k in range(1, steps + 1):
+        for vid in ids:
+            set_speed(vid, speed)
+        set_speed(leader, lead_speed[k])
+        sim_step()
+        move_to(leader, lanes[k], lane_pos[k])
+        set_previous_speed(leader, lead_speed[k])
+        [get_speed(vid) for vid in ids]
+        [get_distance(vid) for vid in ids]
+    return time.perf_counter() - start
+
+
+def _env_loop(env: PlatoonEnv, steps: int) -> float:
+    """Seconds for ``steps`` env steps (zero adjustment) on the same scenario."""
+    env.reset_array(event=env.events[0])
+    zeros = np.zeros(env.n_followers)
+    start = time.perf_counter()
+    for _ in range(steps):
+        env.step_array(zeros)
+    return time.perf_counter() - start
+
+
+def run_bench(sizes: tuple[int, ...] = (10, 20, 100), steps: int = 2000, rounds: int = 3,
+              net_path=DEFAULT_NET) -> list[dict[str, float]]:
+    """Steps/s of the env and of the bare loop for each platoon size; best of ``rounds``."""
+    rows = []
+    for n in sizes:
+        env = PlatoonEnv([cruise_event(steps + 1)], n, net_path)
+        _env_loop(env, 50)  # compile the numba kernels and warm caches
+        bare, controlled = [], []
+        for _ in range(rounds):
+            bare.append(_bare_loop(env, steps))
+            controlled.append(_env_loop(env, steps))
+        bare_rate, env_rate = steps / min(bare), steps / min(controlled)
+        rows.append({"followers": n, "env_steps_per_s": env_rate, "bare_steps_per_s": bare_rate,
+                     "ratio": bare_rate / env_rate})
+    return rows
+
+
+def format_bench(rows: list[dict[str, float]]) -> str:
+    lines = ["followers  env steps/s  bare steps/s  env cost / bare cost",
+             "---------  -----------  ------------  ---------------------"]
+    for r in rows:
+        lines.append(f"{r['followers']:>9}  {r['env_steps_per_s']:>11.0f}  "
+                     f"{r['bare_steps_per_s']:>12.0f}  {r['ratio']:>20.2f}x")
+    return "\n".join(lines)

@@ -1,0 +1,72 @@
+"""Every model parameter and default of carl-sumo, in one place, with units.
+
+The values here are the paper's where it gives them; the rest are documented choices.
+``routes/vtypes.add.xml`` carries the same IDM parameters for SUMO's native models.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+DT_S = 0.1
+"""Simulation step and data sampling period (s)."""
+
+
+@dataclass(frozen=True)
+class IDMParams:
+    """Intelligent Driver Model (Treiber et al. 2000), the paper's parameters."""
+
+    accel_mps2: float = 3.0        # a: maximum acceleration (m/s²)
+    decel_mps2: float = 2.0        # b: comfortable deceleration (m/s²)
+    desired_speed_mps: float = 120.0 / 3.6  # v0: desired speed, 120 km/h (m/s)
+    min_gap_m: float = 2.0         # s0: jam distance, bumper to bumper (m)
+    time_headway_s: float = 1.5    # T: desired time headway (s)
+    delta: float = 4.0             # δ: acceleration exponent (-)
+
+
+@dataclass(frozen=True)
+class ControlBounds:
+    """Bounds on the acceleration a CACC vehicle may apply: a = clip(a_IDM + a_adj)."""
+
+    acc_min_mps2: float = -9.0     # SUMO emergencyDecel of the vehicle types (m/s²)
+    acc_max_mps2: float = 3.0      # IDM maximum acceleration a (m/s²)
+    adj_max_mps2: float = 3.0      # |a_adj| bound of a learned adjustment (m/s²)
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Reward r = w_gap·r_gap + w_safe·r_safe + w_comfort·r_comfort (Zhu et al. 2020 style).
+
+    r_gap: lognormal pdf of the time headway h = d/v, parameters (μ, σ) fitted to NGSIM headways;
+    r_safe: log(TTC/4) when 0 < TTC ≤ ttc_threshold_s, else 0;
+    r_comfort: -(jerk / jerk_scale)², jerk = Δa/Δt;
+    a collision (bumper gap ≤ 0) ends the episode and adds collision_penalty.
+    """
+
+    w_gap: float = 1.0
+    w_safe: float = 1.0
+    w_comfort: float = 1.0
+    headway_mu: float = 0.4226     # μ of ln(h), h in s
+    headway_sigma: float = 0.4366  # σ of ln(h)
+    ttc_threshold_s: float = 4.0   # TTC below which r_safe is negative (s)
+    jerk_scale_mps3: float = 60.0  # (a_max - a_min)/dt of a ±3 m/s² range (m/s³)
+    collision_penalty: float = -100.0
+
+
+@dataclass(frozen=True)
+class ScenarioConfig:
+    """How a platoon is placed on the network."""
+
+    ngsim_lane: int = 2            # NGSIM lane of the platoon (1 = leftmost, HOV)
+    vehicle_length_m: float = 5.0  # length of every follower (m)
+    start_margin_m: float = 10.0   # free road behind the last follower at t = 0 (m)
+    end_margin_m: float = 50.0     # road left ahead of the leader at the end of an event (m)
+
+
+IDM = IDMParams()
+BOUNDS = ControlBounds()
+REWARD = RewardConfig()
+SCENARIO = ScenarioConfig()
+
+HEADWAY_MIN_SPEED_MPS = 0.5
+"""Samples slower than this are left out of the time-headway mean (h = d/v is undefined at 0)."""

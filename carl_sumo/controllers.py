@@ -1,0 +1,92 @@
+"""Follower control: the IDM base acceleration and the controller interface for a_adj.
+
+A CACC follower applies ``a = clip(a_IDM(o) + clip(a_adj, ±adj_max), acc_min, acc_max)``. The
+adjustment comes from a :class:`Controller`, which receives the observations of every follower of
+the platoon at once (rows ordered head to tail), so a communication-aware policy can pass messages
+along the platoon. The per-step arithmetic is compiled with numba: it runs in the 0.1 s SUMO loop
+millions of times, where NumPy's per-call overhead on 10-element arrays would dominate.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+from typing import Protocol
+
+import numpy as np
+from numba import njit
+
+from carl_sumo.config import BOUNDS, IDM, ControlBounds, IDMParams
+
+_EPS = 1e-6  # smallest gap in the IDM interaction term (m), as SUMO's NUMERICAL_EPS
+
+
+@njit(cache=True)
+def _idm(v: float, s: float, dv: float, a: float, b: float, v0: float, s0: float, t: float,
+         delta: float) -> float:
+    s_star = s0 + max(v * t - v * dv / (2.0 * math.sqrt(a * b)), 0.0)
+    ratio = s_star / max(s, _EPS)
+    return a * (1.0 - (v / v0) ** delta - ratio * ratio)
+
+
+@njit(cache=True)
+def _total_acceleration(obs, adj, a, b, v0, s0, t, delta, acc_min, acc_max, adj_max):
+    n = obs.shape[0]
+    out = np.empty(n)
+    for i in range(n):
+        base = _idm(obs[i, 0], obs[i, 2], obs[i, 3], a, b, v0, s0, t, delta)
+        out[i] = min(max(base + min(max(adj[i], -adj_max), adj_max), acc_min), acc_max)
+    return out
+
+
+@lru_cache(maxsize=16)
+def _params(p: IDMParams, bounds: ControlBounds) -> tuple[float, ...]:
+    return (p.accel_mps2, p.decel_mps2, p.desired_speed_mps, p.min_gap_m, p.time_headway_s,
+            p.delta, bounds.acc_min_mps2, bounds.acc_max_mps2, bounds.adj_max_mps2)
+
+
+def idm_acceleration(speed: np.ndarray, gap: np.ndarray, rel_speed: np.ndarray,
+                     p: IDMParams = IDM) -> np.ndarray:
+    """IDM acceleration (m/s²) from speed v (m/s), bumper gap s (m), Δv = v_pred - v (m/s).
+
+    a = a_max·[1 - (v/v0)^δ - (s*/s)²],  s* = s0 + max(0, v·T - v·Δv / (2·sqrt(a_max·b))),
+    the same expression as SUMO's ``MSCFModel_IDM`` with one update per step. Unclipped.
+    """
+    speed, gap, rel_speed = np.broadcast_arrays(*(np.asarray(x, float) for x in
+                                                  (speed, gap, rel_speed)))
+    return np.array([_idm(v, s, dv, p.accel_mps2, p.decel_mps2, p.desired_speed_mps, p.min_gap_m,
+                          p.time_headway_s, p.delta) for v, s, dv in
+                     zip(speed.ravel(), gap.ravel(), rel_speed.ravel())]).reshape(speed.shape)
+
+
+def total_acceleration(obs: np.ndarray, adjustment: np.ndarray, p: IDMParams = IDM,
+                       bounds: ControlBounds = BOUNDS) -> np.ndarray:
+    """a = clip(a_IDM(o) + clip(a_adj, ±adj_max), acc_min, acc_max) per follower (m/s²).
+
+    ``obs`` rows are [v, a, d, Δv] (shape (n, 4), float64); ``adjustment`` has shape (n,).
+    """
+    return _total_acceleration(obs, np.asarray(adjustment, dtype=np.float64), *_params(p, bounds))
+
+
+class Controller(Protocol):
+    """Computes the acceleration adjustment a_adj of every follower of a platoon."""
+
+    name: str
+
+    def reset(self, n_followers: int) -> None:
+        """Called at the start of each episode with the platoon length."""
+
+    def adjustment(self, obs: np.ndarray) -> np.ndarray:
+        """a_adj (m/s², shape (n,)) from the observations (shape (n, 4), head first)."""
+
+
+class ZeroAdjustment:
+    """Plain IDM: no adjustment (the ``idm-external`` controller)."""
+
+    name = "idm-external"
+
+    def reset(self, n_followers: int) -> None:
+        self._zeros = np.zeros(n_followers)
+
+    def adjustment(self, obs: np.ndarray) -> np.ndarray:
+        return self._zeros

@@ -1,0 +1,184 @@
+"""Car-following events: the leader trajectory a platoon follows, and the recorded human follower.
+
+The on-disk format is the long event table of ``../shared/data/ngsim/ngsim_cf_events.csv.gz``
+(one row per event per 0.1 s, SI units). Every loader in :mod:`carl_sumo.data` produces that table,
+and :func:`events_from_table` turns it into :class:`Event` objects.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from carl_sumo.errors import InputError
+
+DT_S = 0.1
+"""Sampling period of every event and of the SUMO step (s)."""
+
+DEFAULT_VEHICLE_LENGTH_M = 5.0
+"""Vehicle length used where an event does not give one (m)."""
+
+MIN_EVENT_SAMPLES = 151
+"""Shortest event: 151 samples = 15.0 s."""
+
+EVENT_COLUMNS: tuple[str, ...] = (
+    "event_id", "source", "site", "period", "split_in_source", "follower_id", "leader_id", "lane",
+    "frame_id", "t_src_s", "t_s", "follower_pos_m", "follower_speed_mps", "follower_acc_mps2",
+    "follower_length_m", "leader_pos_m", "leader_speed_mps", "leader_acc_mps2", "leader_length_m",
+    "gap_m", "rel_speed_mps",
+)
+"""Columns of the event table, in file order."""
+
+REQUIRED_COLUMNS: tuple[str, ...] = (
+    "event_id", "source", "site", "t_s", "follower_speed_mps", "leader_speed_mps", "gap_m",
+)
+"""Columns a table must have; the others are optional."""
+
+NUMERIC_REQUIRED: tuple[str, ...] = ("t_s", "follower_speed_mps", "leader_speed_mps", "gap_m")
+
+TEST_SOURCES: frozenset[str] = frozenset({"zhu2020_testset", "carl_sumo_default_test"})
+"""Sources of the ``test`` split (the paper's protocol: Zhu et al. 2020's 403-event test set)."""
+
+SPLITS: tuple[str, ...] = ("test", "train", "us101", "all")
+"""``test`` = TEST_SOURCES; ``us101`` = site us-101; ``train`` = every other event; ``all``."""
+
+
+@dataclass(frozen=True)
+class Event:
+    """One leader-follower car-following event sampled every ``dt`` seconds.
+
+    Positions are front-bumper positions along the road (m), shifted so the leader starts at 0.
+    """
+
+    event_id: str
+    source: str
+    site: str
+    leader_pos_m: np.ndarray
+    leader_speed_mps: np.ndarray
+    leader_length_m: float
+    follower_speed_mps: np.ndarray
+    gap_m: np.ndarray
+    lane: int | None = None
+    dt: float = DT_S
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.leader_speed_mps.shape[0])
+
+    @property
+    def duration_s(self) -> float:
+        return (self.n_samples - 1) * self.dt
+
+    @property
+    def initial_gap_m(self) -> float:
+        return float(self.gap_m[0])
+
+    @property
+    def initial_speed_mps(self) -> float:
+        return float(self.follower_speed_mps[0])
+
+    @property
+    def leader_travel_m(self) -> float:
+        """Distance the leader covers over the event (m)."""
+        return float(self.leader_pos_m.max() - self.leader_pos_m[0])
+
+
+def read_event_table(path: str | Path) -> pd.DataFrame:
+    """Read and validate an event table (CSV, optionally gzip-compressed).
+
+    Raises InputError for a missing file, unreadable content, missing columns or NaN values.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"data file {path} does not exist; give the path of an event table "
+                         "(e.g. ../shared/data/ngsim/ngsim_cf_events.csv.gz) or --data default")
+    try:
+        table = pd.read_csv(path, low_memory=False)
+    except Exception as exc:  # pandas raises many types for malformed files
+        raise InputError(f"data file {path} is not a readable CSV table ({type(exc).__name__}: "
+                         f"{str(exc).splitlines()[0] if str(exc) else 'no detail'})") from exc
+    validate_event_table(table, str(path))
+    return table
+
+
+def validate_event_table(table: pd.DataFrame, name: str) -> None:
+    """Check columns, NaN and numeric types of an event table; raise InputError if wrong."""
+    missing = [c for c in REQUIRED_COLUMNS if c not in table.columns]
+    if missing:
+        raise InputError(f"{name} lacks the column(s) {', '.join(missing)}; an event table needs "
+                         f"{', '.join(REQUIRED_COLUMNS)} (see the data format in the README)")
+    if table.empty:
+        raise InputError(f"{name} holds no rows; give a table with at least one event")
+    for column in NUMERIC_REQUIRED:
+        values = pd.to_numeric(table[column], errors="coerce")
+        bad = values.isna()
+        if bad.any():
+            row = int(np.flatnonzero(bad.to_numpy())[0])
+            raise InputError(f"{name}: column {column} has a missing or non-numeric value (NaN) in "
+                             f"event {table['event_id'].iloc[row]} at data row {row + 2}; "
+                             "fix or drop that event")
+        table[column] = values.astype(float)
+    for column in ("leader_pos_m", "leader_length_m"):
+        if column in table.columns:
+            table[column] = pd.to_numeric(table[column], errors="coerce")
+
+
+def select_split(table: pd.DataFrame, split: str) -> pd.DataFrame:
+    """Rows of the events of one split (see :data:`SPLITS`)."""
+    if split not in SPLITS:
+        raise InputError(f"unknown split {split!r}; choose one of {', '.join(SPLITS)}")
+    if split == "all":
+        return table
+    is_test = table["source"].isin(TEST_SOURCES)
+    is_us101 = table["site"].astype(str).str.lower().isin({"us-101", "us101"})
+    mask = {"test": is_test, "us101": is_us101, "train": ~is_test & ~is_us101}[split]
+    return table[mask]
+
+
+def events_from_table(table: pd.DataFrame, name: str = "event table") -> list[Event]:
+    """Build :class:`Event` objects from a validated table, in file order of their first row.
+
+    Leader positions come from ``leader_pos_m`` when an event has them all, otherwise they are the
+    integral of the leader speed with SUMO's update rule ``x[k+1] = x[k] + v[k+1] * dt``.
+    """
+    events: list[Event] = []
+    has_pos = "leader_pos_m" in table.columns
+    has_len = "leader_length_m" in table.columns
+    has_lane = "lane" in table.columns
+    for event_id, rows in table.groupby("event_id", sort=False):
+        t = rows["t_s"].to_numpy(float)
+        if len(t) < 2:
+            raise InputError(f"{name}: event {event_id} has {len(t)} sample(s); an event needs at "
+                             "least 2 samples 0.1 s apart")
+        steps = np.diff(t)
+        if not np.allclose(steps, DT_S, atol=1e-3):
+            raise InputError(f"{name}: event {event_id} is not sampled every {DT_S} s in column "
+                             "t_s (rows must be contiguous and ordered by time)")
+        leader_speed = rows["leader_speed_mps"].to_numpy(float)
+        if (leader_speed < 0).any() or (rows["follower_speed_mps"].to_numpy(float) < 0).any():
+            raise InputError(f"{name}: event {event_id} has a negative speed; speeds are in m/s "
+                             "and must be >= 0")
+        pos = rows["leader_pos_m"].to_numpy(float) if has_pos else None
+        if pos is None or np.isnan(pos).any():
+            pos = np.concatenate([[0.0], np.cumsum(leader_speed[1:]) * DT_S])
+        else:
+            pos = pos - pos[0]
+        length = float(rows["leader_length_m"].iloc[0]) if has_len else float("nan")
+        if not np.isfinite(length) or length <= 0:
+            length = DEFAULT_VEHICLE_LENGTH_M
+        lane_value = pd.to_numeric(rows["lane"].iloc[0], errors="coerce") if has_lane else np.nan
+        events.append(Event(
+            event_id=str(event_id),
+            source=str(rows["source"].iloc[0]),
+            site=str(rows["site"].iloc[0]),
+            leader_pos_m=pos,
+            leader_speed_mps=leader_speed,
+            leader_length_m=length,
+            follower_speed_mps=rows["follower_speed_mps"].to_numpy(float),
+            gap_m=rows["gap_m"].to_numpy(float),
+            lane=None if pd.isna(lane_value) else int(lane_value),
+        ))
+    return events

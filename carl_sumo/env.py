@@ -1,0 +1,116 @@
+"""PettingZoo ``ParallelEnv`` of a CACC platoon in SUMO: agents are the CACC followers.
+
+Each agent observes o_i = [v_i, a_i, d_i, Δv_i] (m/s, m/s², m, m/s) and acts with its acceleration
+adjustment a_adj (m/s², bounded by ``ControlBounds.adj_max_mps2``); it applies
+a = clip(a_IDM + a_adj). Episodes replay one event each; a collision terminates every agent,
+the end of the event truncates them. :meth:`PlatoonEnv.step_array` is the same step on arrays,
+for batched (communication-aware) controllers.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+
+from carl_sumo.config import BOUNDS, IDM, REWARD, SCENARIO, ControlBounds, IDMParams, \
+    RewardConfig, ScenarioConfig
+from carl_sumo import controllers, reward as reward_module
+from carl_sumo.data.events import Event
+from carl_sumo.errors import InputError
+from carl_sumo.sumo import DEFAULT_NET, PlatoonSim, check_fits
+
+
+class PlatoonEnv(ParallelEnv):
+    """A platoon of ``n_followers`` CACC vehicles behind a leader replaying NGSIM events."""
+
+    metadata = {"name": "carl_sumo_platoon_v0", "render_modes": []}
+
+    def __init__(self, events: Sequence[Event], n_followers: int = 10,
+                 net_path: str | Path = DEFAULT_NET, reward: RewardConfig = REWARD,
+                 idm: IDMParams = IDM, bounds: ControlBounds = BOUNDS,
+                 scenario: ScenarioConfig = SCENARIO):
+        if not events:
+            raise InputError("the environment needs at least one event")
+        self.events = list(events)
+        self.sim = PlatoonSim(net_path, "external", scenario)
+        for event in self.events:
+            check_fits(self.sim.route, event, n_followers, scenario)
+        self.n_followers = n_followers
+        self.reward_cfg, self.idm, self.bounds = reward, idm, bounds
+        # kernels and their parameters, bound once: step_array runs every 0.1 s simulated
+        self._control = controllers._total_acceleration
+        self._control_params = controllers._params(idm, bounds)
+        self._reward = reward_module._platoon_reward
+        self._reward_params = reward_module._params(reward)
+        self.possible_agents = [f"cacc_{i}" for i in range(n_followers)]
+        self.agents: list[str] = []
+        high = np.float32(bounds.adj_max_mps2)
+        self._action_space = spaces.Box(-high, high, shape=(1,), dtype=np.float32)
+        self._observation_space = spaces.Box(-np.inf, np.inf, shape=(4,), dtype=np.float32)
+        self._rng = np.random.default_rng()
+        self.event: Event | None = None
+
+    def observation_space(self, agent: str) -> spaces.Box:
+        return self._observation_space
+
+    def action_space(self, agent: str) -> spaces.Box:
+        return self._action_space
+
+    # -------------------------------------------------------------------------------- arrays
+    def reset_array(self, seed: int | None = None, event: Event | None = None) -> np.ndarray:
+        """Start an episode on ``event`` (default: a random one); observations (n, 4)."""
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+        self.event = event if event is not None else \
+            self.events[int(self._rng.integers(len(self.events)))]
+        self.sim.reset(self.event, self.n_followers)
+        self._obs = self.sim.observation()
+        return self._obs
+
+    def step_array(self, adjustment: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, bool, bool, np.ndarray]:
+        """Apply a_adj (m/s², shape (n,)); returns obs, rewards, terminated, truncated, a."""
+        if adjustment.dtype != np.float64:
+            adjustment = adjustment.astype(np.float64)
+        accel = self._control(self._obs, adjustment, *self._control_params)
+        prev_acc = self.sim.acc
+        self.sim.step(accel)
+        self._obs = self.sim.observation()
+        rewards, collided = self._reward(self._obs, prev_acc, *self._reward_params)
+        terminated = bool(collided.any())
+        return self._obs, rewards, terminated, self.sim.done and not terminated, accel
+
+    # ---------------------------------------------------------------------------- PettingZoo
+    def reset(self, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[dict[str, np.ndarray], dict[str, dict]]:
+        event = None
+        if options and "event_id" in options:
+            matches = [e for e in self.events if e.event_id == options["event_id"]]
+            if not matches:
+                raise InputError(f"unknown event {options['event_id']!r}")
+            event = matches[0]
+        obs = self.reset_array(seed, event).astype(np.float32)
+        self.agents = list(self.possible_agents)
+        return ({a: obs[i] for i, a in enumerate(self.agents)},
+                {a: {"event_id": self.event.event_id} for a in self.agents})
+
+    def step(self, actions: dict[str, np.ndarray]):
+        adjustment = np.array([float(np.asarray(actions[a]).reshape(-1)[0]) for a in self.agents])
+        obs, rewards, terminated, truncated, accel = self.step_array(adjustment)
+        obs32 = obs.astype(np.float32)
+        agents = self.agents
+        observations = {a: obs32[i] for i, a in enumerate(agents)}
+        reward_dict = {a: float(r) for a, r in zip(agents, rewards.tolist())}
+        terms = dict.fromkeys(agents, terminated)
+        truncs = dict.fromkeys(agents, truncated)
+        infos = {a: {"acceleration": float(x)} for a, x in zip(agents, accel.tolist())}
+        if terminated or truncated:
+            self.agents = []
+        return observations, reward_dict, terms, truncs, infos
+
+    def close(self) -> None:
+        pass

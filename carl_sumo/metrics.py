@@ -1,0 +1,106 @@
+"""The paper's platoon metrics, computed the same way for simulated and recorded followers.
+
+Definitions (all over the followers' 0.1 s samples of one event; ``docs/metrics.md`` has more):
+
+- acceleration a_k = (v_{k+1} - v_k)/dt and jerk j_k = (a_{k+1} - a_k)/dt, from speed, for every
+  vehicle including the leader (so recorded and simulated vehicles are treated alike);
+- ``headway_s``: mean time headway d/v over samples with v > 0.5 m/s (s);
+- ``jerk_mps3``: mean |j| (m/s³); ``speed_mps``: mean v (m/s);
+- ``ttc_lt_4s_count`` / ``ttc_lt_1_5s_count``: number of samples with 0 < TTC < 4 s / < 1.5 s,
+  TTC = d / (v - v_pred) when closing in (v > v_pred);
+- ``dampening_ratio``: mean over followers i of ‖a_i‖₂ / ‖a_0‖₂, a_0 = leader;
+- ``worst_successive_ratio``: max over followers of ‖a_i‖₂ / ‖a_{i-1}‖₂ (string stable if ≤ 1);
+- ``collisions``: number of followers whose bumper gap reached ≤ 0 (the episode ends there).
+
+Over several events (:func:`aggregate`): the means are pooled over all samples, the ratios are
+averaged over events, the counts and collisions are summed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from carl_sumo.config import DT_S, HEADWAY_MIN_SPEED_MPS
+
+METRIC_KEYS: tuple[str, ...] = (
+    "headway_s", "jerk_mps3", "speed_mps", "ttc_lt_4s_count", "ttc_lt_1_5s_count",
+    "dampening_ratio", "worst_successive_ratio", "collisions",
+)
+COUNT_KEYS = ("ttc_lt_4s_count", "ttc_lt_1_5s_count", "collisions")
+RATIO_KEYS = ("dampening_ratio", "worst_successive_ratio")
+_POOLED = {"headway_s": "n_headway", "jerk_mps3": "n_jerk", "speed_mps": "n_speed"}
+
+
+@dataclass
+class PlatoonTrajectory:
+    """What one event produced: leader and follower series sampled every ``dt`` seconds.
+
+    ``speed`` and ``gap`` have shape (T, n), followers head first; ``gap`` is the bumper-to-bumper
+    gap to the predecessor (m).
+    """
+
+    event_id: str
+    leader_speed: np.ndarray
+    speed: np.ndarray
+    gap: np.ndarray
+    collisions: int = 0
+    dt: float = DT_S
+
+
+def _norm(x: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.sum(x * x, axis=0))
+
+
+def score_event(traj: PlatoonTrajectory) -> dict[str, float]:
+    """Metrics of one event (see the module docstring), plus the sample counts for pooling."""
+    v = traj.speed
+    pred = np.concatenate([traj.leader_speed[:, None], v[:, :-1]], axis=1)
+    d = traj.gap
+    moving = v > HEADWAY_MIN_SPEED_MPS
+    headway = d[moving] / v[moving]
+    acc = np.diff(v, axis=0) / traj.dt
+    jerk = np.abs(np.diff(acc, axis=0)) / traj.dt
+    closing = v - pred
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ttc = np.where(closing > 0, d / closing, np.inf)
+    valid_ttc = ttc > 0
+    leader_acc = np.diff(traj.leader_speed) / traj.dt
+    norms = _norm(acc)
+    chain = np.concatenate([[np.sqrt(np.sum(leader_acc ** 2))], norms])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        successive = chain[1:] / chain[:-1]
+    successive = np.where(np.isfinite(successive), successive, np.nan)
+    return {
+        "event_id": traj.event_id,
+        "headway_s": float(headway.mean()) if headway.size else float("nan"),
+        "jerk_mps3": float(jerk.mean()) if jerk.size else float("nan"),
+        "speed_mps": float(v.mean()),
+        "ttc_lt_4s_count": int(np.sum(valid_ttc & (ttc < 4.0))),
+        "ttc_lt_1_5s_count": int(np.sum(valid_ttc & (ttc < 1.5))),
+        "dampening_ratio": float(np.mean(norms / chain[0])) if chain[0] > 0 else float("nan"),
+        "worst_successive_ratio": float(np.nanmax(successive)) if np.isfinite(successive).any()
+        else float("nan"),
+        "collisions": int(traj.collisions),
+        "n_headway": int(headway.size),
+        "n_jerk": int(jerk.size),
+        "n_speed": int(v.size),
+    }
+
+
+def aggregate(per_event: list[dict[str, float]]) -> dict[str, float]:
+    """Metrics over several events: pooled means, event-mean ratios, summed counts."""
+    out: dict[str, float] = {}
+    for key, weight_key in _POOLED.items():
+        values = np.array([e[key] for e in per_event], float)
+        weights = np.array([e[weight_key] for e in per_event], float)
+        ok = np.isfinite(values) & (weights > 0)
+        out[key] = float(np.sum(values[ok] * weights[ok]) / np.sum(weights[ok])) if ok.any() \
+            else float("nan")
+    for key in COUNT_KEYS:
+        out[key] = int(sum(e[key] for e in per_event))
+    for key in RATIO_KEYS:
+        values = np.array([e[key] for e in per_event], float)
+        out[key] = float(np.nanmean(values)) if np.isfinite(values).any() else float("nan")
+    return {key: out[key] for key in METRIC_KEYS}
