@@ -68,7 +68,7 @@ def run_bench(sizes: tuple[int, ...] = (10, 20, 100), steps: int = 2000, rounds:
     rows = []
     for n in sizes:
         env = PlatoonEnv([cruise_event(steps + 1)], n, net_path)
-        _env_loop(env, 50)  # compile the numba kernels and warm caches
+        _env_loop(env, min(50, steps))  # compile the numba kernels and warm caches
         bare, controlled = [], []
         for _ in range(rounds):
             bare.append(_bare_loop(env, steps))

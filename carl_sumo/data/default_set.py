@@ -46,6 +46,9 @@ NGSIM_LANES_6 = 6
 WARMUP_S = 300.0
 """Simulated time before recording starts, when ``duration_s`` allows it (s)."""
 
+CONTEXT_RANGE_M = 100.0
+"""Lateral range of the context subscription around :data:`RECORD_EDGE` (m)."""
+
 MAX_EVENT_S = 60.0
 """Recorded events longer than this are cut to their first ``MAX_EVENT_S`` seconds (s)."""
 
@@ -83,44 +86,44 @@ def record_trajectories(net: Path, routes: Path, seed: int, duration_s: float,
             "--end", f"{duration_s}", "--time-to-teleport", "-1", "--collision.action", "warn"]
     libsumo.start(args)
     variables = (tc.VAR_LANE_ID, tc.VAR_LANEPOSITION, tc.VAR_SPEED, tc.VAR_ACCELERATION)
-    numbers: dict[str, int] = {}
-    lengths: dict[str, float] = {}
     lane_prefix = RECORD_EDGE + "_"
-    cols: dict[str, list] = {"vehicle": [], "frame": [], "pos_m": [], "speed_mps": [],
-                             "acc_mps2": [], "lane": []}
+    cut = len(lane_prefix)
+    numbers: dict[str, int] = {}
+    lengths: list[float] = [0.0]
+    chunks: list[np.ndarray] = []
     n_steps = int(round(duration_s / DT_S))
     first_frame = int(round(warmup_s / DT_S))
     try:
+        # Context subscription around the edge (its range is lateral, so it is generous and the
+        # vehicles are then filtered by lane id).
+        libsumo.edge.subscribeContext(RECORD_EDGE, tc.CMD_GET_VEHICLE_VARIABLE, CONTEXT_RANGE_M,
+                                      variables)
         for step in range(1, n_steps + 1):
             libsumo.simulationStep()
             for vid in libsumo.simulation.getDepartedIDList():
                 numbers[vid] = len(numbers) + 1
-                lengths[vid] = libsumo.vehicle.getLength(vid)
-                libsumo.vehicle.subscribe(vid, variables)
+                lengths.append(libsumo.vehicle.getLength(vid))
             if step < first_frame:
                 continue
-            for vid, res in libsumo.vehicle.getAllSubscriptionResults().items():
-                lane_id = res[tc.VAR_LANE_ID]
-                if not lane_id.startswith(lane_prefix):
-                    continue
-                cols["vehicle"].append(numbers[vid])
-                cols["frame"].append(step)
-                cols["pos_m"].append(res[tc.VAR_LANEPOSITION])
-                cols["speed_mps"].append(res[tc.VAR_SPEED])
-                cols["acc_mps2"].append(res[tc.VAR_ACCELERATION])
-                cols["lane"].append(NGSIM_LANES_6 - int(lane_id[len(lane_prefix):]))
+            results = libsumo.edge.getContextSubscriptionResults(RECORD_EDGE)
+            if not results:
+                continue
+            rows = [(numbers[vid], step, int(res[tc.VAR_LANE_ID][cut:]), res[tc.VAR_LANEPOSITION],
+                     res[tc.VAR_SPEED], res[tc.VAR_ACCELERATION])
+                    for vid, res in results.items() if res[tc.VAR_LANE_ID].startswith(lane_prefix)]
+            if rows:
+                chunks.append(np.array(rows, dtype=float))
     finally:
         libsumo.close()
-    length_by_number = np.zeros(len(numbers) + 1)
-    for vid, number in numbers.items():
-        length_by_number[number] = lengths[vid]
+    data = np.concatenate(chunks) if chunks else np.zeros((0, 6))
+    length_by_number = np.asarray(lengths, dtype=float)
     traj = pd.DataFrame({
-        "vehicle": np.asarray(cols["vehicle"], dtype=np.int64),
-        "frame": np.asarray(cols["frame"], dtype=np.int64),
-        "pos_m": np.asarray(cols["pos_m"], dtype=float),
-        "speed_mps": np.asarray(cols["speed_mps"], dtype=float),
-        "acc_mps2": np.asarray(cols["acc_mps2"], dtype=float),
-        "lane": np.asarray(cols["lane"], dtype=np.int64),
+        "vehicle": data[:, 0].astype(np.int64),
+        "frame": data[:, 1].astype(np.int64),
+        "pos_m": data[:, 3],
+        "speed_mps": data[:, 4],
+        "acc_mps2": data[:, 5],
+        "lane": NGSIM_LANES_6 - data[:, 2].astype(np.int64),
     })
     traj["length_m"] = length_by_number[traj["vehicle"].to_numpy()]
     traj["leader"] = _leaders_ahead(traj)

@@ -1,0 +1,198 @@
+"""The ``carl-sumo`` command line.
+
+Bad input (missing or malformed files, unknown options, events, controllers, a network too short)
+ends with one line ``carl-sumo: error: ...`` on stderr and exit status 2; nothing is half-written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+from carl_sumo.errors import InputError
+
+EXIT_BAD_INPUT = 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line and exit status 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise InputError(f"{message} (see `{self.prog} --help`)")
+
+
+def _add_common(p: argparse.ArgumentParser, split_default: str = "test") -> None:
+    p.add_argument("--net", default="networks/i80.net.xml", help="SUMO network (.net.xml)")
+    p.add_argument("--data", default="default",
+                   help="default | stop-and-go | PATH of an event table or a raw NGSIM CSV")
+    p.add_argument("--split", default=split_default, help="test | train | us101 | all")
+    p.add_argument("--vehicles", type=int, default=10, help="number of CACC followers")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="carl-sumo", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    p = sub.add_parser("simulate", help="run controllers on the events of a split; print metrics")
+    _add_common(p)
+    p.add_argument("--controller", default="idm",
+                   help="idm | krauss | idm-external | human | POLICY.pt; several with commas")
+    p.add_argument("--events", type=int, default=None, metavar="K", help="only the first K events")
+    p.add_argument("--json", type=Path, default=None, metavar="OUT", help="write metrics as JSON")
+
+    p = sub.add_parser("replay", help="run one event and write SUMO FCD output")
+    _add_common(p, split_default="all")
+    p.add_argument("--controller", default="idm")
+    p.add_argument("--event", required=True, help="event ID (stop_and_go with --data stop-and-go)")
+    p.add_argument("--fcd", type=Path, required=True, help="FCD output file (.xml)")
+
+    p = sub.add_parser("bench", help="env steps/s beside a bare libsumo loop")
+    p.add_argument("--net", default="networks/i80.net.xml")
+    p.add_argument("--sizes", default="10,20,100", help="platoon sizes, comma-separated")
+    p.add_argument("--steps", type=int, default=2000)
+    p.add_argument("--rounds", type=int, default=3)
+
+    p = sub.add_parser("net", help="network tools")
+    net_sub = p.add_subparsers(dest="net_command", required=True, parser_class=_Parser)
+    b = net_sub.add_parser("build", help="regenerate networks/i80.net.xml with netconvert")
+    b.add_argument("--config", type=Path, default=None, help="netconvert .netccfg")
+    b.add_argument("--out", type=Path, default=None)
+
+    p = sub.add_parser("data", help="leader data tools")
+    data_sub = p.add_subparsers(dest="data_command", required=True, parser_class=_Parser)
+    d = data_sub.add_parser("list", help="list the events of a split")
+    d.add_argument("--data", default="default")
+    d.add_argument("--split", default="all")
+    d = data_sub.add_parser("make-default", help="regenerate the shipped default leader set")
+    d.add_argument("--net", default="networks/i80.net.xml")
+    d.add_argument("--out", type=Path, default=None)
+    d.add_argument("--seed", type=int, default=42)
+    return parser
+
+
+def _positive(value: int, name: str) -> int:
+    if value < 1:
+        raise InputError(f"{name} must be at least 1, got {value}")
+    return value
+
+
+def _fmt(value: float) -> str:
+    if isinstance(value, int):
+        return str(value)
+    return "nan" if math.isnan(value) else f"{value:.3f}"
+
+
+def format_table(results: list[dict]) -> str:
+    from carl_sumo.metrics import METRIC_KEYS
+
+    header = ["controller", "followers", "events", *METRIC_KEYS]
+    rows = [[r["controller"], str(r["followers"]), str(len(r["events"])),
+             *(_fmt(r["metrics"][k]) for k in METRIC_KEYS)] for r in results]
+    widths = [max(len(h), *(len(row[i]) for row in rows)) for i, h in enumerate(header)]
+    line = lambda cells: "  ".join(c.rjust(w) for c, w in zip(cells, widths))  # noqa: E731
+    return "\n".join([line(header), line(["-" * w for w in widths]), *map(line, rows)])
+
+
+def _write_json_atomic(path: Path, payload: dict) -> None:
+    from carl_sumo.sumo import atomic_output
+
+    tmp = atomic_output(path)
+    tmp.write_text(json.dumps(payload, indent=2, allow_nan=True))
+    os.replace(tmp, path)
+
+
+def cmd_simulate(args: argparse.Namespace) -> None:
+    from carl_sumo.data import load_events
+    from carl_sumo.simulate import resolve_controller, simulate
+
+    _positive(args.vehicles, "--vehicles")
+    if args.events is not None:
+        _positive(args.events, "--events")
+    names = [c.strip() for c in args.controller.split(",") if c.strip()]
+    for name in names:
+        resolve_controller(name)  # fail on a bad controller before any simulation runs
+    events = load_events(args.data, args.split, limit=args.events)
+    start = time.perf_counter()
+    results = [simulate(name, events, args.vehicles, args.net, progress=sys.stderr.isatty())
+               for name in names]
+    print(format_table(results))
+    print(f"{len(events)} events of split {args.split} of {args.data}, "
+          f"{time.perf_counter() - start:.1f} s")
+    if args.json is not None:
+        payload = {k: results[0][k] for k in ("metrics", "events", "controller", "followers")} \
+            if len(results) == 1 else {"controllers": {r["controller"]: r for r in results}}
+        _write_json_atomic(args.json, payload)
+
+
+def cmd_replay(args: argparse.Namespace) -> None:
+    from carl_sumo.data import load_events
+    from carl_sumo.simulate import replay
+
+    _positive(args.vehicles, "--vehicles")
+    (event,) = load_events(args.data, args.split, event_ids=[args.event])
+    metrics = replay(args.controller, event, args.vehicles, args.fcd, args.net)
+    print(f"wrote {args.fcd}: event {event.event_id}, {args.vehicles} followers, "
+          f"{event.duration_s:.1f} s, controller {args.controller}")
+    print(", ".join(f"{k}={_fmt(v)}" for k, v in metrics.items() if not k.startswith("n_")
+                    and k != "event_id"))
+
+
+def cmd_bench(args: argparse.Namespace) -> None:
+    from carl_sumo.bench import format_bench, run_bench
+
+    try:
+        sizes = tuple(_positive(int(s), "--sizes") for s in args.sizes.split(","))
+    except ValueError:
+        raise InputError(f"--sizes must be integers separated by commas, got {args.sizes!r}")
+    rows = run_bench(sizes, _positive(args.steps, "--steps"), _positive(args.rounds, "--rounds"),
+                     args.net)
+    print(format_bench(rows))
+
+
+def cmd_net(args: argparse.Namespace) -> None:
+    from carl_sumo.network import NET_FILE, NET_SOURCES, build_network
+
+    out = build_network(args.config or NET_SOURCES, args.out or NET_FILE)
+    print(f"wrote {out}")
+
+
+def cmd_data(args: argparse.Namespace) -> None:
+    if args.data_command == "list":
+        from carl_sumo.data import load_events
+
+        for e in load_events(args.data, args.split):
+            print(f"{e.event_id}\t{e.source}\t{e.duration_s:.1f} s\t"
+                  f"mean leader speed {e.leader_speed_mps.mean():.2f} m/s")
+    else:
+        from carl_sumo.data import DEFAULT_EVENTS
+        from carl_sumo.data.default_set import make_default_set
+
+        out = args.out or DEFAULT_EVENTS
+        table = make_default_set(Path(args.net), Path(out), seed=args.seed)
+        print(f"wrote {out}: {table['event_id'].nunique()} events")
+
+
+COMMANDS = {"simulate": cmd_simulate, "replay": cmd_replay, "bench": cmd_bench, "net": cmd_net,
+            "data": cmd_data}
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        args = build_parser().parse_args(argv)
+        COMMANDS[args.command](args)
+    except InputError as exc:
+        print(f"carl-sumo: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("carl-sumo: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,117 @@
+"""Running controllers on events and scoring them: what ``carl-sumo simulate`` and ``replay`` do.
+
+Controllers by name:
+
+- ``idm`` / ``krauss``: SUMO's native car-following models drive the followers;
+- ``idm-external``: IDM computed in Python and applied through libsumo (a_adj = 0);
+- ``human``: the recorded NGSIM follower of each event (one follower), scored the same way;
+- a path to a policy file (``.pt``): a learned a_adj on top of IDM (:mod:`carl_sumo.policy`).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from carl_sumo.controllers import Controller, ZeroAdjustment, total_acceleration
+from carl_sumo.data.events import Event
+from carl_sumo.errors import InputError
+from carl_sumo.metrics import PlatoonTrajectory, aggregate, score_event
+from carl_sumo.sumo import DEFAULT_NET, PlatoonSim, atomic_output, close_sumo
+
+NATIVE_CONTROLLERS = {"idm": "idm", "krauss": "krauss"}
+BUILTIN_CONTROLLERS = ("idm", "krauss", "idm-external", "human")
+
+
+def resolve_controller(name: str) -> tuple[str, Controller | None]:
+    """(follower model, controller) of a controller name or policy path; InputError if unknown."""
+    if name in NATIVE_CONTROLLERS:
+        return NATIVE_CONTROLLERS[name], None
+    if name == "idm-external":
+        return "external", ZeroAdjustment()
+    if name == "human":
+        return "human", None
+    if name.endswith(".pt") or Path(name).suffix == ".pt":
+        try:
+            from carl_sumo.policy import load_controller
+        except ImportError:
+            raise InputError(f"controller {name}: learned policies are not available in this "
+                             "version; use idm, krauss, idm-external or human") from None
+        return "external", load_controller(Path(name))
+    raise InputError(f"unknown controller {name!r}; choose one of "
+                     f"{', '.join(BUILTIN_CONTROLLERS)} or the path of a policy file (.pt)")
+
+
+def human_trajectory(event: Event) -> PlatoonTrajectory:
+    """The recorded follower of an event as a one-vehicle platoon."""
+    return PlatoonTrajectory(event.event_id, event.leader_speed_mps,
+                             event.follower_speed_mps[:, None], event.gap_m[:, None],
+                             collisions=int(np.any(event.gap_m <= 0)), dt=event.dt)
+
+
+def run_event(sim: PlatoonSim, event: Event, n_followers: int, controller: Controller | None,
+              fcd_path: Path | None = None) -> PlatoonTrajectory:
+    """Run one event in SUMO to its end or to the first collision; the trajectory."""
+    sim.reset(event, n_followers, fcd_path)
+    if controller is not None:
+        controller.reset(n_followers)
+    obs = sim.observation()
+    leader, speeds, gaps = [sim.leader_speed], [obs[:, 0]], [obs[:, 2]]
+    collisions = 0
+    while not sim.done:
+        if controller is not None:
+            sim.step(total_acceleration(obs, controller.adjustment(obs)))
+        else:
+            sim.step()
+        obs = sim.observation()
+        leader.append(sim.leader_speed)
+        speeds.append(obs[:, 0])
+        gaps.append(obs[:, 2])
+        if (obs[:, 2] <= 0.0).any():
+            collisions = int((obs[:, 2] <= 0.0).sum())
+            break
+    return PlatoonTrajectory(event.event_id, np.array(leader), np.array(speeds), np.array(gaps),
+                             collisions)
+
+
+def simulate(controller_name: str, events: Sequence[Event], n_followers: int,
+             net_path: str | Path = DEFAULT_NET, progress: bool = False) -> dict:
+    """Metrics of one controller over events: ``{"metrics": {...}, "events": [...]}``."""
+    follower_model, controller = resolve_controller(controller_name)
+    iterator = events
+    if progress:
+        from tqdm import tqdm
+
+        iterator = tqdm(events, desc=controller_name, unit="event", leave=False)
+    if follower_model == "human":
+        per_event = [score_event(human_trajectory(e)) for e in iterator]
+    else:
+        sim = PlatoonSim(net_path, follower_model)
+        per_event = [score_event(run_event(sim, e, n_followers, controller)) for e in iterator]
+    return {"controller": controller_name, "followers": 1 if follower_model == "human"
+            else n_followers, "metrics": aggregate(per_event), "events": per_event}
+
+
+def replay(controller_name: str, event: Event, n_followers: int, fcd_path: Path,
+           net_path: str | Path = DEFAULT_NET) -> dict:
+    """Run one event and write SUMO's FCD output (with acceleration and leader fields)."""
+    follower_model, controller = resolve_controller(controller_name)
+    if follower_model == "human":
+        raise InputError("the recorded human follower is not simulated, so it has no FCD output; "
+                         "choose idm, krauss, idm-external or a policy file")
+    fcd_path = Path(fcd_path)
+    tmp = atomic_output(fcd_path)
+    sim = PlatoonSim(net_path, follower_model)
+    try:
+        try:
+            traj = run_event(sim, event, n_followers, controller, fcd_path=tmp)
+        finally:
+            close_sumo()  # SUMO finishes the FCD file when the simulation closes
+        os.replace(tmp, fcd_path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return score_event(traj)

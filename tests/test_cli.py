@@ -1,0 +1,103 @@
+"""The command line end to end, and its one-line exit-2 errors on bad input."""
+
+import json
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from carl_sumo.cli import main
+
+from conftest import NET
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_simulate_prints_table_and_writes_json(capsys, tmp_path, small_table_path):
+    out_json = tmp_path / "m.json"
+    code, out, _ = run(capsys, "simulate", "--net", str(NET), "--controller", "idm",
+                       "--data", str(small_table_path), "--split", "test", "--vehicles", "3",
+                       "--json", str(out_json))
+    assert code == 0 and "headway_s" in out and "idm" in out
+    payload = json.loads(out_json.read_text())
+    assert set(payload["metrics"]) == {"headway_s", "jerk_mps3", "speed_mps", "ttc_lt_4s_count",
+                                       "ttc_lt_1_5s_count", "dampening_ratio",
+                                       "worst_successive_ratio", "collisions"}
+    assert [e["event_id"] for e in payload["events"]] == ["ev_test_0", "ev_test_1"]
+
+
+def test_simulate_several_controllers_with_human_row(capsys, small_table_path):
+    code, out, _ = run(capsys, "simulate", "--controller", "krauss,idm-external,human",
+                       "--data", str(small_table_path), "--vehicles", "2", "--events", "1")
+    assert code == 0
+    assert [line.split()[0] for line in out.splitlines()[2:5]] == ["krauss", "idm-external",
+                                                                     "human"]
+
+
+def test_replay_writes_fcd_with_acceleration_and_leader(capsys, tmp_path, small_table_path):
+    fcd = tmp_path / "out.xml"
+    code, out, _ = run(capsys, "replay", "--controller", "idm-external", "--event", "ev_test_1",
+                       "--data", str(small_table_path), "--vehicles", "2", "--fcd", str(fcd))
+    assert code == 0, out
+    steps = ET.parse(fcd).getroot().findall("timestep")
+    assert len(steps) >= 199
+    vehicles = {v.get("id"): v for v in steps[50].findall("vehicle")}
+    assert set(vehicles) == {"leader", "f0", "f1"}
+    assert vehicles["f1"].get("leaderID") == "f0" and vehicles["f1"].get("acceleration") is not None
+    assert float(vehicles["f0"].get("leaderGap")) > 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["events.csv", "out.xml"]
+
+
+def bad_cases(tmp_path: Path, table: Path):
+    nan = tmp_path / "nan.csv"
+    pd.read_csv(table).assign(gap_m=lambda t: t.gap_m.where(t.index != 3)).to_csv(nan, index=False)
+    cols = tmp_path / "cols.csv"
+    pd.read_csv(table).drop(columns=["leader_speed_mps"]).to_csv(cols, index=False)
+    malformed = tmp_path / "bad.csv.gz"
+    malformed.write_bytes(b"\x1f\x8bxx")
+    bad_net = tmp_path / "bad.net.xml"
+    bad_net.write_text("<net><edge id='x'")
+    sim = ["simulate", "--vehicles", "2", "--data", str(table)]
+    return {
+        "missing data file": (["simulate", "--data", str(tmp_path / "none.csv")], "does not exist"),
+        "malformed data": (["simulate", "--data", str(malformed)], "not a readable CSV"),
+        "missing columns": (["simulate", "--data", str(cols)], "lacks the column"),
+        "nan": (["simulate", "--data", str(nan)], "NaN"),
+        "unknown controller": (sim + ["--controller", "pid"], "unknown controller"),
+        "unknown event": (["replay", "--data", str(table), "--event", "nope", "--fcd",
+                           str(tmp_path / "x.xml")], "unknown event"),
+        "missing network": (sim + ["--net", str(tmp_path / "none.net.xml")], "does not exist"),
+        "invalid network": (sim + ["--net", str(bad_net)], "not a valid SUMO network"),
+        "too short": (sim + ["--vehicles", "600"], "too short"),
+        "unknown option": (["simulate", "--speed", "3"], "unrecognized arguments"),
+        "unknown split": (sim + ["--split", "dev"], "unknown split"),
+        "zero vehicles": (sim + ["--vehicles", "0"], "at least 1"),
+    }
+
+
+CASES = ["missing data file", "malformed data", "missing columns", "nan", "unknown controller",
+         "unknown event", "missing network", "invalid network", "too short", "unknown option",
+         "unknown split", "zero vehicles"]
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_bad_input_one_line_exit_2(capsys, tmp_path, small_table_path, case):
+    argv, message = bad_cases(tmp_path, small_table_path)[case]
+    before = sorted(p.name for p in tmp_path.iterdir())
+    code, out, err = run(capsys, *argv)
+    assert code == 2
+    assert len(err.strip().splitlines()) == 1 and message in err, err
+    assert err.startswith("carl-sumo: error: ")
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing written
+
+
+def test_bench_reports_ratio(capsys):
+    code, out, _ = run(capsys, "bench", "--sizes", "2", "--steps", "30", "--rounds", "1")
+    assert code == 0 and "bare steps/s" in out
+    ratio = float(out.strip().splitlines()[-1].split()[-1].rstrip("x"))
+    assert ratio > 0

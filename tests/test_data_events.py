@@ -1,0 +1,86 @@
+import numpy as np
+import pandas as pd
+import pytest
+
+from carl_sumo.data import load_events, load_table
+from carl_sumo.data.events import events_from_table, select_split
+from carl_sumo.data.synthetic import stop_and_go_event
+from carl_sumo.errors import InputError
+
+
+def test_table_round_trip_and_positions_integrate_speed(small_table_path, small_events):
+    events = load_events(small_table_path, "all")
+    assert [e.event_id for e in events] == [e.event_id for e in small_events]
+    e, ref = events[0], small_events[0]
+    assert np.allclose(e.leader_speed_mps, ref.leader_speed_mps)
+    assert np.allclose(np.diff(e.leader_pos_m), e.leader_speed_mps[1:] * 0.1)
+    assert e.initial_gap_m == 20.0 and e.initial_speed_mps == 12.0
+
+
+def test_splits(small_table_path):
+    assert [e.event_id for e in load_events(small_table_path, "test")] == ["ev_test_0", "ev_test_1"]
+    assert [e.event_id for e in load_events(small_table_path, "train")] == ["ev_train_0"]
+    with pytest.raises(InputError, match="no events"):
+        load_events(small_table_path, "us101")
+    with pytest.raises(InputError, match="unknown split"):
+        load_events(small_table_path, "validation")
+    assert len(load_events(small_table_path, "test", limit=1)) == 1
+
+
+def test_positions_used_when_given(small_table_path):
+    table = pd.read_csv(small_table_path)
+    table["leader_pos_m"] = 100.0 + table["t_s"] * 3.0
+    (e,) = events_from_table(table[table.event_id == "ev_test_0"])
+    assert np.allclose(e.leader_pos_m, table[table.event_id == "ev_test_0"].t_s * 3.0)
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda t: t.drop(columns=["gap_m"]), "lacks the column"),
+    (lambda t: t.assign(leader_speed_mps=t.leader_speed_mps.where(t.index != 5)), "NaN"),
+    (lambda t: t.assign(gap_m="x"), "non-numeric"),
+    (lambda t: t.assign(t_s=t.t_s * 2), "not sampled every"),
+])
+def test_bad_tables(tmp_path, small_table_path, mutate, message):
+    bad = tmp_path / "bad.csv"
+    mutate(pd.read_csv(small_table_path)).to_csv(bad, index=False)
+    with pytest.raises(InputError, match=message):
+        load_events(bad, "all")
+
+
+def test_missing_and_malformed_files(tmp_path):
+    with pytest.raises(InputError, match="does not exist"):
+        load_table(tmp_path / "nope.csv")
+    garbage = tmp_path / "garbage.csv.gz"
+    garbage.write_bytes(b"\x1f\x8b not really gzip")
+    with pytest.raises(InputError, match="not a readable CSV"):
+        load_table(garbage)
+
+
+def test_unknown_event(small_table_path):
+    with pytest.raises(InputError, match="unknown event"):
+        load_events(small_table_path, "all", event_ids=["nope"])
+
+
+def test_stop_and_go_brakes_repeatedly_to_near_standstill():
+    e = stop_and_go_event()
+    v = e.leader_speed_mps
+    assert v.max() == pytest.approx(25.0) and v.min() <= 1.0
+    stops = np.sum((v[1:] <= 1.0) & (v[:-1] > 1.0))
+    assert stops == 3
+    assert np.diff(v).min() / 0.1 == pytest.approx(-5.0)
+    assert load_events("stop-and-go")[0].event_id == "stop_and_go"
+
+
+def test_default_set_ships_train_and_test():
+    test, train = load_events("default", "test"), load_events("default", "train")
+    assert len(test) >= 10 and len(train) >= 20
+    assert {e.source for e in test} == {"carl_sumo_default_test"}
+
+
+def test_shared_ngsim_protocol_splits(ngsim_dir):
+    table = load_table(ngsim_dir / "ngsim_cf_events.csv.gz")
+    test = select_split(table, "test")
+    assert test.event_id.nunique() == 403 and set(test.source) == {"zhu2020_testset"}
+    train = select_split(table, "train")
+    assert set(train.site) == {"i-80"} and train.event_id.nunique() == 1176 - 403
+    assert select_split(table, "us101").event_id.nunique() == 165

@@ -1,0 +1,49 @@
+import numpy as np
+from pettingzoo.test import parallel_api_test
+
+from carl_sumo.config import ControlBounds
+from carl_sumo.env import PlatoonEnv
+
+from conftest import NET, braking_event
+
+
+def test_pettingzoo_parallel_api():
+    env = PlatoonEnv([braking_event()], n_followers=3, net_path=NET)
+    parallel_api_test(env, num_cycles=60)
+
+
+def test_any_platoon_length_and_episode_end():
+    for n in (1, 7):
+        env = PlatoonEnv([braking_event(n=60)], n_followers=n, net_path=NET)
+        obs, infos = env.reset(seed=1)
+        assert len(obs) == n and obs["cacc_0"].shape == (4,)
+        steps = 0
+        while env.agents:
+            obs, rewards, terms, truncs, infos = env.step(
+                {a: np.zeros(1, np.float32) for a in env.agents})
+            steps += 1
+        assert steps == 59 and all(truncs.values()) and not any(terms.values())
+
+
+def test_collision_terminates_with_penalty():
+    # an adjustment large enough to override IDM's braking drives the head into the leader
+    env = PlatoonEnv([braking_event(gap=3.0)], n_followers=2, net_path=NET,
+                     bounds=ControlBounds(adj_max_mps2=1e12))
+    env.reset(seed=0)
+    done = False
+    for _ in range(100):
+        obs, rewards, terms, truncs, _ = env.step({a: np.array([1e11], np.float32)
+                                                  for a in env.agents})
+        if any(terms.values()):
+            done = True
+            break
+    assert done and min(rewards.values()) < -50.0 and env.agents == []
+
+
+def test_adjustment_changes_the_applied_acceleration():
+    env = PlatoonEnv([braking_event()], n_followers=2, net_path=NET)
+    env.reset_array(seed=0)
+    _, _, _, _, a_zero = env.step_array(np.zeros(2))
+    env.reset_array(seed=0)
+    _, _, _, _, a_adj = env.step_array(np.array([0.5, -0.5]))
+    assert np.allclose(a_adj - a_zero, [0.5, -0.5])

@@ -1,0 +1,87 @@
+"""The SUMO coupling: exact leader replay, exact application of accelerations, native models."""
+
+import numpy as np
+import pytest
+
+from carl_sumo.config import DT_S
+from carl_sumo.controllers import ZeroAdjustment, total_acceleration
+from carl_sumo.data.synthetic import stop_and_go_event
+from carl_sumo.errors import InputError
+from carl_sumo.simulate import run_event
+from carl_sumo.sumo import PlatoonSim, lane_route
+
+from conftest import NET, braking_event
+
+
+def test_leader_replays_recording_within_1cm():
+    import libsumo
+
+    event = stop_and_go_event()
+    sim = PlatoonSim(NET, "idm")
+    sim.reset(event, 3)
+    worst_pos, worst_speed, lanes = 0.0, 0.0, set()
+    while not sim.done:
+        sim.step()
+        recorded = sim._leader_offset + event.leader_pos_m[sim.k]
+        worst_pos = max(worst_pos, abs(sim.leader_sumo_position() - recorded))
+        worst_speed = max(worst_speed, abs(sim.leader_sumo_speed() - event.leader_speed_mps[sim.k]))
+        lanes.add(libsumo.vehicle.getLaneID("leader"))
+    assert worst_pos < 0.01 and worst_speed < 1e-9
+    assert len(lanes) == 3  # the leader crossed the merge onto the main edge
+
+
+def test_external_acceleration_applied_exactly_and_lane_kept():
+    import libsumo
+
+    sim = PlatoonSim(NET, "external")
+    sim.reset(braking_event(), 3)
+    rng = np.random.default_rng(0)
+    lane0 = [libsumo.vehicle.getLaneIndex(v) for v in sim.ids]
+    for _ in range(150):
+        v, x = sim.speed.copy(), sim.pos.copy()
+        accel = rng.uniform(-4.0, 3.0, size=3)
+        sim.step(accel)
+        v_next = np.maximum(v + accel * DT_S, 0.0)
+        assert np.allclose(sim.speed, v_next, atol=1e-9)
+        assert np.allclose(sim.pos, x + v_next * DT_S, atol=1e-6)
+    # hard braking to standstill: speed stays at 0, never negative
+    for _ in range(40):
+        sim.step(np.full(3, -9.0))
+    assert np.all(sim.speed == 0.0)
+    lanes = [libsumo.vehicle.getLaneID(v) for v in sim.ids]
+    assert all(lane.endswith("_4") or lane.endswith("_5") for lane in lanes)
+    assert lane0 == [4, 4, 4]
+
+
+def test_idm_external_matches_native_idm():
+    event = braking_event(n=300)
+    native = run_event(PlatoonSim(NET, "idm"), event, 5, None)
+    external = run_event(PlatoonSim(NET, "external"), event, 5, ZeroAdjustment())
+    assert np.abs(native.speed - external.speed).max() < 1e-4
+    assert np.abs(native.gap - external.gap).max() < 1e-3
+
+
+def test_followers_start_at_recorded_speed_and_gap():
+    event = braking_event(v0=11.0, gap=17.0)
+    sim = PlatoonSim(NET, "krauss")
+    sim.reset(event, 4)
+    obs = sim.observation()
+    assert np.allclose(obs[:, 0], 11.0) and np.allclose(obs[:, 2], 17.0)
+
+
+def test_krauss_native_runs_without_collision():
+    traj = run_event(PlatoonSim(NET, "krauss"), braking_event(), 4, None)
+    assert traj.collisions == 0 and traj.speed.shape == (200, 4)
+
+
+def test_too_short_network_is_refused():
+    sim = PlatoonSim(NET, "external")
+    long_event = braking_event(n=200)
+    object.__setattr__(long_event, "leader_pos_m", long_event.leader_pos_m * 100.0)
+    with pytest.raises(InputError, match="too short"):
+        sim.reset(long_event, 10)
+
+
+def test_lane_that_does_not_exist_is_refused():
+    with pytest.raises(InputError, match="NGSIM lane 7"):
+        lane_route(NET, ngsim_lane=7)
