@@ -51,6 +51,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--event", required=True, help="event ID (stop_and_go with --data stop-and-go)")
     p.add_argument("--fcd", type=Path, required=True, help="FCD output file (.xml)")
 
+    p = sub.add_parser("train", help="train a CA-RL (or baseline) agent inside SUMO")
+    _add_common(p, split_default="train")
+    p.add_argument("--algo", default="ca-td3", help="ca-td3 | ca-ddpg | td3 | ddpg | maddpg")
+    p.add_argument("--steps", type=int, default=20_000, help="vector steps (all envs at once)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--envs", type=int, default=2, help="parallel SUMO worker processes")
+    p.add_argument("--learning-starts", type=int, default=1_000)
+    p.add_argument("--eval-every", type=int, default=2_000)
+    p.add_argument("--checkpoint-every", type=int, default=5_000)
+    p.add_argument("--out", type=Path, default=None, help="policy file (default policies/ALGO.pt)")
+    p.add_argument("--resume", type=Path, default=None, help="checkpoint (.ckpt) to continue")
+
     p = sub.add_parser("bench", help="env steps/s beside a bare libsumo loop")
     p.add_argument("--net", default="networks/i80.net.xml")
     p.add_argument("--sizes", default="10,20,100", help="platoon sizes, comma-separated")
@@ -142,6 +154,29 @@ def cmd_replay(args: argparse.Namespace) -> None:
                     and k != "event_id"))
 
 
+def cmd_train(args: argparse.Namespace) -> None:
+    from carl_sumo.agents import ALGOS
+    from carl_sumo.data import load_events
+    from carl_sumo.train import TrainConfig, train
+
+    if args.algo not in ALGOS:
+        raise InputError(f"unknown algorithm {args.algo!r}; choose one of {', '.join(ALGOS)}")
+    for name in ("vehicles", "steps", "envs", "eval_every", "checkpoint_every"):
+        _positive(getattr(args, name), "--" + name.replace("_", "-"))
+    events = load_events(args.data, args.split)
+    out = args.out or Path("policies") / f"{args.algo.replace('-', '_')}.pt"
+    cfg = TrainConfig(algo=args.algo, n_vehicles=args.vehicles, steps=args.steps, seed=args.seed,
+                      num_envs=args.envs, learning_starts=args.learning_starts,
+                      eval_every=args.eval_every, checkpoint_every=args.checkpoint_every,
+                      net=args.net, data=args.data, split=args.split, out=str(out),
+                      command="carl-sumo " + " ".join(sys.argv[1:]))
+    result = train(cfg, events, resume=args.resume, progress=sys.stderr.isatty())
+    val = result["validation"]
+    print(f"wrote {out} (best validation score {result['best_score']:.4f}); "
+          f"wall time {result['wall_time_s']:.0f} s; last validation: "
+          + ", ".join(f"{k}={_fmt(v)}" for k, v in val.items()))
+
+
 def cmd_bench(args: argparse.Namespace) -> None:
     from carl_sumo.bench import format_bench, run_bench
 
@@ -177,7 +212,7 @@ def cmd_data(args: argparse.Namespace) -> None:
         print(f"wrote {out}: {table['event_id'].nunique()} events")
 
 
-COMMANDS = {"simulate": cmd_simulate, "replay": cmd_replay, "bench": cmd_bench, "net": cmd_net,
+COMMANDS = {"simulate": cmd_simulate, "train": cmd_train, "replay": cmd_replay, "bench": cmd_bench, "net": cmd_net,
             "data": cmd_data}
 
 

@@ -55,9 +55,9 @@ def human_trajectory(event: Event) -> PlatoonTrajectory:
 def run_event(sim: PlatoonSim, event: Event, n_followers: int, controller: Controller | None,
               fcd_path: Path | None = None) -> PlatoonTrajectory:
     """Run one event in SUMO to its end or to the first collision; the trajectory."""
-    sim.reset(event, n_followers, fcd_path)
     if controller is not None:
         controller.reset(n_followers)
+    sim.reset(event, n_followers, fcd_path)
     obs = sim.observation()
     leader, speeds, gaps = [sim.leader_speed], [obs[:, 0]], [obs[:, 2]]
     collisions = 0

@@ -49,8 +49,12 @@ WARMUP_S = 300.0
 CONTEXT_RANGE_M = 100.0
 """Lateral range of the context subscription around :data:`RECORD_EDGE` (m)."""
 
-MAX_EVENT_S = 60.0
-"""Recorded events longer than this are cut to their first ``MAX_EVENT_S`` seconds (s)."""
+MAX_EVENT_S = 30.0
+"""Recorded events longer than this are cut to their first ``MAX_EVENT_S`` seconds (s); keeps the
+shipped file small (the median NGSIM event lasts about 31 s)."""
+
+CONGESTED_MAX_MPS = 15.0
+"""Events are chosen among those with a mean follower speed up to this (m/s), if there are enough."""
 
 
 def _close_running() -> None:
@@ -153,20 +157,25 @@ def _truncate(events: pd.DataFrame, max_samples: int) -> pd.DataFrame:
     return events[index < max_samples]
 
 
-def select_events(events: pd.DataFrame, max_events: int) -> list[str]:
+def select_events(events: pd.DataFrame, max_events: int,
+                  max_mean_speed_mps: float = CONGESTED_MAX_MPS) -> list[str]:
     """Deterministic choice of at most ``max_events`` event ids with variety.
 
-    One event per follower (its longest) where possible, then events evenly spaced in the order of
-    their mean follower speed, so slow, stop-and-go and faster events are all represented.
-    Returned in that speed order.
+    Candidates are the congested events (mean follower speed <= ``max_mean_speed_mps``, m/s), or all
+    events when there are fewer than ``max_events`` of those; one event per follower (its longest)
+    where that still leaves enough. The choice is evenly spaced in the order of mean follower speed,
+    so stop-and-go, slow and faster events (and so all lanes) are represented. Returned in that
+    speed order.
     """
     summary = events.groupby("event_id", sort=True).agg(
         follower=("follower_id", "first"), n=("t_s", "size"),
-        speed=("follower_speed_mps", "mean"), lane=("lane", "first"))
-    summary = summary.reset_index()
-    by_follower = (summary.sort_values(["follower", "n", "event_id"], ascending=[True, False, True])
+        speed=("follower_speed_mps", "mean")).reset_index()
+    congested = summary[summary["speed"] <= max_mean_speed_mps]
+    pool = congested if len(congested) >= max_events else summary
+    by_follower = (pool.sort_values(["follower", "n", "event_id"], ascending=[True, False, True])
                    .drop_duplicates("follower"))
-    pool = by_follower if len(by_follower) >= max_events else summary
+    if len(by_follower) >= max_events:
+        pool = by_follower
     pool = pool.sort_values(["speed", "event_id"]).reset_index(drop=True)
     if len(pool) > max_events:
         picks = np.unique(np.round(np.linspace(0, len(pool) - 1, max_events)).astype(int))
@@ -204,8 +213,8 @@ def make_default_set(net: Path, out: Path, seed: int = 42, duration_s: float = 1
     """Simulate congested human traffic, extract car-following events and write them to ``out``.
 
     ``duration_s``: simulated time (s), of which the first ``warmup_s`` (default: 300 s, at most a
-    quarter of ``duration_s``) is not recorded. Events are cut to ``max_event_s`` (s); at most
-    ``max_events`` are kept (see :func:`select_events`). Every third of them, in order of mean
+    quarter of ``duration_s``) is not recorded. Events are cut to their first ``max_event_s``
+    seconds; at most ``max_events`` are kept (see :func:`select_events`). Every third of them, in order of mean
     speed, gets source ``carl_sumo_default_test``, the others ``carl_sumo_default_train``; site
     ``i80-sumo``, period ``sumo-seed{seed}``. Returns the written event table.
 

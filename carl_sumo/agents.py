@@ -1,0 +1,186 @@
+"""DDPG-family agents over platoon tensors: CA-TD3, CA-DDPG, TD3, DDPG and MADDPG.
+
+Every agent acts on a platoon observation tensor (batch, n, 4) with a mask of real vehicles and
+outputs a_adj per vehicle, bounded to ±``adj_max`` by tanh. Critics give one Q per vehicle, trained
+on that vehicle's reward; losses average over real vehicles only.
+
+| algo | actor | critic | trained on |
+|---|---|---|---|
+| ``ca-td3``, ``ca-ddpg`` | CommunicationAware (shared weights) | CommunicationAware, own messages | 10 vehicles, runs any length |
+| ``td3``, ``ddpg`` | PerVehicle MLP on o_i | PerVehicle MLP on (o_i, a_i) | 1 vehicle, runs any length |
+| ``maddpg`` | one MLP per vehicle | central critic on all (o, a) | a fixed length only |
+
+TD3 (Fujimoto et al. 2018) adds twin critics, target policy smoothing and delayed actor updates.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from carl_sumo.errors import InputError
+from carl_sumo.models import CentralCritic, CommunicationAware, PerAgentActors, PerVehicle
+
+ALGOS = ("ca-td3", "ca-ddpg", "td3", "ddpg", "maddpg")
+
+OBS_SCALE = (20.0, 3.0, 50.0, 5.0)
+"""Observations [v (m/s), a (m/s²), d (m), Δv (m/s)] are divided by these before the networks."""
+
+GAP_CLIP_M = 150.0
+"""Gaps above this are seen as this (m): beyond it a follower is effectively free."""
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    """Hyper-parameters of an agent (stored in every policy file)."""
+
+    algo: str = "ca-td3"
+    n_vehicles: int = 10          # platoon length trained on (MADDPG: the only one it runs)
+    message_dim: int = 16         # width of a V2V message (CA models)
+    hidden: int = 64              # hidden layer width
+    adj_max: float = 3.0          # |a_adj| bound (m/s²)
+    gamma: float = 0.98
+    tau: float = 0.005            # target network soft-update rate
+    actor_lr: float = 3e-4
+    critic_lr: float = 1e-3
+    batch_size: int = 128
+    policy_delay: int = 2         # TD3: actor update every this many critic updates
+    target_noise: float = 0.2     # TD3: target policy smoothing noise (fraction of adj_max)
+    target_noise_clip: float = 0.5
+    exploration_noise: float = 0.2  # Gaussian action noise during training (fraction of adj_max)
+
+    def __post_init__(self) -> None:
+        if self.algo not in ALGOS:
+            raise InputError(f"unknown algorithm {self.algo!r}; choose one of {', '.join(ALGOS)}")
+
+    @property
+    def communication_aware(self) -> bool:
+        return self.algo.startswith("ca-")
+
+    @property
+    def twin(self) -> bool:
+        return self.algo.endswith("td3")
+
+
+def normalise(obs: torch.Tensor) -> torch.Tensor:
+    """Scale observations for the networks (see OBS_SCALE, GAP_CLIP_M)."""
+    scale = torch.tensor(OBS_SCALE, dtype=obs.dtype, device=obs.device)
+    obs = torch.cat([obs[..., :2], obs[..., 2:3].clamp(max=GAP_CLIP_M), obs[..., 3:]], dim=-1)
+    return obs / scale
+
+
+def _networks(cfg: AgentConfig) -> tuple[nn.Module, nn.Module]:
+    """(actor, critic) of an algorithm; actor outputs pre-tanh, critic one Q per vehicle."""
+    if cfg.communication_aware:
+        return (CommunicationAware(4, 1, cfg.message_dim, cfg.hidden),
+                CommunicationAware(5, 1, cfg.message_dim, cfg.hidden))
+    if cfg.algo == "maddpg":
+        return (PerAgentActors(cfg.n_vehicles, 4, 1, cfg.hidden),
+                CentralCritic(cfg.n_vehicles, 5, 2 * cfg.hidden))
+    return PerVehicle(4, 1, cfg.hidden), PerVehicle(5, 1, cfg.hidden)
+
+
+class Agent(nn.Module):
+    """Actor, critic(s) and their targets for one algorithm."""
+
+    def __init__(self, cfg: AgentConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.actor, self.critic1 = _networks(cfg)
+        self.critic2 = _networks(cfg)[1] if cfg.twin else None
+        self.actor_target = copy.deepcopy(self.actor)
+        self.critic1_target = copy.deepcopy(self.critic1)
+        self.critic2_target = copy.deepcopy(self.critic2) if cfg.twin else None
+        for target in (self.actor_target, self.critic1_target, self.critic2_target):
+            if target is not None:
+                target.requires_grad_(False)
+        critic_params = list(self.critic1.parameters())
+        if self.critic2 is not None:
+            critic_params += list(self.critic2.parameters())
+        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr)
+        self.critic_opt = torch.optim.Adam(critic_params, lr=cfg.critic_lr)
+        self.updates = 0
+
+    def check_length(self, n: int) -> None:
+        if self.cfg.algo == "maddpg" and n != self.cfg.n_vehicles:
+            raise InputError(f"this MADDPG policy was trained for {self.cfg.n_vehicles} vehicles "
+                             f"and cannot run {n}: MADDPG has one actor per vehicle; use "
+                             f"--vehicles {self.cfg.n_vehicles} or a CA/DDPG/TD3 policy")
+
+    # ------------------------------------------------------------------------------ acting
+    def _act(self, actor: nn.Module, obs: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+        return self.cfg.adj_max * torch.tanh(actor(normalise(obs), mask)).squeeze(-1)
+
+    def _q(self, critic: nn.Module, obs: torch.Tensor, action: torch.Tensor,
+           mask: torch.Tensor | None) -> torch.Tensor:
+        x = torch.cat([normalise(obs), (action / self.cfg.adj_max).unsqueeze(-1)], dim=-1)
+        return critic(x, mask).squeeze(-1)
+
+    @torch.no_grad()
+    def act(self, obs: np.ndarray, noise: float = 0.0, rng: np.random.Generator | None = None
+            ) -> np.ndarray:
+        """a_adj (m/s²) for platoon observations (n, 4) or a batch (b, n, 4)."""
+        single = obs.ndim == 2
+        x = torch.as_tensor(obs[None] if single else obs, dtype=torch.float32)
+        self.check_length(x.shape[1])
+        action = self._act(self.actor, x, None).numpy().astype(np.float64)
+        if noise > 0.0:
+            rng = rng or np.random.default_rng()
+            action = np.clip(action + rng.normal(0.0, noise * self.cfg.adj_max, action.shape),
+                             -self.cfg.adj_max, self.cfg.adj_max)
+        return action[0] if single else action
+
+    # ---------------------------------------------------------------------------- learning
+    def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
+        """One gradient step on a replay batch: obs, action, reward, next_obs, done, mask."""
+        cfg = self.cfg
+        obs, action, reward = batch["obs"], batch["action"], batch["reward"]
+        next_obs, done, mask = batch["next_obs"], batch["done"], batch["mask"]
+        maskf = mask.float()
+        with torch.no_grad():
+            next_action = self._act(self.actor_target, next_obs, mask)
+            if cfg.twin:
+                noise = (torch.randn_like(next_action) * cfg.target_noise * cfg.adj_max).clamp(
+                    -cfg.target_noise_clip * cfg.adj_max, cfg.target_noise_clip * cfg.adj_max)
+                next_action = (next_action + noise).clamp(-cfg.adj_max, cfg.adj_max)
+            target_q = self._q(self.critic1_target, next_obs, next_action, mask)
+            if cfg.twin:
+                target_q = torch.min(target_q, self._q(self.critic2_target, next_obs, next_action,
+                                                       mask))
+            y = reward + cfg.gamma * (1.0 - done).unsqueeze(-1) * target_q
+        loss = _masked_mse(self._q(self.critic1, obs, action, mask), y, maskf)
+        if cfg.twin:
+            loss = loss + _masked_mse(self._q(self.critic2, obs, action, mask), y, maskf)
+        self.critic_opt.zero_grad()
+        loss.backward()
+        self.critic_opt.step()
+        stats = {"critic_loss": float(loss.detach())}
+        self.updates += 1
+        if not cfg.twin or self.updates % cfg.policy_delay == 0:
+            q = self._q(self.critic1, obs, self._act(self.actor, obs, mask), mask)
+            actor_loss = -(q * maskf).sum() / maskf.sum()
+            self.actor_opt.zero_grad()
+            actor_loss.backward()
+            self.actor_opt.step()
+            stats["actor_loss"] = float(actor_loss.detach())
+            self._soft_update()
+        return stats
+
+    @torch.no_grad()
+    def _soft_update(self) -> None:
+        pairs = [(self.actor, self.actor_target), (self.critic1, self.critic1_target)]
+        if self.cfg.twin:
+            pairs.append((self.critic2, self.critic2_target))
+        for net, target in pairs:
+            for p, tp in zip(net.parameters(), target.parameters()):
+                tp.lerp_(p, self.cfg.tau)
+
+
+def _masked_mse(q: torch.Tensor, y: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    return (((q - y) ** 2) * mask).sum() / mask.sum()
+

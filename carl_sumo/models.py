@@ -1,0 +1,97 @@
+"""Neural networks of the agents (PyTorch): the Communication-Aware module and plain MLPs.
+
+All networks map a platoon tensor ``x`` of shape (batch, n, features), vehicles head first, and a
+mask (batch, n) of real vehicles to an output of shape (batch, n, out). Platoons shorter than ``n``
+are padded at the tail and masked.
+
+The Communication-Aware (CA) module passes V2V messages along the platoon with weights shared by
+all vehicles, so one set of weights runs any platoon length:
+
+- forward network, tail → head: ``F_i = f_F(x_i, F_{i+1})``, the last vehicle receives ``F_bound``;
+- backward network, head → tail: ``(B_i, y_i) = f_B(F_i, B_{i-1})``, the first vehicle receives
+  ``B_bound``. ``y_i`` is the output (an action, or a Q-value for a critic).
+
+Both boundary messages are learned vectors.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+
+def mlp(sizes: list[int], activation: type[nn.Module] = nn.ReLU) -> nn.Sequential:
+    """Linear layers with ``activation`` between them (none after the last)."""
+    layers: list[nn.Module] = []
+    for i in range(len(sizes) - 1):
+        layers.append(nn.Linear(sizes[i], sizes[i + 1]))
+        if i < len(sizes) - 2:
+            layers.append(activation())
+    return nn.Sequential(*layers)
+
+
+class CommunicationAware(nn.Module):
+    """Forward-then-backward message passing along a platoon (see the module docstring)."""
+
+    def __init__(self, in_dim: int, out_dim: int, message_dim: int = 16, hidden: int = 64):
+        super().__init__()
+        self.message_dim = message_dim
+        self.forward_net = nn.Sequential(mlp([in_dim + message_dim, hidden, hidden, message_dim]),
+                                         nn.Tanh())
+        self.backward_net = mlp([message_dim + message_dim, hidden, hidden, message_dim + out_dim])
+        self.forward_boundary = nn.Parameter(torch.zeros(message_dim))
+        self.backward_boundary = nn.Parameter(torch.zeros(message_dim))
+
+    def forward(self, x: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        batch, n, _ = x.shape
+        if mask is None:
+            mask = torch.ones(batch, n, dtype=torch.bool, device=x.device)
+        m = mask.unsqueeze(-1)
+        message = self.forward_boundary.expand(batch, -1)
+        forward_messages: list[torch.Tensor] = [message] * n
+        for i in range(n - 1, -1, -1):  # tail -> head
+            new = self.forward_net(torch.cat([x[:, i], message], dim=-1))
+            message = torch.where(m[:, i], new, self.forward_boundary.expand(batch, -1))
+            forward_messages[i] = message
+        message = self.backward_boundary.expand(batch, -1)
+        outputs: list[torch.Tensor] = []
+        for i in range(n):  # head -> tail
+            out = self.backward_net(torch.cat([forward_messages[i], message], dim=-1))
+            message = torch.tanh(out[:, : self.message_dim])
+            outputs.append(out[:, self.message_dim:])
+        return torch.stack(outputs, dim=1)
+
+
+class PerVehicle(nn.Module):
+    """The same MLP applied to every vehicle independently (DDPG/TD3: no communication)."""
+
+    def __init__(self, in_dim: int, out_dim: int, hidden: int = 64):
+        super().__init__()
+        self.net = mlp([in_dim, hidden, hidden, out_dim])
+
+    def forward(self, x: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        return self.net(x)
+
+
+class PerAgentActors(nn.Module):
+    """MADDPG actors: one MLP per vehicle position, for a fixed platoon length."""
+
+    def __init__(self, n_vehicles: int, in_dim: int, out_dim: int, hidden: int = 64):
+        super().__init__()
+        self.n_vehicles = n_vehicles
+        self.nets = nn.ModuleList(mlp([in_dim, hidden, hidden, out_dim]) for _ in range(n_vehicles))
+
+    def forward(self, x: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        return torch.stack([net(x[:, i]) for i, net in enumerate(self.nets)], dim=1)
+
+
+class CentralCritic(nn.Module):
+    """MADDPG critic: every vehicle's Q from all observations and actions of the platoon."""
+
+    def __init__(self, n_vehicles: int, in_dim: int, hidden: int = 128):
+        super().__init__()
+        self.n_vehicles = n_vehicles
+        self.net = mlp([n_vehicles * in_dim, hidden, hidden, n_vehicles])
+
+    def forward(self, x: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        return self.net(x.reshape(x.shape[0], -1)).unsqueeze(-1)

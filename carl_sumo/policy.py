@@ -1,0 +1,98 @@
+"""Policy files: a trained actor with its metadata, loadable with ``torch.load(weights_only=True)``.
+
+A policy file is a dict: ``format`` ("carl-sumo-policy"), ``format_version``, ``agent_config``
+(:class:`carl_sumo.agents.AgentConfig` as a dict), ``actor`` (state dict) and ``metadata``
+(algorithm, platoon length trained on, observation and reward settings, data and split, SUMO and
+package versions, training command, validation metrics). Files are written atomically.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from carl_sumo.agents import AgentConfig, Agent
+from carl_sumo.errors import InputError
+from carl_sumo.sumo import atomic_output
+
+FORMAT = "carl-sumo-policy"
+FORMAT_VERSION = 1
+
+
+def save_torch_atomic(payload: dict[str, Any], path: Path) -> None:
+    """torch.save to a temporary file beside ``path``, then rename: never a half-written file."""
+    path = Path(path)
+    tmp = atomic_output(path)
+    try:
+        torch.save(payload, tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def load_torch(path: Path, what: str) -> dict[str, Any]:
+    """torch.load(weights_only=True) with one clear InputError for missing or corrupt files."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{what} {path} does not exist; give the path of a file written by "
+                         "`carl-sumo train`")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        raise InputError(f"{what} {path} is corrupt or not a PyTorch file ({type(exc).__name__}); "
+                         "retrain it or restore it from git") from exc
+    if not isinstance(payload, dict):
+        raise InputError(f"{what} {path} is not a carl-sumo file (no metadata dict)")
+    return payload
+
+
+def save_policy(agent: Agent, path: Path, metadata: dict[str, Any]) -> None:
+    payload = {"format": FORMAT, "format_version": FORMAT_VERSION,
+               "agent_config": asdict(agent.cfg), "actor": agent.actor.state_dict(),
+               "metadata": metadata}
+    save_torch_atomic(payload, path)
+
+
+def load_policy(path: Path) -> tuple[Agent, dict[str, Any]]:
+    """The agent (actor loaded) and metadata of a policy file; InputError if it is not one."""
+    payload = load_torch(path, "policy file")
+    if payload.get("format") != FORMAT:
+        raise InputError(f"policy file {path} is not a carl-sumo policy (format "
+                         f"{payload.get('format')!r}); give a file written by `carl-sumo train`")
+    if payload.get("format_version") != FORMAT_VERSION:
+        raise InputError(f"policy file {path} has format version {payload.get('format_version')}"
+                         f", this carl-sumo reads {FORMAT_VERSION}; retrain it")
+    try:
+        cfg = AgentConfig(**payload["agent_config"])
+        agent = Agent(cfg)
+        agent.actor.load_state_dict(payload["actor"])
+    except InputError:
+        raise
+    except Exception as exc:
+        raise InputError(f"policy file {path} does not match its own configuration "
+                         f"({type(exc).__name__}); retrain it") from exc
+    agent.eval()
+    return agent, payload.get("metadata", {})
+
+
+class PolicyController:
+    """A trained policy as a :class:`carl_sumo.controllers.Controller`."""
+
+    def __init__(self, agent: Agent, name: str):
+        self.agent, self.name = agent, name
+
+    def reset(self, n_followers: int) -> None:
+        self.agent.check_length(n_followers)
+
+    def adjustment(self, obs: np.ndarray) -> np.ndarray:
+        return self.agent.act(obs)
+
+
+def load_controller(path: Path) -> PolicyController:
+    agent, _ = load_policy(path)
+    return PolicyController(agent, str(path))

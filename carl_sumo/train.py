@@ -1,0 +1,276 @@
+"""Training inside SUMO: rollouts in parallel libsumo workers, a replay buffer of joint platoon
+transitions, DDPG/TD3-family updates, validation on held-out training events, atomic checkpoints.
+
+``carl-sumo train`` calls :func:`train`. A step is one step of every environment at once (so
+``num_envs`` platoon transitions). The validation score is the mean per-vehicle reward over the
+held-out events run without exploration noise; the best policy is the one written to ``--out``.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import random
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+
+from carl_sumo import __version__
+from carl_sumo.agents import Agent, AgentConfig
+from carl_sumo.data.events import Event
+from carl_sumo.env import PlatoonEnv
+from carl_sumo.errors import InputError
+from carl_sumo.metrics import PlatoonTrajectory, aggregate, score_event
+from carl_sumo.policy import load_torch, save_policy, save_torch_atomic
+from carl_sumo.sumo import DEFAULT_NET
+
+CHECKPOINT_FORMAT = "carl-sumo-checkpoint"
+
+
+@dataclass
+class TrainConfig:
+    """What ``carl-sumo train`` was asked to do."""
+
+    algo: str = "ca-td3"
+    n_vehicles: int = 10
+    steps: int = 20_000            # vector steps (each steps every environment once)
+    seed: int = 0
+    num_envs: int = 2
+    learning_starts: int = 1_000   # vector steps of random exploration before updates
+    updates_per_step: int = 1
+    buffer_size: int = 200_000     # platoon transitions
+    eval_every: int = 2_000        # vector steps between validations
+    eval_events: int = 8           # held-out training events used for validation
+    checkpoint_every: int = 5_000  # vector steps between checkpoints
+    net: str = str(DEFAULT_NET)
+    data: str = "default"
+    split: str = "train"
+    out: str = "policies/ca_td3.pt"
+    command: str = ""
+
+
+class ReplayBuffer:
+    """Joint platoon transitions: obs (n, 4), action (n,), reward (n,), next_obs, done."""
+
+    def __init__(self, capacity: int, n: int):
+        self.capacity, self.n, self.size, self.pos = capacity, n, 0, 0
+        self.obs = np.zeros((capacity, n, 4), np.float32)
+        self.next_obs = np.zeros((capacity, n, 4), np.float32)
+        self.action = np.zeros((capacity, n), np.float32)
+        self.reward = np.zeros((capacity, n), np.float32)
+        self.done = np.zeros(capacity, np.float32)
+
+    def add(self, obs, action, reward, next_obs, done) -> None:
+        for i in range(len(obs)):
+            p = self.pos
+            self.obs[p], self.action[p], self.reward[p] = obs[i], action[i], reward[i]
+            self.next_obs[p], self.done[p] = next_obs[i], done[i]
+            self.pos = (p + 1) % self.capacity
+            self.size = min(self.size + 1, self.capacity)
+
+    def sample(self, batch_size: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
+        idx = rng.integers(0, self.size, size=batch_size)
+        batch = {k: torch.from_numpy(getattr(self, k)[idx])
+                 for k in ("obs", "action", "reward", "next_obs", "done")}
+        batch["mask"] = torch.ones(batch_size, self.n, dtype=torch.bool)
+        return batch
+
+    def state(self) -> dict[str, Any]:
+        s = self.size
+        return {"capacity": self.capacity, "n": self.n, "size": s, "pos": self.pos,
+                **{k: torch.from_numpy(getattr(self, k)[:s].copy())
+                   for k in ("obs", "action", "reward", "next_obs", "done")}}
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any]) -> "ReplayBuffer":
+        buf = cls(int(state["capacity"]), int(state["n"]))
+        s = int(state["size"])
+        for k in ("obs", "action", "reward", "next_obs", "done"):
+            getattr(buf, k)[:s] = state[k].numpy()
+        buf.size, buf.pos = s, int(state["pos"])
+        return buf
+
+
+def split_validation(events: Sequence[Event], k: int, seed: int) -> tuple[list[Event], list[Event]]:
+    """(training events, held-out validation events): k events chosen with the seed."""
+    if len(events) < 2:
+        return list(events), list(events)
+    k = min(k, max(1, len(events) // 5))
+    order = np.random.default_rng(seed).permutation(len(events))
+    held = set(order[:k].tolist())
+    return ([e for i, e in enumerate(events) if i not in held],
+            [e for i, e in enumerate(events) if i in held])
+
+
+def validate(agent: Agent, env: PlatoonEnv, events: Sequence[Event]) -> dict[str, float]:
+    """Greedy policy on each event: mean per-vehicle reward and the paper's metrics."""
+    rewards, per_event = [], []
+    for event in events:
+        obs = env.reset_array(event=event)
+        speeds, gaps, leader = [obs[:, 0]], [obs[:, 2]], [env.sim.leader_speed]
+        collisions, done = 0, False
+        while not done:
+            obs, reward, terminated, truncated, _ = env.step_array(agent.act(obs))
+            rewards.append(reward.mean())
+            speeds.append(obs[:, 0]), gaps.append(obs[:, 2]), leader.append(env.sim.leader_speed)
+            collisions = int((obs[:, 2] <= 0).sum()) if terminated else 0
+            done = terminated or truncated
+        per_event.append(score_event(PlatoonTrajectory(event.event_id, np.array(leader),
+                                                       np.array(speeds), np.array(gaps),
+                                                       collisions)))
+    return {"val_reward": float(np.mean(rewards)), **aggregate(per_event)}
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: float) -> dict:
+    import libsumo
+
+    return {"algo": cfg.algo, "trained_vehicles": cfg.n_vehicles, "seed": cfg.seed,
+            "data": cfg.data, "split": cfg.split, "steps": cfg.steps,
+            "observation": "[v m/s, a m/s^2, d m, dv m/s]", "reward": _reward_settings(),
+            "validation": val, "wall_time_s": wall_s, "command": cfg.command,
+            "sumo_version": str(libsumo.getVersion()[1]) if hasattr(libsumo, "getVersion")
+            else "unknown", "carl_sumo_version": __version__, "torch_version": torch.__version__}
+
+
+def _reward_settings() -> dict:
+    from carl_sumo.config import REWARD
+
+    return asdict(REWARD)
+
+
+def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
+          progress: bool = True, log=print) -> dict[str, Any]:
+    """Train an agent; writes the best policy to ``cfg.out``, checkpoints and a CSV log beside it.
+
+    Returns the final validation metrics and timing.
+    """
+    from carl_sumo.vec_env import VecPlatoon
+
+    out = Path(cfg.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    ckpt_path = out.with_suffix(".ckpt")
+    log_path = out.with_suffix(".csv")
+    n = cfg.n_vehicles
+    train_events, val_events = split_validation(events, cfg.eval_events, cfg.seed)
+    torch.set_num_threads(1)  # the SUMO workers have the other cores; small nets gain nothing
+    seed_everything(cfg.seed)
+    agent = Agent(AgentConfig(algo=cfg.algo, n_vehicles=n))
+    buffer = ReplayBuffer(cfg.buffer_size, n)
+    rng = np.random.default_rng(cfg.seed)
+    start_step, best, wall_before = 0, -np.inf, 0.0
+    if resume is not None:
+        state = load_torch(resume, "checkpoint")
+        if state.get("format") != CHECKPOINT_FORMAT:
+            raise InputError(f"{resume} is not a carl-sumo training checkpoint")
+        if state["train_config"]["algo"] != cfg.algo or state["train_config"]["n_vehicles"] != n:
+            raise InputError(f"checkpoint {resume} is for {state['train_config']['algo']} with "
+                             f"{state['train_config']['n_vehicles']} vehicles; resume with the "
+                             "same --algo and --vehicles")
+        agent.load_state_dict(state["agent"])
+        agent.actor_opt.load_state_dict(state["actor_opt"])
+        agent.critic_opt.load_state_dict(state["critic_opt"])
+        agent.updates = int(state["updates"])
+        buffer = ReplayBuffer.from_state(state["buffer"])
+        rng.bit_generator.state = _decode_rng(state["numpy_rng"])
+        torch.set_rng_state(state["torch_rng"])
+        start_step, best = int(state["step"]), float(state["best"])
+        wall_before = float(state["wall_s"])
+        log(f"resumed {resume} at step {start_step}")
+    val_env = PlatoonEnv(val_events, n, cfg.net)  # also checks the network fits every event
+    vec = VecPlatoon(train_events, n, cfg.net, cfg.num_envs, cfg.seed + start_step)
+    obs = vec.reset(cfg.seed + start_step)
+    new_log = not (resume is not None and log_path.exists())
+    log_file = open(log_path, "w" if new_log else "a", newline="")
+    writer = csv.writer(log_file)
+    if new_log:
+        writer.writerow(["step", "transitions", "wall_s", "train_reward", "val_reward",
+                         "headway_s", "jerk_mps3", "speed_mps", "dampening_ratio", "collisions"])
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=cfg.steps, initial=start_step, desc=cfg.algo, unit="step",
+                   file=sys.stderr, dynamic_ncols=True)
+    t0 = time.perf_counter()
+    recent = []
+    val: dict[str, float] = {}
+    try:
+        for step in range(start_step, cfg.steps):
+            if step < cfg.learning_starts and resume is None:
+                action = rng.uniform(-agent.cfg.adj_max, agent.cfg.adj_max, (cfg.num_envs, n))
+            else:
+                action = agent.act(obs, agent.cfg.exploration_noise, rng)
+            next_obs, reward, term, trunc, final = vec.step(action)
+            buffer.add(obs, action, reward, final, term.astype(np.float32))
+            recent.append(float(reward.mean()))
+            obs = next_obs
+            if step >= cfg.learning_starts:
+                for _ in range(cfg.updates_per_step):
+                    agent.update(buffer.sample(agent.cfg.batch_size, rng))
+            done_steps = step + 1
+            if done_steps % cfg.eval_every == 0 or done_steps == cfg.steps:
+                val = validate(agent, val_env, val_events)
+                wall = wall_before + time.perf_counter() - t0
+                train_reward = float(np.mean(recent[-cfg.eval_every:])) if recent else float("nan")
+                writer.writerow([done_steps, done_steps * cfg.num_envs, f"{wall:.1f}",
+                                 f"{train_reward:.4f}", f"{val['val_reward']:.4f}",
+                                 *(f"{val[k]:.4f}" for k in ("headway_s", "jerk_mps3",
+                                                              "speed_mps", "dampening_ratio")),
+                                 val["collisions"]])
+                log_file.flush()
+                score = val["val_reward"] - 10.0 * val["collisions"]
+                if score > best:
+                    best = score
+                    save_policy(agent, out, _metadata(cfg, agent, val, wall))
+                if bar is not None:
+                    bar.set_postfix(reward=f"{train_reward:.3f}", val=f"{val['val_reward']:.3f}",
+                                    jerk=f"{val['jerk_mps3']:.3f}", coll=val["collisions"])
+            if done_steps % cfg.checkpoint_every == 0 or done_steps == cfg.steps:
+                _save_checkpoint(ckpt_path, cfg, agent, buffer, rng, done_steps, best,
+                                 wall_before + time.perf_counter() - t0)
+            if bar is not None:
+                bar.update(1)
+    finally:
+        vec.close()
+        log_file.close()
+        if bar is not None:
+            bar.close()
+    wall = wall_before + time.perf_counter() - t0
+    return {"validation": val, "wall_time_s": wall, "best_score": best}
+
+
+def _decode_rng(saved: dict) -> dict:
+    return {"bit_generator": saved["bit_generator"],
+            "state": {"state": int(saved["state_hi"]) << 64 | int(saved["state_lo"]),
+                      "inc": int(saved["inc_hi"]) << 64 | int(saved["inc_lo"])},
+            "has_uint32": int(saved["has_uint32"]), "uinteger": int(saved["uinteger"])}
+
+
+def _rng_for_save(rng: np.random.Generator) -> dict:
+    s = rng.bit_generator.state
+    state, inc = int(s["state"]["state"]), int(s["state"]["inc"])
+    mask = (1 << 64) - 1
+    return {"bit_generator": s["bit_generator"], "state_hi": state >> 64, "state_lo": state & mask,
+            "inc_hi": inc >> 64, "inc_lo": inc & mask, "has_uint32": int(s["has_uint32"]),
+            "uinteger": int(s["uinteger"])}
+
+
+def _save_checkpoint(path: Path, cfg: TrainConfig, agent: Agent, buffer: ReplayBuffer,
+                     rng: np.random.Generator, step: int, best: float, wall_s: float) -> None:
+    save_torch_atomic({"format": CHECKPOINT_FORMAT, "train_config": asdict(cfg),
+                       "agent": agent.state_dict(), "actor_opt": agent.actor_opt.state_dict(),
+                       "critic_opt": agent.critic_opt.state_dict(), "updates": agent.updates,
+                       "buffer": buffer.state(), "numpy_rng": _rng_for_save(rng),
+                       "torch_rng": torch.get_rng_state(), "step": step, "best": best,
+                       "wall_s": wall_s}, path)

@@ -1,0 +1,81 @@
+"""Platoon environments in parallel worker processes, one libsumo each (spawn), stepped together.
+
+:class:`VecPlatoon` steps ``num_envs`` :class:`carl_sumo.env.PlatoonEnv` on arrays: actions
+(num_envs, n) in, observations (num_envs, n, 4) out, so one batched policy call serves all
+environments. An environment whose episode ends is reset at once; the observation that ended it is
+returned separately (``final_obs``) for the replay buffer.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from carl_sumo.data.events import Event
+
+
+def _worker(conn, events: Sequence[Event], n: int, net_path: str, seed: int) -> None:
+    from carl_sumo.env import PlatoonEnv
+
+    env = PlatoonEnv(events, n, net_path)
+    rng_seed = seed
+    obs = env.reset_array(seed=rng_seed)
+    while True:
+        cmd, data = conn.recv()
+        if cmd == "step":
+            next_obs, reward, terminated, truncated, _ = env.step_array(data)
+            final = next_obs
+            if terminated or truncated:
+                next_obs = env.reset_array()
+            conn.send((next_obs, reward, terminated, truncated, final))
+        elif cmd == "reset":
+            conn.send(env.reset_array(seed=data))
+        elif cmd == "close":
+            conn.close()
+            return
+
+
+class VecPlatoon:
+    """``num_envs`` platoon environments in worker processes."""
+
+    def __init__(self, events: Sequence[Event], n_followers: int, net_path: str | Path,
+                 num_envs: int = 2, seed: int = 0):
+        ctx = mp.get_context("spawn")
+        self.num_envs, self.n = num_envs, n_followers
+        self._conns, self._procs = [], []
+        for i in range(num_envs):
+            parent, child = ctx.Pipe()
+            proc = ctx.Process(target=_worker, args=(child, list(events), n_followers,
+                                                     str(net_path), seed * 1000 + i), daemon=True)
+            proc.start()
+            child.close()
+            self._conns.append(parent)
+            self._procs.append(proc)
+
+    def reset(self, seed: int) -> np.ndarray:
+        for i, conn in enumerate(self._conns):
+            conn.send(("reset", seed * 1000 + i))
+        return np.stack([conn.recv() for conn in self._conns])
+
+    def step(self, actions: np.ndarray):
+        """Step every env; (obs, rewards, terminated, truncated, final_obs) stacked over envs."""
+        for conn, action in zip(self._conns, actions):
+            conn.send(("step", np.asarray(action, dtype=np.float64)))
+        results = [conn.recv() for conn in self._conns]
+        obs, reward, term, trunc, final = zip(*results)
+        return (np.stack(obs), np.stack(reward), np.array(term), np.array(trunc),
+                np.stack(final))
+
+    def close(self) -> None:
+        for conn in self._conns:
+            try:
+                conn.send(("close", None))
+            except (BrokenPipeError, OSError):
+                pass
+        for proc in self._procs:
+            proc.join(timeout=5)
+            if proc.is_alive():
+                proc.terminate()
