@@ -138,9 +138,9 @@ def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: flo
     return {"algo": cfg.algo, "trained_vehicles": cfg.n_vehicles, "seed": cfg.seed,
             "data": cfg.data, "split": cfg.split, "steps": cfg.steps,
             "observation": "[v m/s, a m/s^2, d m, dv m/s]", "reward": _reward_settings(),
-            "validation": val, "wall_time_s": wall_s, "command": cfg.command,
-            "sumo_version": str(libsumo.getVersion()[1]) if hasattr(libsumo, "getVersion")
-            else "unknown", "carl_sumo_version": __version__, "torch_version": torch.__version__}
+            "validation": {k: float(v) for k, v in val.items()}, "wall_time_s": float(wall_s),
+            "command": cfg.command, "sumo_version": str(libsumo.getVersion()[1]),
+            "carl_sumo_version": __version__, "torch_version": str(torch.__version__)}
 
 
 def _reward_settings() -> dict:

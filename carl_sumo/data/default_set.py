@@ -49,12 +49,15 @@ WARMUP_S = 300.0
 CONTEXT_RANGE_M = 100.0
 """Lateral range of the context subscription around :data:`RECORD_EDGE` (m)."""
 
-MAX_EVENT_S = 30.0
+MAX_EVENT_S = 27.0
 """Recorded events longer than this are cut to their first ``MAX_EVENT_S`` seconds (s); keeps the
-shipped file small (the median NGSIM event lasts about 31 s)."""
+shipped file under 1.5 MB (the median NGSIM event lasts about 31 s)."""
 
 CONGESTED_MAX_MPS = 15.0
 """Events are chosen among those with a mean follower speed up to this (m/s), if there are enough."""
+
+FOLLOWING_MAX_GAP_M = 100.0
+"""... and whose gap stays below this (m; the largest gap in the NGSIM I-80 events is 99 m)."""
 
 
 def _close_running() -> None:
@@ -158,29 +161,40 @@ def _truncate(events: pd.DataFrame, max_samples: int) -> pd.DataFrame:
 
 
 def select_events(events: pd.DataFrame, max_events: int,
-                  max_mean_speed_mps: float = CONGESTED_MAX_MPS) -> list[str]:
+                  max_mean_speed_mps: float = CONGESTED_MAX_MPS,
+                  max_gap_m: float = FOLLOWING_MAX_GAP_M) -> list[str]:
     """Deterministic choice of at most ``max_events`` event ids with variety.
 
-    Candidates are the congested events (mean follower speed <= ``max_mean_speed_mps``, m/s), or all
-    events when there are fewer than ``max_events`` of those; one event per follower (its longest)
-    where that still leaves enough. The choice is evenly spaced in the order of mean follower speed,
-    so stop-and-go, slow and faster events (and so all lanes) are represented. Returned in that
-    speed order.
+    Candidates are the congested car-following events (mean follower speed <= ``max_mean_speed_mps``
+    in m/s, gap always <= ``max_gap_m`` in m), or all events when there are fewer than
+    ``max_events`` of those; one event per follower (its longest)
+    where that still leaves enough. The choice is evenly spaced in mean follower speed, so
+    stop-and-go, slow and faster events (and so all lanes) are represented. Returned in order of
+    mean speed.
     """
     summary = events.groupby("event_id", sort=True).agg(
         follower=("follower_id", "first"), n=("t_s", "size"),
-        speed=("follower_speed_mps", "mean")).reset_index()
-    congested = summary[summary["speed"] <= max_mean_speed_mps]
+        speed=("follower_speed_mps", "mean"), gap=("gap_m", "max")).reset_index()
+    congested = summary[(summary["speed"] <= max_mean_speed_mps) & (summary["gap"] <= max_gap_m)]
     pool = congested if len(congested) >= max_events else summary
     by_follower = (pool.sort_values(["follower", "n", "event_id"], ascending=[True, False, True])
                    .drop_duplicates("follower"))
     if len(by_follower) >= max_events:
         pool = by_follower
     pool = pool.sort_values(["speed", "event_id"]).reset_index(drop=True)
-    if len(pool) > max_events:
-        picks = np.unique(np.round(np.linspace(0, len(pool) - 1, max_events)).astype(int))
-        pool = pool.iloc[picks]
-    return pool["event_id"].tolist()
+    if len(pool) <= max_events:
+        return pool["event_id"].tolist()
+    # Targets evenly spaced in speed (not in rank): the set covers the whole speed range evenly
+    # even where the pool is dense at some speeds. Each target takes the nearest unused event.
+    speeds = pool["speed"].to_numpy()
+    free = np.ones(len(pool), dtype=bool)
+    chosen: list[int] = []
+    for target in np.linspace(speeds[0], speeds[-1], max_events):
+        distance = np.where(free, np.abs(speeds - target), np.inf)
+        pick = int(np.argmin(distance))
+        free[pick] = False
+        chosen.append(pick)
+    return pool["event_id"].to_numpy()[np.sort(chosen)].tolist()
 
 
 def write_table_atomic(table: pd.DataFrame, out: Path) -> None:
@@ -192,7 +206,10 @@ def write_table_atomic(table: pd.DataFrame, out: Path) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     data = table.to_csv(index=False, float_format="%.4f", lineterminator="\n").encode("utf-8")
     fd, tmp = tempfile.mkstemp(prefix=out.name + ".", suffix=".tmp", dir=out.parent)
+    umask = os.umask(0)
+    os.umask(umask)
     try:
+        os.chmod(tmp, 0o666 & ~umask)
         with os.fdopen(fd, "wb") as raw_file:
             with gzip.GzipFile(filename="", mode="wb", fileobj=raw_file, compresslevel=9,
                                mtime=0) as gz:

@@ -1,0 +1,76 @@
+"""Agents and policy files: round trip, bad files, MADDPG's fixed length."""
+
+import numpy as np
+import pytest
+import torch
+
+from carl_sumo.agents import Agent, AgentConfig
+from carl_sumo.errors import InputError
+from carl_sumo.policy import load_controller, load_policy, save_policy
+from carl_sumo.train import ReplayBuffer
+
+
+@pytest.mark.parametrize("algo", ["ca-td3", "ca-ddpg", "td3", "ddpg", "maddpg"])
+def test_policy_file_round_trip(tmp_path, algo):
+    torch.manual_seed(0)
+    agent = Agent(AgentConfig(algo=algo, n_vehicles=3))
+    path = tmp_path / "p.pt"
+    save_policy(agent, path, {"algo": algo, "trained_vehicles": 3})
+    payload = torch.load(path, weights_only=True)
+    assert payload["metadata"]["algo"] == algo
+    loaded, meta = load_policy(path)
+    obs = np.random.default_rng(0).uniform(0, 20, (3, 4))
+    assert np.allclose(loaded.act(obs), agent.act(obs))
+    assert np.all(np.abs(loaded.act(obs)) <= 3.0)
+
+
+def test_ca_policy_runs_any_length(tmp_path):
+    agent = Agent(AgentConfig(algo="ca-td3", n_vehicles=10))
+    save_policy(agent, tmp_path / "ca.pt", {})
+    controller = load_controller(tmp_path / "ca.pt")
+    for n in (1, 20, 50):
+        controller.reset(n)
+        assert controller.adjustment(np.ones((n, 4))).shape == (n,)
+
+
+def test_maddpg_refuses_other_lengths(tmp_path):
+    save_policy(Agent(AgentConfig(algo="maddpg", n_vehicles=4)), tmp_path / "m.pt", {})
+    controller = load_controller(tmp_path / "m.pt")
+    controller.reset(4)
+    with pytest.raises(InputError, match="trained for 4 vehicles"):
+        controller.reset(5)
+
+
+def test_corrupt_foreign_and_mismatched_files(tmp_path):
+    corrupt = tmp_path / "corrupt.pt"
+    corrupt.write_bytes(b"not a torch file")
+    with pytest.raises(InputError, match="corrupt"):
+        load_policy(corrupt)
+    foreign = tmp_path / "foreign.pt"
+    torch.save({"weights": torch.zeros(3)}, foreign)
+    with pytest.raises(InputError, match="not a carl-sumo policy"):
+        load_policy(foreign)
+    mismatched = tmp_path / "mismatched.pt"
+    agent = Agent(AgentConfig(algo="td3", n_vehicles=1))
+    save_policy(agent, mismatched, {})
+    payload = torch.load(mismatched, weights_only=True)
+    payload["agent_config"]["hidden"] = 32
+    torch.save(payload, mismatched)
+    with pytest.raises(InputError, match="does not match"):
+        load_policy(mismatched)
+    with pytest.raises(InputError, match="does not exist"):
+        load_policy(tmp_path / "none.pt")
+
+
+def test_update_reduces_critic_loss_on_fixed_data():
+    torch.manual_seed(0)
+    agent = Agent(AgentConfig(algo="ca-td3", n_vehicles=3, hidden=32, message_dim=8))
+    rng = np.random.default_rng(0)
+    buf = ReplayBuffer(1000, 3)
+    obs = rng.uniform(0, 20, (500, 3, 4))
+    buf.add(obs, rng.uniform(-3, 3, (500, 3)), -np.abs(obs[..., 3]) / 5, obs, np.zeros(500))
+    first = np.mean([agent.update(buf.sample(64, rng))["critic_loss"] for _ in range(5)])
+    for _ in range(200):
+        agent.update(buf.sample(64, rng))
+    last = np.mean([agent.update(buf.sample(64, rng))["critic_loss"] for _ in range(5)])
+    assert last < first
