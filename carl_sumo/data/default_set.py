@@ -1,8 +1,9 @@
 """The project's own default leader set, recorded from a congested SUMO run of human drivers.
 
 :func:`make_default_set` simulates noisy human drivers (``routes/default_leaders.rou.xml``) on the
-I-80-like network (``networks/i80.net.xml``) with libsumo. The mainline demand exceeds the capacity
-of the Powell Street merge, so a queue with stop-and-go waves grows on ``i80_approach``. Every
+I-80-like network (``networks/i80.net.xml``) with libsumo. On-ramp traffic weaving across all lanes
+after the Powell Street merge is a bottleneck for the heavy mainline demand, so a queue with
+stop-and-go waves holds on ``i80_approach`` from about 400 s of simulated time on. Every
 vehicle on that edge is recorded each 0.1 s (like an NGSIM camera), the records form a canonical
 trajectory frame (see :mod:`carl_sumo.data.raw`) and car-following events are cut out of it with
 :func:`carl_sumo.data.raw.extract_events`. About 30% of the events get the source
@@ -54,7 +55,7 @@ MAX_EVENT_S = 27.0
 shipped file under 1.5 MB (the median NGSIM event lasts about 31 s)."""
 
 CONGESTED_MAX_MPS = 15.0
-"""Events are chosen among those with a mean follower speed up to this (m/s), if there are enough."""
+"""Events are chosen among those with a mean follower speed up to this (m/s), if enough."""
 
 FOLLOWING_MAX_GAP_M = 100.0
 """... and whose gap stays below this (m; the largest gap in the NGSIM I-80 events is 99 m)."""
@@ -165,10 +166,10 @@ def select_events(events: pd.DataFrame, max_events: int,
                   max_gap_m: float = FOLLOWING_MAX_GAP_M) -> list[str]:
     """Deterministic choice of at most ``max_events`` event ids with variety.
 
-    Candidates are the congested car-following events (mean follower speed <= ``max_mean_speed_mps``
-    in m/s, gap always <= ``max_gap_m`` in m), or all events when there are fewer than
-    ``max_events`` of those; one event per follower (its longest)
-    where that still leaves enough. The choice is evenly spaced in mean follower speed, so
+    Candidates are the congested car-following events (mean follower speed at most
+    ``max_mean_speed_mps`` in m/s, gap always at most ``max_gap_m`` in m), or all events when there
+    are fewer than ``max_events`` of those; one event per follower (its longest) where that still
+    leaves enough. The choice is evenly spaced in mean follower speed, so
     stop-and-go, slow and faster events (and so all lanes) are represented. Returned in order of
     mean speed.
     """
@@ -231,9 +232,10 @@ def make_default_set(net: Path, out: Path, seed: int = 42, duration_s: float = 1
 
     ``duration_s``: simulated time (s), of which the first ``warmup_s`` (default: 300 s, at most a
     quarter of ``duration_s``) is not recorded. Events are cut to their first ``max_event_s``
-    seconds; at most ``max_events`` are kept (see :func:`select_events`). Every third of them, in order of mean
-    speed, gets source ``carl_sumo_default_test``, the others ``carl_sumo_default_train``; site
-    ``i80-sumo``, period ``sumo-seed{seed}``. Returns the written event table.
+    seconds; at most ``max_events`` are kept (see :func:`select_events`). Every third of them,
+    in order of mean speed, gets source ``carl_sumo_default_test``, the others
+    ``carl_sumo_default_train``; site ``i80-sumo``, period ``sumo-seed{seed}``. The table is
+    written atomically to ``out`` (gzip CSV) and returned. A run is reproducible for a seed.
 
     Raises InputError for missing network/route files or when the run yields no event.
     """
@@ -250,8 +252,8 @@ def make_default_set(net: Path, out: Path, seed: int = 42, duration_s: float = 1
     events = extract_events(traj, source=TRAIN_SOURCE, site=SITE, period=period,
                             id_prefix=f"sumo{seed}", min_samples=MIN_EVENT_SAMPLES)
     if events.empty:
-        raise InputError(f"the SUMO run ({duration_s:g} s, seed {seed}) gave no car-following event "
-                         f"of at least {MIN_EVENT_SAMPLES} samples; simulate longer")
+        raise InputError(f"the SUMO run ({duration_s:g} s, seed {seed}) gave no car-following "
+                         f"event of at least {MIN_EVENT_SAMPLES} samples; simulate longer")
     max_samples = max(MIN_EVENT_SAMPLES, int(round(max_event_s / DT_S)) + 1)
     events = _truncate(events, max_samples)
     chosen = select_events(events, max_events)

@@ -77,14 +77,14 @@ def read_raw_ngsim(path: str | Path) -> pd.DataFrame:
         raise InputError(f"raw NGSIM file {path} holds no rows; give a file with trajectories")
     data = {}
     for column in RAW_COLUMNS:
-        values = pd.to_numeric(raw[column], errors="coerce")
-        bad = values.isna().to_numpy()
+        values = pd.to_numeric(raw[column], errors="coerce").to_numpy(float)
+        bad = ~np.isfinite(values)
         if bad.any():
             row = int(np.flatnonzero(bad)[0])
-            raise InputError(f"raw NGSIM file {path}: column {column} has a missing or non-numeric "
-                             f"value ({raw[column].iloc[row]!r}) at data row {row + 2}; fix or "
-                             "drop that row")
-        data[column] = values.to_numpy(float)
+            raise InputError(f"raw NGSIM file {path}: column {column} has a missing, infinite or "
+                             f"non-numeric value ({raw[column].iloc[row]!r}) at data row "
+                             f"{row + 2}; fix or drop that row")
+        data[column] = values
     for column in ("Vehicle_ID", "Frame_ID", "Lane_ID", "Preceding"):
         if not np.all(data[column] == np.round(data[column])):
             raise InputError(f"raw NGSIM file {path}: column {column} must hold whole numbers "
