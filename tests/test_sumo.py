@@ -85,3 +85,22 @@ def test_too_short_network_is_refused():
 def test_lane_that_does_not_exist_is_refused():
     with pytest.raises(InputError, match="NGSIM lane 7"):
         lane_route(NET, ngsim_lane=7)
+
+
+def test_vehicle_types_carry_the_paper_idm_and_explicit_randomness():
+    import xml.etree.ElementTree as ET
+
+    from carl_sumo.config import IDM
+    from carl_sumo.sumo import VTYPES_FILE
+
+    types = {t.get("id"): t for t in ET.parse(VTYPES_FILE).getroot().iter("vType")}
+    assert {"human_krauss", "human_idm", "cacc", "ngsim_leader"} <= set(types)
+    idm = types["human_idm"]
+    assert idm.get("carFollowModel") == "IDM"
+    assert float(idm.get("accel")) == IDM.accel_mps2 and float(idm.get("decel")) == IDM.decel_mps2
+    assert float(idm.get("minGap")) == IDM.min_gap_m and float(idm.get("tau")) == IDM.time_headway_s
+    assert float(idm.get("delta")) == IDM.delta
+    assert abs(float(idm.get("maxSpeed")) - IDM.desired_speed_mps) < 1e-3
+    assert types["human_krauss"].get("carFollowModel") == "Krauss"
+    for t in types.values():
+        assert t.get("sigma") == "0" and t.get("speedDev") == "0"
