@@ -52,7 +52,8 @@ class AgentConfig:
     policy_delay: int = 2         # TD3: actor update every this many critic updates
     target_noise: float = 0.2     # TD3: target policy smoothing noise (fraction of adj_max)
     target_noise_clip: float = 0.5
-    exploration_noise: float = 0.2  # Gaussian action noise during training (fraction of adj_max)
+    exploration_noise: float = 0.15  # std of the exploration noise (fraction of adj_max)
+    noise_correlation: float = 0.98  # AR(1) coefficient of that noise per 0.1 s step (τ ≈ 5 s)
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -122,17 +123,15 @@ class Agent(nn.Module):
         return critic(x, mask).squeeze(-1)
 
     @torch.no_grad()
-    def act(self, obs: np.ndarray, noise: float = 0.0, rng: np.random.Generator | None = None
-            ) -> np.ndarray:
-        """a_adj (m/s²) for platoon observations (n, 4) or a batch (b, n, 4)."""
+    def act(self, obs: np.ndarray, noise: np.ndarray | None = None) -> np.ndarray:
+        """a_adj (m/s²) for platoon observations (n, 4) or a batch (b, n, 4), plus ``noise``."""
         single = obs.ndim == 2
         x = torch.as_tensor(obs[None] if single else obs, dtype=torch.float32)
         self.check_length(x.shape[1])
         action = self._act(self.actor, x, None).numpy().astype(np.float64)
-        if noise > 0.0:
-            rng = rng or np.random.default_rng()
-            action = np.clip(action + rng.normal(0.0, noise * self.cfg.adj_max, action.shape),
-                             -self.cfg.adj_max, self.cfg.adj_max)
+        if noise is not None:
+            action = np.clip(action + noise.reshape(action.shape), -self.cfg.adj_max,
+                             self.cfg.adj_max)
         return action[0] if single else action
 
     # ---------------------------------------------------------------------------- learning
@@ -179,6 +178,28 @@ class Agent(nn.Module):
         for net, target in pairs:
             for p, tp in zip(net.parameters(), target.parameters()):
                 tp.lerp_(p, self.cfg.tau)
+
+
+class ColoredNoise:
+    """Exploration noise that is smooth in time: an AR(1) Gaussian process per vehicle.
+
+    White noise on an acceleration is white noise on jerk, which the comfort reward punishes
+    whatever the policy; correlated noise explores speeds and gaps without that.
+    """
+
+    def __init__(self, shape: tuple[int, ...], std: float, correlation: float,
+                 rng: np.random.Generator):
+        self.std, self.rho, self.rng = std, correlation, rng
+        self.value = rng.normal(0.0, std, shape)
+
+    def sample(self) -> np.ndarray:
+        innovation = self.rng.normal(0.0, self.std * np.sqrt(1.0 - self.rho ** 2), self.value.shape)
+        self.value = self.rho * self.value + innovation
+        return self.value
+
+    def reset(self, index: np.ndarray) -> None:
+        """Draw fresh noise for the environments whose episode ended (boolean mask)."""
+        self.value[index] = self.rng.normal(0.0, self.std, self.value[index].shape)
 
 
 def _masked_mse(q: torch.Tensor, y: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

@@ -86,3 +86,50 @@ def format_bench(rows: list[dict[str, float]]) -> str:
         lines.append(f"{r['followers']:>9}  {r['env_steps_per_s']:>11.0f}  "
                      f"{r['bare_steps_per_s']:>12.0f}  {r['ratio']:>20.2f}x")
     return "\n".join(lines)
+
+
+def run_training_bench(algo: str = "ca-td3", n: int = 10, num_envs: int = 2, steps: int = 500,
+                       net_path=DEFAULT_NET) -> list[dict[str, float]]:
+    """Training throughput: env steps/s and vehicle transitions/s in the parallel SUMO workers,
+    with batched policy inference, without and with one gradient update per vector step."""
+    import torch
+
+    from carl_sumo.agents import Agent, AgentConfig, ColoredNoise
+    from carl_sumo.train import ReplayBuffer
+    from carl_sumo.vec_env import VecPlatoon
+
+    torch.set_num_threads(1)
+    agent = Agent(AgentConfig(algo=algo, n_vehicles=n))
+    buffer = ReplayBuffer(50_000, n)
+    rng = np.random.default_rng(0)
+    vec = VecPlatoon([cruise_event(400)], n, net_path, num_envs, seed=0)
+    noise = ColoredNoise((num_envs, n), 0.45, 0.98, rng)
+    rows = []
+    try:
+        obs = vec.reset(0)
+        for updates in (False, True):
+            start = time.perf_counter()
+            for _ in range(steps):
+                action = agent.act(obs, noise.sample())
+                next_obs, reward, term, _, final = vec.step(action)
+                buffer.add(obs, action, reward, final, term.astype(np.float32))
+                obs = next_obs
+                if updates:
+                    agent.update(buffer.sample(agent.cfg.batch_size, rng))
+            wall = time.perf_counter() - start
+            rows.append({"algo": algo, "followers": n, "envs": num_envs, "updates": updates,
+                         "env_steps_per_s": steps * num_envs / wall,
+                         "vehicle_transitions_per_s": steps * num_envs * n / wall})
+    finally:
+        vec.close()
+    return rows
+
+
+def format_training_bench(rows: list[dict[str, float]]) -> str:
+    lines = ["algo    followers  envs  gradient updates  env steps/s  vehicle transitions/s",
+             "------  ---------  ----  ----------------  -----------  ---------------------"]
+    for r in rows:
+        lines.append(f"{r['algo']:<6}  {r['followers']:>9}  {r['envs']:>4}  "
+                     f"{'1 per step' if r['updates'] else 'none':>16}  "
+                     f"{r['env_steps_per_s']:>11.0f}  {r['vehicle_transitions_per_s']:>21.0f}")
+    return "\n".join(lines)

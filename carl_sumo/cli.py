@@ -62,12 +62,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint-every", type=int, default=5_000)
     p.add_argument("--out", type=Path, default=None, help="policy file (default policies/ALGO.pt)")
     p.add_argument("--resume", type=Path, default=None, help="checkpoint (.ckpt) to continue")
+    p.add_argument("--w-gap", type=float, default=None, help="reward weight of the headway term")
+    p.add_argument("--w-safe", type=float, default=None, help="reward weight of the TTC term")
+    p.add_argument("--w-comfort", type=float, default=None, help="reward weight of the jerk term")
 
     p = sub.add_parser("bench", help="env steps/s beside a bare libsumo loop")
     p.add_argument("--net", default="networks/i80.net.xml")
     p.add_argument("--sizes", default="10,20,100", help="platoon sizes, comma-separated")
     p.add_argument("--steps", type=int, default=2000)
     p.add_argument("--rounds", type=int, default=3)
+    p.add_argument("--training", action="store_true",
+                   help="measure training throughput (parallel workers, updates) instead")
+    p.add_argument("--algo", default="ca-td3", help="with --training: the algorithm")
+    p.add_argument("--vehicles", type=int, default=10, help="with --training: platoon length")
+    p.add_argument("--envs", type=int, default=2, help="with --training: worker processes")
 
     p = sub.add_parser("net", help="network tools")
     net_sub = p.add_subparsers(dest="net_command", required=True, parser_class=_Parser)
@@ -169,7 +177,9 @@ def cmd_train(args: argparse.Namespace) -> None:
                       num_envs=args.envs, learning_starts=args.learning_starts,
                       eval_every=args.eval_every, checkpoint_every=args.checkpoint_every,
                       net=args.net, data=args.data, split=args.split, out=str(out),
-                      command="carl-sumo " + " ".join(sys.argv[1:]))
+                      command="carl-sumo " + " ".join(sys.argv[1:]),
+                      **{k: getattr(args, k) for k in ("w_gap", "w_safe", "w_comfort")
+                         if getattr(args, k) is not None})
     result = train(cfg, events, resume=args.resume, progress=sys.stderr.isatty())
     val = result["validation"]
     print(f"wrote {out} (best validation score {result['best_score']:.4f}); "
@@ -178,7 +188,18 @@ def cmd_train(args: argparse.Namespace) -> None:
 
 
 def cmd_bench(args: argparse.Namespace) -> None:
-    from carl_sumo.bench import format_bench, run_bench
+    from carl_sumo.bench import format_bench, format_training_bench, run_bench, run_training_bench
+
+    if args.training:
+        from carl_sumo.agents import ALGOS
+
+        if args.algo not in ALGOS:
+            raise InputError(f"unknown algorithm {args.algo!r}; choose one of {', '.join(ALGOS)}")
+        rows = run_training_bench(args.algo, _positive(args.vehicles, "--vehicles"),
+                                  _positive(args.envs, "--envs"), _positive(args.steps, "--steps"),
+                                  args.net)
+        print(format_training_bench(rows))
+        return
 
     try:
         sizes = tuple(_positive(int(s), "--sizes") for s in args.sizes.split(","))

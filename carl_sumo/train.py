@@ -13,7 +13,7 @@ import os
 import random
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -21,7 +21,8 @@ import numpy as np
 import torch
 
 from carl_sumo import __version__
-from carl_sumo.agents import Agent, AgentConfig
+from carl_sumo.agents import Agent, AgentConfig, ColoredNoise
+from carl_sumo.config import REWARD, RewardConfig
 from carl_sumo.data.events import Event
 from carl_sumo.env import PlatoonEnv
 from carl_sumo.errors import InputError
@@ -41,7 +42,7 @@ class TrainConfig:
     steps: int = 20_000            # vector steps (each steps every environment once)
     seed: int = 0
     num_envs: int = 2
-    learning_starts: int = 1_000   # vector steps of random exploration before updates
+    learning_starts: int = 1_000   # vector steps of pure exploration noise before updates
     updates_per_step: int = 1
     buffer_size: int = 200_000     # platoon transitions
     eval_every: int = 2_000        # vector steps between validations
@@ -52,6 +53,13 @@ class TrainConfig:
     split: str = "train"
     out: str = "policies/ca_td3.pt"
     command: str = ""
+    w_gap: float = REWARD.w_gap            # reward weights (defaults: carl_sumo.config)
+    w_safe: float = REWARD.w_safe
+    w_comfort: float = REWARD.w_comfort
+
+    @property
+    def reward(self) -> RewardConfig:
+        return replace(REWARD, w_gap=self.w_gap, w_safe=self.w_safe, w_comfort=self.w_comfort)
 
 
 class ReplayBuffer:
@@ -137,16 +145,10 @@ def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: flo
 
     return {"algo": cfg.algo, "trained_vehicles": cfg.n_vehicles, "seed": cfg.seed,
             "data": cfg.data, "split": cfg.split, "steps": cfg.steps,
-            "observation": "[v m/s, a m/s^2, d m, dv m/s]", "reward": _reward_settings(),
+            "observation": "[v m/s, a m/s^2, d m, dv m/s]", "reward": asdict(cfg.reward),
             "validation": {k: float(v) for k, v in val.items()}, "wall_time_s": float(wall_s),
             "command": cfg.command, "sumo_version": str(libsumo.getVersion()[1]),
             "carl_sumo_version": __version__, "torch_version": str(torch.__version__)}
-
-
-def _reward_settings() -> dict:
-    from carl_sumo.config import REWARD
-
-    return asdict(REWARD)
 
 
 def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
@@ -187,8 +189,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
         start_step, best = int(state["step"]), float(state["best"])
         wall_before = float(state["wall_s"])
         log(f"resumed {resume} at step {start_step}")
-    val_env = PlatoonEnv(val_events, n, cfg.net)  # also checks the network fits every event
-    vec = VecPlatoon(train_events, n, cfg.net, cfg.num_envs, cfg.seed + start_step)
+    val_env = PlatoonEnv(val_events, n, cfg.net, reward=cfg.reward)  # checks the net fits
+    vec = VecPlatoon(train_events, n, cfg.net, cfg.num_envs, cfg.seed + start_step, cfg.reward)
     obs = vec.reset(cfg.seed + start_step)
     new_log = not (resume is not None and log_path.exists())
     log_file = open(log_path, "w" if new_log else "a", newline="")
@@ -205,13 +207,16 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     t0 = time.perf_counter()
     recent = []
     val: dict[str, float] = {}
+    noise = ColoredNoise((cfg.num_envs, n), agent.cfg.exploration_noise * agent.cfg.adj_max,
+                         agent.cfg.noise_correlation, rng)
     try:
         for step in range(start_step, cfg.steps):
-            if step < cfg.learning_starts and resume is None:
-                action = rng.uniform(-agent.cfg.adj_max, agent.cfg.adj_max, (cfg.num_envs, n))
+            if step < cfg.learning_starts:  # IDM plus exploration noise only
+                action = np.clip(noise.sample(), -agent.cfg.adj_max, agent.cfg.adj_max)
             else:
-                action = agent.act(obs, agent.cfg.exploration_noise, rng)
+                action = agent.act(obs, noise.sample())
             next_obs, reward, term, trunc, final = vec.step(action)
+            noise.reset(term | trunc)
             buffer.add(obs, action, reward, final, term.astype(np.float32))
             recent.append(float(reward.mean()))
             obs = next_obs

@@ -14,13 +14,15 @@ from typing import Sequence
 
 import numpy as np
 
+from carl_sumo.config import REWARD, RewardConfig
 from carl_sumo.data.events import Event
 
 
-def _worker(conn, events: Sequence[Event], n: int, net_path: str, seed: int) -> None:
+def _worker(conn, events: Sequence[Event], n: int, net_path: str, seed: int,
+            reward: RewardConfig) -> None:
     from carl_sumo.env import PlatoonEnv
 
-    env = PlatoonEnv(events, n, net_path)
+    env = PlatoonEnv(events, n, net_path, reward=reward)
     rng_seed = seed
     obs = env.reset_array(seed=rng_seed)
     while True:
@@ -42,14 +44,15 @@ class VecPlatoon:
     """``num_envs`` platoon environments in worker processes."""
 
     def __init__(self, events: Sequence[Event], n_followers: int, net_path: str | Path,
-                 num_envs: int = 2, seed: int = 0):
+                 num_envs: int = 2, seed: int = 0, reward: RewardConfig = REWARD):
         ctx = mp.get_context("spawn")
         self.num_envs, self.n = num_envs, n_followers
         self._conns, self._procs = [], []
         for i in range(num_envs):
             parent, child = ctx.Pipe()
             proc = ctx.Process(target=_worker, args=(child, list(events), n_followers,
-                                                     str(net_path), seed * 1000 + i), daemon=True)
+                                                     str(net_path), seed * 1000 + i, reward),
+                               daemon=True)
             proc.start()
             child.close()
             self._conns.append(parent)
