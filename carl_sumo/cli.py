@@ -65,6 +65,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--w-gap", type=float, default=None, help="reward weight of the headway term")
     p.add_argument("--w-safe", type=float, default=None, help="reward weight of the TTC term")
     p.add_argument("--w-comfort", type=float, default=None, help="reward weight of the jerk term")
+    p.add_argument("--noise", type=float, default=None,
+                   help="exploration noise std as a fraction of the a_adj bound")
+    p.add_argument("--noise-correlation", type=float, default=None,
+                   help="AR(1) coefficient of the exploration noise per step (0 = white)")
 
     p = sub.add_parser("bench", help="env steps/s beside a bare libsumo loop")
     p.add_argument("--net", default="networks/i80.net.xml")
@@ -178,7 +182,8 @@ def cmd_train(args: argparse.Namespace) -> None:
                       eval_every=args.eval_every, checkpoint_every=args.checkpoint_every,
                       net=args.net, data=args.data, split=args.split, out=str(out),
                       command="carl-sumo " + " ".join(sys.argv[1:]),
-                      **{k: getattr(args, k) for k in ("w_gap", "w_safe", "w_comfort")
+                      **{k: getattr(args, k) for k in ("w_gap", "w_safe", "w_comfort", "noise",
+                                                       "noise_correlation")
                          if getattr(args, k) is not None})
     result = train(cfg, events, resume=args.resume, progress=sys.stderr.isatty())
     val = result["validation"]

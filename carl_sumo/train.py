@@ -56,6 +56,8 @@ class TrainConfig:
     w_gap: float = REWARD.w_gap            # reward weights (defaults: carl_sumo.config)
     w_safe: float = REWARD.w_safe
     w_comfort: float = REWARD.w_comfort
+    noise: float = AgentConfig.exploration_noise          # exploration std (fraction of adj_max)
+    noise_correlation: float = AgentConfig.noise_correlation
 
     @property
     def reward(self) -> RewardConfig:
@@ -167,7 +169,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     train_events, val_events = split_validation(events, cfg.eval_events, cfg.seed)
     torch.set_num_threads(1)  # the SUMO workers have the other cores; small nets gain nothing
     seed_everything(cfg.seed)
-    agent = Agent(AgentConfig(algo=cfg.algo, n_vehicles=n))
+    agent = Agent(AgentConfig(algo=cfg.algo, n_vehicles=n, exploration_noise=cfg.noise,
+                              noise_correlation=cfg.noise_correlation))
     buffer = ReplayBuffer(cfg.buffer_size, n)
     rng = np.random.default_rng(cfg.seed)
     start_step, best, wall_before = 0, -np.inf, 0.0
