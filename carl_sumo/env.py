@@ -69,6 +69,7 @@ class PlatoonEnv(ParallelEnv):
             self.events[int(self._rng.integers(len(self.events)))]
         self.sim.reset(self.event, self.n_followers)
         self._obs = self.sim.observation()
+        self._first_step = True
         return self._obs
 
     def step_array(self, adjustment: np.ndarray
@@ -77,7 +78,9 @@ class PlatoonEnv(ParallelEnv):
         if adjustment.dtype != np.float64:
             adjustment = adjustment.astype(np.float64)
         accel = self._control(self._obs, adjustment, *self._control_params)
-        prev_acc = self.sim.acc
+        # the first step has no previous acceleration: its jerk is taken as 0, not (a - 0)/dt
+        prev_acc = accel if self._first_step else self.sim.acc
+        self._first_step = False
         self.sim.step(accel)
         self._obs = self.sim.observation()
         rewards, collided = self._reward(self._obs, prev_acc, *self._reward_params)
