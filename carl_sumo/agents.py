@@ -54,6 +54,7 @@ class AgentConfig:
     target_noise_clip: float = 0.5
     exploration_noise: float = 0.15  # std of the exploration noise (fraction of adj_max)
     noise_correlation: float = 0.98  # AR(1) coefficient of that noise per 0.1 s step (τ ≈ 5 s)
+    preactivation_l2: float = 0.01  # actor loss penalty on tanh inputs: keeps tanh unsaturated
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -114,8 +115,11 @@ class Agent(nn.Module):
                              f"--vehicles {self.cfg.n_vehicles} or a CA/DDPG/TD3 policy")
 
     # ------------------------------------------------------------------------------ acting
-    def _act(self, actor: nn.Module, obs: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
-        return self.cfg.adj_max * torch.tanh(actor(normalise(obs), mask)).squeeze(-1)
+    def _act(self, actor: nn.Module, obs: torch.Tensor, mask: torch.Tensor | None,
+             with_preactivation: bool = False):
+        pre = actor(normalise(obs), mask).squeeze(-1)
+        action = self.cfg.adj_max * torch.tanh(pre)
+        return (action, pre) if with_preactivation else action
 
     def _q(self, critic: nn.Module, obs: torch.Tensor, action: torch.Tensor,
            mask: torch.Tensor | None) -> torch.Tensor:
@@ -161,8 +165,9 @@ class Agent(nn.Module):
         stats = {"critic_loss": float(loss.detach())}
         self.updates += 1
         if not cfg.twin or self.updates % cfg.policy_delay == 0:
-            q = self._q(self.critic1, obs, self._act(self.actor, obs, mask), mask)
-            actor_loss = -(q * maskf).sum() / maskf.sum()
+            action_now, pre = self._act(self.actor, obs, mask, with_preactivation=True)
+            q = self._q(self.critic1, obs, action_now, mask)
+            actor_loss = (((cfg.preactivation_l2 * pre ** 2) - q) * maskf).sum() / maskf.sum()
             self.actor_opt.zero_grad()
             actor_loss.backward()
             self.actor_opt.step()
