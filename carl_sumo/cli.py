@@ -44,6 +44,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="idm | krauss | idm-external | human | POLICY.pt; several with commas")
     p.add_argument("--events", type=int, default=None, metavar="K", help="only the first K events")
     p.add_argument("--json", type=Path, default=None, metavar="OUT", help="write metrics as JSON")
+    p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                   help="parallel SUMO processes (default: 2, or the number of cores if fewer)")
 
     p = sub.add_parser("replay", help="run one event and write SUMO FCD output")
     _add_common(p, split_default="all")
@@ -142,8 +144,9 @@ def cmd_simulate(args: argparse.Namespace) -> None:
         resolve_controller(name)  # fail on a bad controller before any simulation runs
     events = load_events(args.data, args.split, limit=args.events)
     start = time.perf_counter()
-    results = [simulate(name, events, args.vehicles, args.net, progress=sys.stderr.isatty())
-               for name in names]
+    workers = _positive(args.workers, "--workers")
+    results = [simulate(name, events, args.vehicles, args.net, progress=sys.stderr.isatty(),
+                        workers=workers) for name in names]
     print(format_table(results))
     print(f"{len(events)} events of split {args.split} of {args.data}, "
           f"{time.perf_counter() - start:.1f} s")

@@ -77,9 +77,9 @@ def run_event(sim: PlatoonSim, event: Event, n_followers: int, controller: Contr
                              collisions)
 
 
-def simulate(controller_name: str, events: Sequence[Event], n_followers: int,
-             net_path: str | Path = DEFAULT_NET, progress: bool = False) -> dict:
-    """Metrics of one controller over events: ``{"metrics": {...}, "events": [...]}``."""
+def _score_events(controller_name: str, events: Sequence[Event], n_followers: int,
+                  net_path: str, progress: bool = False) -> list[dict]:
+    """Per-event metrics of one controller, in this process."""
     follower_model, controller = resolve_controller(controller_name)
     iterator = events
     if progress:
@@ -87,10 +87,37 @@ def simulate(controller_name: str, events: Sequence[Event], n_followers: int,
 
         iterator = tqdm(events, desc=controller_name, unit="event", leave=False)
     if follower_model == "human":
-        per_event = [score_event(human_trajectory(e)) for e in iterator]
+        return [score_event(human_trajectory(e)) for e in iterator]
+    sim = PlatoonSim(net_path, follower_model)
+    return [score_event(run_event(sim, e, n_followers, controller)) for e in iterator]
+
+
+def _worker_init() -> None:
+    import torch
+
+    torch.set_num_threads(1)
+
+
+def simulate(controller_name: str, events: Sequence[Event], n_followers: int,
+             net_path: str | Path = DEFAULT_NET, progress: bool = False, workers: int = 1) -> dict:
+    """Metrics of one controller over events: ``{"metrics": {...}, "events": [...]}``.
+
+    With ``workers`` > 1 the events are split over that many spawned processes (one libsumo each),
+    at least 20 events per worker.
+    """
+    follower_model, _ = resolve_controller(controller_name)
+    workers = max(1, min(workers, len(events) // 20))  # a spawned worker costs seconds to start
+    if workers == 1 or follower_model == "human":
+        per_event = _score_events(controller_name, events, n_followers, str(net_path), progress)
     else:
-        sim = PlatoonSim(net_path, follower_model)
-        per_event = [score_event(run_event(sim, e, n_followers, controller)) for e in iterator]
+        import multiprocessing as mp
+
+        chunks = [list(events[i::workers]) for i in range(workers)]
+        with mp.get_context("spawn").Pool(workers, initializer=_worker_init) as pool:
+            parts = pool.starmap(_score_events, [(controller_name, chunk, n_followers,
+                                                  str(net_path)) for chunk in chunks])
+        order = {e.event_id: i for i, e in enumerate(events)}
+        per_event = sorted((m for part in parts for m in part), key=lambda m: order[m["event_id"]])
     return {"controller": controller_name, "followers": 1 if follower_model == "human"
             else n_followers, "metrics": aggregate(per_event), "events": per_event}
 

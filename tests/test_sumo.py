@@ -104,3 +104,12 @@ def test_vehicle_types_carry_the_paper_idm_and_explicit_randomness():
     assert types["human_krauss"].get("carFollowModel") == "Krauss"
     for t in types.values():
         assert t.get("sigma") == "0" and t.get("speedDev") == "0"
+
+
+def test_parallel_workers_give_the_same_metrics():
+    from carl_sumo.simulate import simulate
+
+    events = [braking_event(n=60, event_id=f"e{i}", v0=8.0 + i * 0.1) for i in range(40)]
+    one = simulate("idm-external", events, 2, NET, workers=1)
+    two = simulate("idm-external", events, 2, NET, workers=2)
+    assert one["events"] == two["events"] and one["metrics"] == two["metrics"]
