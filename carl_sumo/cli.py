@@ -72,6 +72,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--noise-correlation", type=float, default=None,
                    help="AR(1) coefficient of the exploration noise per step (0 = white)")
 
+    p = sub.add_parser("policy-info", help="print the Markdown card of policy files")
+    p.add_argument("paths", nargs="+", type=Path)
+
     p = sub.add_parser("bench", help="env steps/s beside a bare libsumo loop")
     p.add_argument("--net", default="networks/i80.net.xml")
     p.add_argument("--sizes", default="10,20,100", help="platoon sizes, comma-separated")
@@ -140,8 +143,10 @@ def cmd_simulate(args: argparse.Namespace) -> None:
     if args.events is not None:
         _positive(args.events, "--events")
     names = [c.strip() for c in args.controller.split(",") if c.strip()]
-    for name in names:
-        resolve_controller(name)  # fail on a bad controller before any simulation runs
+    for name in names:  # fail on a bad controller or platoon length before any simulation runs
+        _, controller = resolve_controller(name)
+        if controller is not None:
+            controller.reset(args.vehicles)
     events = load_events(args.data, args.split, limit=args.events)
     start = time.perf_counter()
     workers = _positive(args.workers, "--workers")
@@ -195,6 +200,13 @@ def cmd_train(args: argparse.Namespace) -> None:
           + ", ".join(f"{k}={_fmt(v)}" for k, v in val.items()))
 
 
+def cmd_policy_info(args: argparse.Namespace) -> None:
+    from carl_sumo.policy import policy_card
+
+    cards = [policy_card(path) for path in args.paths]  # all checked before anything is printed
+    print("\n".join(cards))
+
+
 def cmd_bench(args: argparse.Namespace) -> None:
     from carl_sumo.bench import format_bench, format_training_bench, run_bench, run_training_bench
 
@@ -241,7 +253,7 @@ def cmd_data(args: argparse.Namespace) -> None:
         print(f"wrote {out}: {table['event_id'].nunique()} events")
 
 
-COMMANDS = {"simulate": cmd_simulate, "train": cmd_train, "replay": cmd_replay, "bench": cmd_bench, "net": cmd_net,
+COMMANDS = {"simulate": cmd_simulate, "train": cmd_train, "policy-info": cmd_policy_info, "replay": cmd_replay, "bench": cmd_bench, "net": cmd_net,
             "data": cmd_data}
 
 

@@ -96,3 +96,29 @@ class PolicyController:
 def load_controller(path: Path) -> PolicyController:
     agent, _ = load_policy(path)
     return PolicyController(agent, str(path))
+
+
+def policy_card(path: Path) -> str:
+    """A Markdown card of a policy file: algorithm, command, seed, wall time, validation metrics."""
+    agent, meta = load_policy(path)
+    val = meta.get("validation", {})
+    curve = Path(path).with_suffix(".csv")
+    total = ""
+    if curve.is_file():
+        rows = curve.read_text().strip().splitlines()
+        if len(rows) > 1:
+            last = rows[-1].split(",")
+            total = f"; whole run {float(last[2]):.0f} s for {last[0]} steps (learning curve: `{curve.name}`)"
+    lines = [f"### `{Path(path).name}`", "",
+             f"- algorithm: {meta.get('algo', agent.cfg.algo)}, trained on "
+             f"{meta.get('trained_vehicles', agent.cfg.n_vehicles)} vehicle(s), seed {meta.get('seed')}",
+             f"- data: {meta.get('data')} split {meta.get('split')}, {meta.get('steps')} steps, "
+             f"wall time {meta.get('wall_time_s', float('nan')):.0f} s to the best checkpoint{total}",
+             f"- command: `{meta.get('command', '')}`",
+             f"- reward: {meta.get('reward')}",
+             f"- versions: {meta.get('sumo_version')}, carl-sumo {meta.get('carl_sumo_version')}, "
+             f"torch {meta.get('torch_version')}",
+             "- validation (held-out training events): " + ", ".join(
+                 f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in val.items()),
+             ""]
+    return "\n".join(lines)

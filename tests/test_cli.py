@@ -101,3 +101,27 @@ def test_bench_reports_ratio(capsys):
     assert code == 0 and "bare steps/s" in out
     ratio = float(out.strip().splitlines()[-1].split()[-1].rstrip("x"))
     assert ratio > 0
+
+
+def test_simulate_with_policy_files_and_maddpg_length_check(capsys, tmp_path, small_table_path):
+    from carl_sumo.agents import Agent, AgentConfig
+    from carl_sumo.policy import save_policy
+
+    save_policy(Agent(AgentConfig(algo="ca-td3", n_vehicles=10)), tmp_path / "ca.pt", {})
+    save_policy(Agent(AgentConfig(algo="maddpg", n_vehicles=3)), tmp_path / "m.pt", {})
+    code, out, _ = run(capsys, "simulate", "--controller", str(tmp_path / "ca.pt"), "--data",
+                       str(small_table_path), "--vehicles", "4")
+    assert code == 0 and "ca.pt" in out
+    code, out, _ = run(capsys, "simulate", "--controller", str(tmp_path / "m.pt"), "--data",
+                       str(small_table_path), "--vehicles", "3", "--events", "1")
+    assert code == 0
+    code, _, err = run(capsys, "simulate", "--controller", str(tmp_path / "m.pt"), "--data",
+                       str(small_table_path), "--vehicles", "4")
+    assert code == 2 and "trained for 3 vehicles" in err and len(err.strip().splitlines()) == 1
+    code, out, _ = run(capsys, "policy-info", str(tmp_path / "ca.pt"))
+    assert code == 0 and "ca-td3" in out
+
+
+def test_train_rejects_unknown_algorithm(capsys):
+    code, _, err = run(capsys, "train", "--algo", "ppo")
+    assert code == 2 and "unknown algorithm" in err
