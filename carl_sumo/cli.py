@@ -67,6 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--w-gap", type=float, default=None, help="reward weight of the headway term")
     p.add_argument("--w-safe", type=float, default=None, help="reward weight of the TTC term")
     p.add_argument("--w-comfort", type=float, default=None, help="reward weight of the jerk term")
+    p.add_argument("--jerk-scale", type=float, default=None,
+                   help="jerk that normalises the comfort term (m/s³)")
     p.add_argument("--noise", type=float, default=None,
                    help="exploration noise std as a fraction of the a_adj bound")
     p.add_argument("--noise-correlation", type=float, default=None,
@@ -174,6 +176,10 @@ def cmd_replay(args: argparse.Namespace) -> None:
                     and k != "event_id"))
 
 
+TRAIN_OVERRIDES = ("w_gap", "w_safe", "w_comfort", "jerk_scale", "noise", "noise_correlation")
+"""Training options that, when given, override the defaults of TrainConfig."""
+
+
 def cmd_train(args: argparse.Namespace) -> None:
     from carl_sumo.agents import ALGOS
     from carl_sumo.data import load_events
@@ -190,9 +196,7 @@ def cmd_train(args: argparse.Namespace) -> None:
                       eval_every=args.eval_every, checkpoint_every=args.checkpoint_every,
                       net=args.net, data=args.data, split=args.split, out=str(out),
                       command="carl-sumo " + " ".join(sys.argv[1:]),
-                      **{k: getattr(args, k) for k in ("w_gap", "w_safe", "w_comfort", "noise",
-                                                       "noise_correlation")
-                         if getattr(args, k) is not None})
+                      **{k: getattr(args, k) for k in TRAIN_OVERRIDES if getattr(args, k) is not None})
     result = train(cfg, events, resume=args.resume, progress=sys.stderr.isatty())
     val = result["validation"]
     print(f"wrote {out} (best validation score {result['best_score']:.4f}); "

@@ -39,7 +39,7 @@ class RewardConfig:
 
     r_gap: lognormal pdf of the time headway h = d/v, parameters (μ, σ) fitted to NGSIM headways;
     r_safe: log(TTC/4) when 0 < TTC ≤ ttc_threshold_s, else 0;
-    r_comfort: -(jerk / jerk_scale)², jerk = Δa/Δt;
+    r_comfort: -min((jerk / jerk_scale)², 1), jerk = Δa/Δt;
     a collision (bumper gap ≤ 0) ends the episode and adds collision_penalty.
     """
 

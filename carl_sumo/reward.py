@@ -3,7 +3,8 @@
 r = w_gap·r_gap + w_safe·r_safe + w_comfort·r_comfort, per follower and step:
 r_gap = lognormal pdf of the time headway h = d/v (μ = 0.4226, σ = 0.4366; largest at
 exp(μ - σ²) ≈ 1.26 s), r_safe = log(TTC/4 s) for 0 < TTC ≤ 4 s (else 0), r_comfort =
--(jerk/60 m/s³)², and ``collision_penalty`` for a follower whose bumper gap d ≤ 0.
+-min((jerk/jerk_scale)², 1) (jerk_scale 60 m/s³ by default: the normalised jerk lies in [-1, 1]
+for accelerations within ±3 m/s²), and ``collision_penalty`` for a follower whose gap d ≤ 0.
 Compiled with numba because it runs every 0.1 s step.
 """
 
@@ -41,7 +42,7 @@ def _platoon_reward(obs, prev_acc, w_gap, w_safe, w_comfort, mu, sigma, ttc_max,
             if ttc <= ttc_max:
                 r += w_safe * math.log(ttc / ttc_max)
         jerk = (a - prev_acc[i]) / dt / jerk_scale
-        r -= w_comfort * jerk * jerk
+        r -= w_comfort * min(jerk * jerk, 1.0)
         if d <= 0.0:
             collided[i] = True
             r += penalty

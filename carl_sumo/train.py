@@ -56,12 +56,14 @@ class TrainConfig:
     w_gap: float = REWARD.w_gap            # reward weights (defaults: carl_sumo.config)
     w_safe: float = REWARD.w_safe
     w_comfort: float = REWARD.w_comfort
+    jerk_scale: float = REWARD.jerk_scale_mps3
     noise: float = AgentConfig.exploration_noise          # exploration std (fraction of adj_max)
     noise_correlation: float = AgentConfig.noise_correlation
 
     @property
     def reward(self) -> RewardConfig:
-        return replace(REWARD, w_gap=self.w_gap, w_safe=self.w_safe, w_comfort=self.w_comfort)
+        return replace(REWARD, w_gap=self.w_gap, w_safe=self.w_safe, w_comfort=self.w_comfort,
+                       jerk_scale_mps3=self.jerk_scale)
 
 
 class ReplayBuffer:
