@@ -28,7 +28,7 @@ from carl_sumo.env import PlatoonEnv
 from carl_sumo.errors import InputError
 from carl_sumo.metrics import PlatoonTrajectory, aggregate, score_event
 from carl_sumo.policy import load_torch, save_policy, save_torch_atomic
-from carl_sumo.sumo import DEFAULT_NET
+from carl_sumo.sumo import DEFAULT_NET, check_fits
 
 CHECKPOINT_FORMAT = "carl-sumo-checkpoint"
 
@@ -194,7 +194,9 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
         start_step, best = int(state["step"]), float(state["best"])
         wall_before = float(state["wall_s"])
         log(f"resumed {resume} at step {start_step}")
-    val_env = PlatoonEnv(val_events, n, cfg.net, reward=cfg.reward)  # checks the net fits
+    val_env = PlatoonEnv(val_events, n, cfg.net, reward=cfg.reward)
+    for event in train_events:  # fail here, not in a worker, when an event does not fit the net
+        check_fits(val_env.sim.route, event, n)
     vec = VecPlatoon(train_events, n, cfg.net, cfg.num_envs, cfg.seed + start_step, cfg.reward)
     obs = vec.reset(cfg.seed + start_step)
     new_log = not (resume is not None and log_path.exists())
