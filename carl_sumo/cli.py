@@ -69,6 +69,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--w-comfort", type=float, default=None, help="reward weight of the jerk term")
     p.add_argument("--jerk-scale", type=float, default=None,
                    help="jerk that normalises the comfort term (m/s³)")
+    p.add_argument("--message-dim", type=int, default=None, help="V2V message width (CA models)")
+    p.add_argument("--hidden", type=int, default=None, help="hidden layer width")
     p.add_argument("--noise", type=float, default=None,
                    help="exploration noise std as a fraction of the a_adj bound")
     p.add_argument("--noise-correlation", type=float, default=None,
@@ -176,7 +178,8 @@ def cmd_replay(args: argparse.Namespace) -> None:
                     and k != "event_id"))
 
 
-TRAIN_OVERRIDES = ("w_gap", "w_safe", "w_comfort", "jerk_scale", "noise", "noise_correlation")
+TRAIN_OVERRIDES = ("w_gap", "w_safe", "w_comfort", "jerk_scale", "message_dim", "hidden", "noise",
+                   "noise_correlation")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 

@@ -57,6 +57,8 @@ class TrainConfig:
     w_safe: float = REWARD.w_safe
     w_comfort: float = REWARD.w_comfort
     jerk_scale: float = REWARD.jerk_scale_mps3
+    message_dim: int = AgentConfig.message_dim            # V2V message width (CA models)
+    hidden: int = AgentConfig.hidden                      # hidden layer width
     noise: float = AgentConfig.exploration_noise          # exploration std (fraction of adj_max)
     noise_correlation: float = AgentConfig.noise_correlation
 
@@ -171,7 +173,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     train_events, val_events = split_validation(events, cfg.eval_events, cfg.seed)
     torch.set_num_threads(1)  # the SUMO workers have the other cores; small nets gain nothing
     seed_everything(cfg.seed)
-    agent = Agent(AgentConfig(algo=cfg.algo, n_vehicles=n, exploration_noise=cfg.noise,
+    agent = Agent(AgentConfig(algo=cfg.algo, n_vehicles=n, message_dim=cfg.message_dim,
+                              hidden=cfg.hidden, exploration_noise=cfg.noise,
                               noise_correlation=cfg.noise_correlation))
     buffer = ReplayBuffer(cfg.buffer_size, n)
     rng = np.random.default_rng(cfg.seed)
@@ -205,6 +208,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     if new_log:
         writer.writerow(["step", "transitions", "wall_s", "train_reward", "val_reward",
                          "headway_s", "jerk_mps3", "speed_mps", "dampening_ratio", "collisions"])
+    board = _tensorboard(out.with_suffix(".tb"))
     bar = None
     if progress:
         from tqdm import tqdm
@@ -241,6 +245,10 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                                                               "speed_mps", "dampening_ratio")),
                                  val["collisions"]])
                 log_file.flush()
+                if board is not None:
+                    for key, value in val.items():
+                        board.add_scalar(f"validation/{key}", value, done_steps)
+                    board.add_scalar("train/reward", train_reward, done_steps)
                 score = val["val_reward"] - 10.0 * val["collisions"]
                 if score > best:
                     best = score
@@ -256,10 +264,21 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     finally:
         vec.close()
         log_file.close()
+        if board is not None:
+            board.close()
         if bar is not None:
             bar.close()
     wall = wall_before + time.perf_counter() - t0
     return {"validation": val, "wall_time_s": wall, "best_score": best}
+
+
+def _tensorboard(logdir: Path):
+    """A TensorBoard writer when the tensorboard package is installed, else None."""
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError:
+        return None
+    return SummaryWriter(str(logdir))
 
 
 def _decode_rng(saved: dict) -> dict:
