@@ -55,6 +55,7 @@ class AgentConfig:
     exploration_noise: float = 0.15  # std of the exploration noise (fraction of adj_max)
     noise_correlation: float = 0.98  # AR(1) coefficient of that noise per 0.1 s step (τ ≈ 5 s)
     preactivation_l2: float = 0.01  # actor loss penalty on tanh inputs: keeps tanh unsaturated
+    max_grad_norm: float = 10.0     # gradient norm clipping of actor and critic updates
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -161,6 +162,7 @@ class Agent(nn.Module):
             loss = loss + _masked_mse(self._q(self.critic2, obs, action, mask), y, maskf)
         self.critic_opt.zero_grad()
         loss.backward()
+        nn.utils.clip_grad_norm_(self.critic_opt.param_groups[0]["params"], cfg.max_grad_norm)
         self.critic_opt.step()
         stats = {"critic_loss": float(loss.detach())}
         self.updates += 1
@@ -170,6 +172,7 @@ class Agent(nn.Module):
             actor_loss = (((cfg.preactivation_l2 * pre ** 2) - q) * maskf).sum() / maskf.sum()
             self.actor_opt.zero_grad()
             actor_loss.backward()
+            nn.utils.clip_grad_norm_(self.actor.parameters(), cfg.max_grad_norm)
             self.actor_opt.step()
             stats["actor_loss"] = float(actor_loss.detach())
             self._soft_update()

@@ -71,6 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="jerk that normalises the comfort term (m/s³)")
     p.add_argument("--message-dim", type=int, default=None, help="V2V message width (CA models)")
     p.add_argument("--hidden", type=int, default=None, help="hidden layer width")
+    p.add_argument("--actor-lr", type=float, default=None, help="actor learning rate")
+    p.add_argument("--critic-lr", type=float, default=None, help="critic learning rate")
     p.add_argument("--noise", type=float, default=None,
                    help="exploration noise std as a fraction of the a_adj bound")
     p.add_argument("--noise-correlation", type=float, default=None,
@@ -178,8 +180,8 @@ def cmd_replay(args: argparse.Namespace) -> None:
                     and k != "event_id"))
 
 
-TRAIN_OVERRIDES = ("w_gap", "w_safe", "w_comfort", "jerk_scale", "message_dim", "hidden", "noise",
-                   "noise_correlation")
+TRAIN_OVERRIDES = ("w_gap", "w_safe", "w_comfort", "jerk_scale", "message_dim", "hidden",
+                   "actor_lr", "critic_lr", "noise", "noise_correlation")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 

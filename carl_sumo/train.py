@@ -59,6 +59,8 @@ class TrainConfig:
     jerk_scale: float = REWARD.jerk_scale_mps3
     message_dim: int = AgentConfig.message_dim            # V2V message width (CA models)
     hidden: int = AgentConfig.hidden                      # hidden layer width
+    actor_lr: float = AgentConfig.actor_lr
+    critic_lr: float = AgentConfig.critic_lr
     noise: float = AgentConfig.exploration_noise          # exploration std (fraction of adj_max)
     noise_correlation: float = AgentConfig.noise_correlation
 
@@ -174,7 +176,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     torch.set_num_threads(1)  # the SUMO workers have the other cores; small nets gain nothing
     seed_everything(cfg.seed)
     agent = Agent(AgentConfig(algo=cfg.algo, n_vehicles=n, message_dim=cfg.message_dim,
-                              hidden=cfg.hidden, exploration_noise=cfg.noise,
+                              hidden=cfg.hidden, actor_lr=cfg.actor_lr, critic_lr=cfg.critic_lr,
+                              exploration_noise=cfg.noise,
                               noise_correlation=cfg.noise_correlation))
     buffer = ReplayBuffer(cfg.buffer_size, n)
     rng = np.random.default_rng(cfg.seed)
