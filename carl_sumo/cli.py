@@ -64,6 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint-every", type=int, default=5_000)
     p.add_argument("--out", type=Path, default=None, help="policy file (default policies/ALGO.pt)")
     p.add_argument("--resume", type=Path, default=None, help="checkpoint (.ckpt) to continue")
+    p.add_argument("--select", default=None, choices=("metrics", "reward"),
+                   help="keep the best validation checkpoint by metrics (default) or by reward")
     p.add_argument("--w-gap", type=float, default=None, help="reward weight of the headway term")
     p.add_argument("--w-safe", type=float, default=None, help="reward weight of the TTC term")
     p.add_argument("--w-comfort", type=float, default=None, help="reward weight of the jerk term")
@@ -77,6 +79,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="exploration noise std as a fraction of the a_adj bound")
     p.add_argument("--noise-correlation", type=float, default=None,
                    help="AR(1) coefficient of the exploration noise per step (0 = white)")
+
+    p = sub.add_parser("export", help="write the current actor of a training checkpoint as a policy")
+    p.add_argument("checkpoint", type=Path)
+    p.add_argument("--out", type=Path, required=True)
 
     p = sub.add_parser("policy-info", help="print the Markdown card of policy files")
     p.add_argument("paths", nargs="+", type=Path)
@@ -180,7 +186,7 @@ def cmd_replay(args: argparse.Namespace) -> None:
                     and k != "event_id"))
 
 
-TRAIN_OVERRIDES = ("w_gap", "w_safe", "w_comfort", "jerk_scale", "message_dim", "hidden",
+TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "jerk_scale", "message_dim", "hidden",
                    "actor_lr", "critic_lr", "noise", "noise_correlation")
 """Training options that, when given, override the defaults of TrainConfig."""
 
@@ -207,6 +213,13 @@ def cmd_train(args: argparse.Namespace) -> None:
     print(f"wrote {out} (best validation score {result['best_score']:.4f}); "
           f"wall time {result['wall_time_s']:.0f} s; last validation: "
           + ", ".join(f"{k}={_fmt(v)}" for k, v in val.items()))
+
+
+def cmd_export(args: argparse.Namespace) -> None:
+    from carl_sumo.train import export_policy
+
+    meta = export_policy(args.checkpoint, args.out)
+    print(f"wrote {args.out} ({meta['exported_from']})")
 
 
 def cmd_policy_info(args: argparse.Namespace) -> None:
@@ -262,7 +275,7 @@ def cmd_data(args: argparse.Namespace) -> None:
         print(f"wrote {out}: {table['event_id'].nunique()} events")
 
 
-COMMANDS = {"simulate": cmd_simulate, "train": cmd_train, "policy-info": cmd_policy_info, "replay": cmd_replay, "bench": cmd_bench, "net": cmd_net,
+COMMANDS = {"simulate": cmd_simulate, "train": cmd_train, "policy-info": cmd_policy_info, "export": cmd_export, "replay": cmd_replay, "bench": cmd_bench, "net": cmd_net,
             "data": cmd_data}
 
 

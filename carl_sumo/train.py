@@ -2,8 +2,8 @@
 transitions, DDPG/TD3-family updates, validation on held-out training events, atomic checkpoints.
 
 ``carl-sumo train`` calls :func:`train`. A step is one step of every environment at once (so
-``num_envs`` platoon transitions). The validation score is the mean per-vehicle reward over the
-held-out events run without exploration noise; the best policy is the one written to ``--out``.
+``num_envs`` platoon transitions). Validation runs the policy without exploration noise on held-out
+training events; the best policy by :func:`selection_score` is the one written to ``--out``.
 """
 
 from __future__ import annotations
@@ -61,6 +61,7 @@ class TrainConfig:
     hidden: int = AgentConfig.hidden                      # hidden layer width
     actor_lr: float = AgentConfig.actor_lr
     critic_lr: float = AgentConfig.critic_lr
+    select: str = "metrics"        # how the best checkpoint is chosen: "metrics" or "reward"
     noise: float = AgentConfig.exploration_noise          # exploration std (fraction of adj_max)
     noise_correlation: float = AgentConfig.noise_correlation
 
@@ -140,6 +141,22 @@ def validate(agent: Agent, env: PlatoonEnv, events: Sequence[Event]) -> dict[str
                                                        np.array(speeds), np.array(gaps),
                                                        collisions)))
     return {"val_reward": float(np.mean(rewards)), **aggregate(per_event)}
+
+
+SELECTIONS = ("metrics", "reward")
+
+
+def selection_score(val: dict[str, float], select: str = "metrics") -> float:
+    """Higher is better. ``reward``: mean validation reward, -10 per collision. ``metrics``: the
+    product's quality criteria on the held-out events: -(dampening ratio + mean |jerk|), with any
+    collision, any TTC < 1.5 s sample, or a mean headway outside [1, 2.5] s ranked below all
+    policies that have none. An undefined term (NaN: a leader that never accelerates) counts 0."""
+    if select == "reward":
+        return val["val_reward"] - 10.0 * val["collisions"]
+    unsafe = val["collisions"] > 0 or val["ttc_lt_1_5s_count"] > 0 \
+        or not 1.0 <= val["headway_s"] <= 2.5
+    smoothness = np.nan_to_num(val["dampening_ratio"]) + np.nan_to_num(val["jerk_mps3"])
+    return -float(smoothness) - (1000.0 if unsafe else 0.0)
 
 
 def seed_everything(seed: int) -> None:
@@ -252,8 +269,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                     for key, value in val.items():
                         board.add_scalar(f"validation/{key}", value, done_steps)
                     board.add_scalar("train/reward", train_reward, done_steps)
-                score = val["val_reward"] - 10.0 * val["collisions"]
-                if score > best:
+                score = selection_score(val, cfg.select)
+                if score > best or not np.isfinite(best):
                     best = score
                     save_policy(agent, out, _metadata(cfg, agent, val, wall))
                 if bar is not None:
@@ -298,6 +315,21 @@ def _rng_for_save(rng: np.random.Generator) -> dict:
     return {"bit_generator": s["bit_generator"], "state_hi": state >> 64, "state_lo": state & mask,
             "inc_hi": inc >> 64, "inc_lo": inc & mask, "has_uint32": int(s["has_uint32"]),
             "uinteger": int(s["uinteger"])}
+
+
+def export_policy(checkpoint: Path, out: Path) -> dict[str, Any]:
+    """Write the current actor of a training checkpoint as a policy file; its metadata."""
+    state = load_torch(checkpoint, "checkpoint")
+    if state.get("format") != CHECKPOINT_FORMAT:
+        raise InputError(f"{checkpoint} is not a carl-sumo training checkpoint")
+    cfg = TrainConfig(**state["train_config"])
+    agent = Agent(AgentConfig(algo=cfg.algo, n_vehicles=cfg.n_vehicles,
+                              message_dim=cfg.message_dim, hidden=cfg.hidden))
+    agent.load_state_dict(state["agent"])
+    meta = _metadata(cfg, agent, {}, float(state["wall_s"]))
+    meta["exported_from"] = f"{Path(checkpoint).name} at step {int(state['step'])}"
+    save_policy(agent, Path(out), meta)
+    return meta
 
 
 def _save_checkpoint(path: Path, cfg: TrainConfig, agent: Agent, buffer: ReplayBuffer,

@@ -13,7 +13,8 @@ from carl_sumo.agents import Agent, AgentConfig
 from carl_sumo.bench import cruise_event
 from carl_sumo.env import PlatoonEnv
 from carl_sumo.policy import load_policy
-from carl_sumo.train import TrainConfig, seed_everything, train, validate
+from carl_sumo.train import (TrainConfig, export_policy, seed_everything, selection_score,
+                             train, validate)
 
 from conftest import NET, REPO_ROOT, event_table
 
@@ -31,6 +32,20 @@ def test_tiny_training_run_improves_reward(tmp_path):
     agent, meta = load_policy(tmp_path / "td3.pt")
     assert meta["algo"] == "td3" and meta["trained_vehicles"] == 1
     assert (tmp_path / "td3.csv").read_text().startswith("step,transitions")
+    meta = export_policy(tmp_path / "td3.ckpt", tmp_path / "final.pt")
+    assert meta["exported_from"] == "td3.ckpt at step 800"
+    assert load_policy(tmp_path / "final.pt")[0].cfg.algo == "td3"
+
+
+def test_selection_prefers_safe_smooth_policies():
+    base = {"val_reward": 0.5, "collisions": 0, "ttc_lt_1_5s_count": 0, "headway_s": 1.5,
+            "dampening_ratio": 0.9, "jerk_mps3": 0.3}
+    smoother = dict(base, dampening_ratio=0.7)
+    unsafe = dict(base, dampening_ratio=0.1, collisions=1)
+    too_close = dict(base, dampening_ratio=0.1, headway_s=0.8)
+    assert selection_score(smoother) > selection_score(base) > selection_score(unsafe)
+    assert selection_score(base) > selection_score(too_close)
+    assert selection_score(dict(base, val_reward=0.6), "reward") > selection_score(base, "reward")
 
 
 def test_killed_run_resumes_from_checkpoint(tmp_path):
