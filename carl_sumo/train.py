@@ -270,8 +270,9 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                         board.add_scalar(f"validation/{key}", value, done_steps)
                     board.add_scalar("train/reward", train_reward, done_steps)
                 score = selection_score(val, cfg.select)
-                if score > best or not np.isfinite(best):
-                    best = score
+                # only a trained actor can be the best; the first validation is a fallback
+                if agent.updates > 0 and score > best or not np.isfinite(best):
+                    best = score if agent.updates > 0 else -np.inf
                     save_policy(agent, out, _metadata(cfg, agent, val, wall))
                 if bar is not None:
                     bar.set_postfix(reward=f"{train_reward:.3f}", val=f"{val['val_reward']:.3f}",
