@@ -213,7 +213,6 @@ class PlatoonSim:
         self.event: Event | None = None
         self.n = 0
         self.k = 0
-        self._episode = 0
 
     # ----------------------------------------------------------------------------------------
     def reset(self, event: Event, n_followers: int, fcd_path: Path | None = None,
@@ -229,7 +228,6 @@ class PlatoonSim:
         ls = _libsumo()
         start_sumo(sumo_args(self.route.net_path, fcd_path, seed))
         self.event, self.n, self.k = event, n_followers, 0
-        self._episode += 1
         for i in range(len(self.route.edges)):  # one route per edge a vehicle may start on
             ls.route.add(f"platoon{i}", list(self.route.edges[i:]))
         x_leader = platoon_start_m(event, n_followers, self.scenario)
@@ -293,7 +291,7 @@ class PlatoonSim:
 
     @property
     def leader_speed(self) -> float:
-        return float(self.event.leader_speed_mps[self.k])
+        return self._leader_speed[self.k]
 
     @property
     def leader_pos(self) -> float:
