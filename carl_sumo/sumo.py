@@ -305,10 +305,6 @@ class PlatoonSim:
         return _observe(self.speed, self.acc, self.pos, self._leader_front[self.k],
                         self._leader_speed[self.k], self.scenario.vehicle_length_m)
 
-    def gaps(self) -> np.ndarray:
-        """Bumper-to-bumper gap of each follower to its predecessor (m)."""
-        return self.observation()[:, 2]
-
     def step(self, accel: np.ndarray | None = None) -> None:
         """Advance SUMO by one step; ``accel`` (m/s², shape (n,)) drives external followers."""
         k1 = self.k + 1
