@@ -98,6 +98,33 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--vehicles", type=int, default=10, help="with --training: platoon length")
     p.add_argument("--envs", type=int, default=2, help="with --training: worker processes")
 
+    p = sub.add_parser("study", help="mixed human/CACC traffic on the freeway against the "
+                       "CACC penetration rate: tables and figures")
+    p.add_argument("--net", default="networks/i80.net.xml", help="SUMO network (.net.xml)")
+    p.add_argument("--controller", default="idm-external",
+                   help="CACC controller: idm-external | sumo-cacc | POLICY.pt (not MADDPG)")
+    p.add_argument("--penetration", default="0,0.25,0.5,0.75,1",
+                   help="CACC penetration rates in [0, 1], comma-separated")
+    p.add_argument("--duration", type=float, default=900.0, help="measured simulated time (s)")
+    p.add_argument("--warmup", type=float, default=300.0,
+                   help="simulated time before measuring (s)")
+    p.add_argument("--seeds", type=int, default=3, help="number of seeds (0, 1, ...) per rate")
+    p.add_argument("--v2v-range", type=float, default=300.0,
+                   help="V2V range between consecutive CACC vehicles (m)")
+    p.add_argument("--demand-scale", type=float, default=1.0,
+                   help="multiplies the default demand (2000 veh/h/lane, on-ramp 500 veh/h)")
+    p.add_argument("--krauss-share", type=float, default=0.5,
+                   help="share of human drivers with SUMO's Krauss model (rest IDM)")
+    p.add_argument("--detector-pos", type=float, default=5000.0,
+                   help="position of the induction loops on i80_main (m from its start)")
+    p.add_argument("--heatmap-lane", type=int, default=6,
+                   help="NGSIM lane of the time-space speed maps (1 = leftmost, 6 = rightmost)")
+    p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                   help="parallel SUMO processes")
+    p.add_argument("--fcd", action="store_true",
+                   help="also write SUMO FCD output (1 s period, gzip) of the first seed per rate")
+    p.add_argument("--out", type=Path, default=Path("results/study"), help="output folder")
+
     p = sub.add_parser("net", help="network tools")
     net_sub = p.add_subparsers(dest="net_command", required=True, parser_class=_Parser)
     b = net_sub.add_parser("build", help="regenerate networks/i80.net.xml with netconvert")
@@ -252,6 +279,70 @@ def cmd_bench(args: argparse.Namespace) -> None:
     print(format_bench(rows))
 
 
+def _rates(text: str) -> tuple[float, ...]:
+    try:
+        rates = tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise InputError(f"--penetration must be numbers in [0, 1] separated by commas, got "
+                         f"{text!r}") from None
+    if not rates or any(not 0.0 <= r <= 1.0 for r in rates):
+        raise InputError(f"--penetration must be numbers in [0, 1] separated by commas, got "
+                         f"{text!r}")
+    return tuple(sorted(set(rates)))
+
+
+def cmd_study(args: argparse.Namespace) -> None:
+    from dataclasses import replace
+
+    from carl_sumo.study import StudyConfig, resolve_study_controller, run_study, write_outputs
+    from carl_sumo.sumo import lane_route
+    from carl_sumo.traffic import DEFAULT_DEMAND
+
+    rates = _rates(args.penetration)
+    for name, value in (("--duration", args.duration), ("--v2v-range", args.v2v_range),
+                        ("--demand-scale", args.demand_scale)):
+        if not (math.isfinite(value) and value > 0):
+            raise InputError(f"{name} must be a positive number, got {value}")
+    if not (math.isfinite(args.warmup) and args.warmup >= 0):
+        raise InputError(f"--warmup must be a non-negative number of seconds, got {args.warmup}")
+    _positive(args.seeds, "--seeds")
+    _positive(args.workers, "--workers")
+    lane_route(args.net, args.heatmap_lane)  # checks the network and the lane
+    if not 0.0 <= args.detector_pos:
+        raise InputError(f"--detector-pos must be non-negative, got {args.detector_pos}")
+    demand = replace(DEFAULT_DEMAND.scaled(args.demand_scale), krauss_share=args.krauss_share)
+    cfg = StudyConfig(controller=args.controller, penetrations=rates,
+                      seeds=tuple(range(args.seeds)), duration_s=args.duration,
+                      warmup_s=args.warmup, v2v_range_m=args.v2v_range,
+                      detector_pos_m=args.detector_pos, heatmap_lane=args.heatmap_lane,
+                      net=str(args.net), demand=demand, fcd=args.fcd, workers=args.workers)
+    resolve_study_controller(cfg.controller)
+    _check_detector(cfg)
+    start = time.perf_counter()
+    results = run_study(cfg, args.out, progress=sys.stderr.isatty())
+    wall = time.perf_counter() - start
+    written = write_outputs(cfg, results, args.out, "carl-sumo " + " ".join(sys.argv[1:]), wall)
+    from carl_sumo.study import markdown_table, summarise
+
+    print(markdown_table(summarise(results)))
+    print(f"{len(results)} runs in {wall:.0f} s wall; wrote " + ", ".join(str(p) for p in written))
+
+
+def _check_detector(cfg) -> None:
+    import sumolib
+
+    from carl_sumo.traffic import MAIN_EDGE
+
+    net = sumolib.net.readNet(cfg.net)
+    if not net.hasEdge(MAIN_EDGE):
+        raise InputError(f"network {cfg.net} has no edge {MAIN_EDGE}; the study needs the "
+                         "I-80-like network (networks/i80.net.xml)")
+    length = net.getEdge(MAIN_EDGE).getLength()
+    if cfg.detector_pos_m > length:
+        raise InputError(f"--detector-pos {cfg.detector_pos_m:g} m is beyond the end of "
+                         f"{MAIN_EDGE} ({length:.0f} m)")
+
+
 def cmd_net(args: argparse.Namespace) -> None:
     from carl_sumo.network import NET_FILE, NET_SOURCES, build_network
 
@@ -276,6 +367,7 @@ def cmd_data(args: argparse.Namespace) -> None:
 
 
 COMMANDS = {"simulate": cmd_simulate, "train": cmd_train, "policy-info": cmd_policy_info, "export": cmd_export, "replay": cmd_replay, "bench": cmd_bench, "net": cmd_net,
+            "study": cmd_study,
             "data": cmd_data}
 
 

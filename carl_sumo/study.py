@@ -1,0 +1,561 @@
+"""Mixed human/CACC traffic studies on the I-80-like freeway: ``carl-sumo study``.
+
+One run = one penetration rate p and one seed: SUMO (libsumo) simulates the human demand of
+:mod:`carl_sumo.traffic` in which each vehicle is CACC with probability p, for ``warmup_s`` +
+``duration_s`` simulated seconds; metrics are taken over the last ``duration_s`` only (the warm-up
+fills the 8.4 km road: a vehicle at 30 m/s crosses it in 280 s).
+
+CACC vehicles (controller ``idm-external`` or a policy file) are driven by carl-sumo every 0.1 s:
+
+- the vehicle ahead is what SUMO says it is (``vehicle.getLeader`` up to the sensing range
+  ``max(v2v_range_m, SENSOR_RANGE_M)``), whoever it is: humans may cut in;
+- the observation is o_i = [v_i (m/s), a_i (m/s²), d_i (m, bumper gap), Δv_i = v_ahead - v_i
+  (m/s)]; with no vehicle within the sensing range d_i = the sensing range and Δv_i = 0;
+- chains (:func:`form_chains`): consecutive CACC vehicles in one lane, each within ``v2v_range_m``
+  of the one ahead; a human or a longer gap ends a chain. The policy runs on all chains at once
+  (padded batch with a mask: the Communication-Aware module gives the boundary messages to each
+  chain's ends);
+- a = clip(a_IDM + a_adj) (:func:`carl_sumo.controllers.total_acceleration`), applied exactly with
+  ``setSpeed(max(v + a·dt, 0))`` (speedMode 0); lane changes off (laneChangeMode 0).
+
+Controller ``sumo-cacc``: CACC vehicles are of type ``cacc_sumo`` (SUMO's CACC car-following
+model) and SUMO drives them; only their lane changes are switched off.
+
+Metrics of a run (over the measurement interval, every vehicle on the network):
+
+| key | unit | definition |
+|---|---|---|
+| ``throughput_vph`` | veh/h | vehicles counted by SUMO's induction loops on all lanes of ``i80_main`` at ``detector_pos_m`` / measured hours |
+| ``speed_mps`` | m/s | SUMO edgeData: total distance / total time of all vehicles on all edges |
+| ``headway_s`` | s | mean of d/v over samples with v > 0.5 m/s and a vehicle ahead within 150 m |
+| ``ttc_lt_4s_per_vh``, ``ttc_lt_1_5s_per_vh`` | 1/veh-h | 0.1 s samples with 0 < TTC < 4 s (1.5 s), TTC = d/(v - v_ahead) when v > v_ahead, per vehicle-hour |
+| ``jerk_mps3`` | m/s³ | mean \\|j\\|, j = Δa/dt and a = Δv/dt from SUMO speeds every 0.1 s |
+| ``collisions`` | - | SUMO collisions (bumper overlap; both vehicles are removed) |
+| ``co2_g_per_km``, ``fuel_g_per_km`` | g/veh-km | SUMO emission model (edgeData emissions, default HBEFA class) / vehicle-km |
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import shutil
+import time
+import xml.etree.ElementTree as ET
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from carl_sumo.config import DT_S, HEADWAY_MIN_SPEED_MPS
+from carl_sumo.controllers import total_acceleration
+from carl_sumo.errors import InputError
+from carl_sumo.sumo import DEFAULT_NET, VTYPES_FILE, atomic_output, close_sumo, lane_route, start_sumo
+from carl_sumo.traffic import CACC_TYPES, DEFAULT_DEMAND, MAIN_EDGE, Demand, write_detectors, write_routes
+
+SENSOR_RANGE_M = 300.0
+"""Range within which a CACC vehicle sees the vehicle ahead (radar), m; at least the V2V range."""
+
+FOLLOWING_GAP_M = 150.0
+"""A vehicle counts as following (headway metric) when the vehicle ahead is within this (m)."""
+
+SPEED_MODE_CACC = 0
+"""speedMode of carl-sumo's CACC vehicles: the commanded speed is applied exactly, no SUMO checks."""
+
+HEATMAP_BIN_S = 10.0
+"""Time bin of the time-space speed map (s)."""
+
+HEATMAP_BIN_M = 100.0
+"""Space bin of the time-space speed map (m)."""
+
+STUDY_CONTROLLERS = ("idm-external", "sumo-cacc")
+"""Built-in CACC controllers of a study; a policy file (.pt) is the third kind."""
+
+METRICS = ("throughput_vph", "speed_mps", "headway_s", "ttc_lt_4s_per_vh", "ttc_lt_1_5s_per_vh",
+           "jerk_mps3", "collisions", "co2_g_per_km", "fuel_g_per_km")
+RUN_EXTRA = ("mean_vehicles", "max_vehicles", "cacc_share", "mean_chain_length",
+             "max_chain_length", "sim_speed", "sumo_share")
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """Everything that defines a study (units in the names)."""
+
+    controller: str = "idm-external"
+    penetrations: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 1.0)
+    seeds: tuple[int, ...] = (0, 1, 2)
+    duration_s: float = 900.0          # measured simulated time (s)
+    warmup_s: float = 300.0            # simulated time before measuring (s)
+    v2v_range_m: float = 300.0         # V2V range between consecutive CACC vehicles (m)
+    detector_pos_m: float = 5000.0     # induction loops, m from the start of i80_main
+    heatmap_lane: int = 6              # NGSIM lane of the time-space map (6 = rightmost)
+    net: str = str(DEFAULT_NET)
+    demand: Demand = DEFAULT_DEMAND
+    fcd: bool = False                  # FCD output of the first seed of each rate
+    workers: int = 2
+
+
+# --------------------------------------------------------------------------------- chains
+def form_chains(vehicles: Sequence[str], ahead: Sequence[tuple[str, float] | None],
+                range_m: float) -> list[list[int]]:
+    """Chains of consecutive CACC vehicles, head first, as indices into ``vehicles``.
+
+    ``vehicles`` are the CACC vehicles on the network; ``ahead[i]`` is (id, bumper gap m) of the
+    vehicle SUMO reports ahead of vehicle i in its lane, or None. Vehicle i follows j in a chain
+    when j is CACC and the gap is at most ``range_m``; where two CACC vehicles report the same
+    vehicle ahead (two lanes joining), the nearer one follows it. Every vehicle is in one chain.
+    """
+    index = {v: i for i, v in enumerate(vehicles)}
+    claimed: dict[int, tuple[float, int]] = {}
+    for i, item in enumerate(ahead):
+        if item is None:
+            continue
+        j = index.get(item[0])
+        if j is None or j == i or item[1] > range_m:
+            continue
+        best = claimed.get(j)
+        if best is None or item[1] < best[0]:
+            claimed[j] = (item[1], i)
+    follower = {j: i for j, (_, i) in claimed.items()}
+    linked = set(follower.values())
+    chains, seen = [], set()
+    for head in range(len(vehicles)):
+        if head in linked:
+            continue
+        chain, cur = [head], head
+        while cur in follower and follower[cur] not in seen:
+            cur = follower[cur]
+            chain.append(cur)
+        seen.update(chain)
+        chains.append(chain)
+    chains.extend([i] for i in range(len(vehicles)) if i not in seen)  # cycles (not physical)
+    return chains
+
+
+class ChainController:
+    """a_adj of all CACC vehicles from their chains: zero (``idm-external``) or a policy."""
+
+    def __init__(self, name: str):
+        self.name = name
+        self.agent = None
+        if name != "idm-external":
+            from carl_sumo.policy import load_policy
+
+            agent, _ = load_policy(Path(name))
+            if agent.cfg.algo == "maddpg":
+                raise InputError(f"policy {name} is MADDPG: it has one actor per platoon position "
+                                 f"for exactly {agent.cfg.n_vehicles} vehicles and cannot run CACC "
+                                 "chains that form and break in traffic; use a CA-TD3, CA-DDPG, "
+                                 "TD3 or DDPG policy")
+            self.agent = agent
+
+    def adjustment(self, obs: np.ndarray, chains: list[list[int]]) -> np.ndarray:
+        """a_adj (m/s², shape (m,)) for observations (m, 4) of the CACC vehicles and their chains."""
+        m = obs.shape[0]
+        if self.agent is None or m == 0:
+            return np.zeros(m)
+        length = max(len(c) for c in chains)
+        x = np.zeros((len(chains), length, 4))
+        mask = np.zeros((len(chains), length), dtype=bool)
+        rows = np.concatenate([np.full(len(c), b) for b, c in enumerate(chains)])
+        cols = np.concatenate([np.arange(len(c)) for c in chains])
+        order = np.concatenate(chains)
+        x[rows, cols] = obs[order]
+        mask[rows, cols] = True
+        out = np.empty(m)
+        out[order] = self.agent.act_padded(x, mask)[rows, cols]
+        return out
+
+
+def resolve_study_controller(name: str) -> tuple[str, ChainController | None]:
+    """(CACC kind of :data:`carl_sumo.traffic.CACC_TYPES`, controller); InputError if unknown."""
+    if name == "sumo-cacc":
+        return "sumo", None
+    if name == "idm-external" or name.endswith(".pt"):
+        return "external", ChainController(name)
+    raise InputError(f"unknown study controller {name!r}; choose {', '.join(STUDY_CONTROLLERS)} "
+                     "or the path of a policy file (.pt)")
+
+
+# ------------------------------------------------------------------------------------ runs
+@dataclass
+class _Accumulator:
+    """Running sums of the per-sample metrics over the measurement interval."""
+
+    samples: int = 0
+    headway_sum: float = 0.0
+    headway_n: int = 0
+    ttc4: int = 0
+    ttc15: int = 0
+    jerk_sum: float = 0.0
+    jerk_n: int = 0
+    collisions: int = 0
+    vehicles_sum: int = 0
+    vehicles_max: int = 0
+    steps: int = 0
+    cacc_samples: int = 0
+    chain_sum: int = 0
+    chain_n: int = 0
+    chain_max: int = 0
+
+
+@dataclass
+class RunResult:
+    penetration: float
+    seed: int
+    metrics: dict[str, float]
+    heatmap: list[list[float]] = field(default_factory=list)  # mean speed (m/s), [time][space]
+    heatmap_extent: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # t0, t1, x0, x1
+    run_dir: str = ""
+
+
+def run_name(penetration: float, seed: int) -> str:
+    return f"p{penetration:g}_seed{seed}"
+
+
+def _sumo_study_args(cfg: StudyConfig, routes: Path, additional: Path,
+                     fcd: Path | None, seed: int) -> list[str]:
+    end = cfg.warmup_s + cfg.duration_s
+    args = ["-n", str(cfg.net), "-a", f"{VTYPES_FILE},{additional}", "-r", str(routes),
+            "--step-length", str(DT_S), "--seed", str(seed), "--begin", "0", "--end", f"{end:g}",
+            "--no-step-log", "true", "--no-warnings", "true",
+            "--collision.action", "remove", "--collision.mingap-factor", "0",
+            "--time-to-teleport", "-1",
+            "--collision-output", str(Path(additional).parent / "collisions.xml")]
+    if fcd is not None:
+        args += ["--fcd-output", str(fcd), "--fcd-output.acceleration", "true",
+                 "--device.fcd.period", "1", "--device.fcd.begin", f"{cfg.warmup_s:g}"]
+    return args
+
+
+def run_one(cfg: StudyConfig, penetration: float, seed: int, out_dir: Path) -> RunResult:
+    """Simulate one (p, seed) run in this process and score it; its SUMO files go to out_dir."""
+    import libsumo as ls
+
+    kind, controller = resolve_study_controller(cfg.controller)
+    out_dir = Path(out_dir)
+    name = run_name(penetration, seed)
+    final = out_dir / "runs" / name
+    work = out_dir / "runs" / f".{name}.{os.getpid()}.tmp"
+    shutil.rmtree(work, ignore_errors=True)
+    work.mkdir(parents=True)
+    end_s = cfg.warmup_s + cfg.duration_s
+    try:
+        routes = write_routes(work / "routes.rou.xml", penetration, seed, end_s, cfg.demand, kind)
+        outputs = write_detectors(work / "outputs.add.xml", _main_lanes(cfg.net),
+                                  cfg.detector_pos_m, cfg.warmup_s, end_s)
+        fcd = work / f"fcd_{name}.xml.gz" if cfg.fcd and seed == cfg.seeds[0] else None
+        lane_chain = lane_route(cfg.net, cfg.heatmap_lane)
+        start_sumo(_sumo_study_args(cfg, routes.path, work / "outputs.add.xml", fcd, seed))
+        try:
+            acc, heat, timing = _simulate(ls, cfg, kind, controller, routes.cacc_ids, lane_chain)
+        finally:
+            close_sumo()  # SUMO writes and closes its output files
+        metrics = _score(cfg, acc, outputs)
+        metrics.update(timing)
+        shutil.rmtree(final, ignore_errors=True)
+        os.replace(work, final)
+    except BaseException:
+        shutil.rmtree(work, ignore_errors=True)
+        raise
+    t_bins = heat[0].shape[0]
+    extent = (cfg.warmup_s, cfg.warmup_s + t_bins * HEATMAP_BIN_S, 0.0, lane_chain.length_m)
+    with np.errstate(invalid="ignore"):
+        grid = np.where(heat[1] > 0, heat[0] / np.maximum(heat[1], 1), np.nan)
+    return RunResult(penetration, seed, metrics, grid.tolist(), extent, str(final))
+
+
+def _main_lanes(net: str) -> int:
+    import sumolib
+
+    return sumolib.net.readNet(str(net)).getEdge(MAIN_EDGE).getLaneNumber()
+
+
+def _simulate(ls, cfg: StudyConfig, kind: str, controller: ChainController | None,
+              cacc_ids: set[str], lane_chain) -> tuple[_Accumulator, tuple, dict]:
+    """The 0.1 s loop of one run: control, metrics, time-space map. Returns sums and timings."""
+    vehicle = ls.vehicle
+    get_speed, get_leader, set_speed = vehicle.getSpeed, vehicle.getLeader, vehicle.setSpeed
+    sim_step, get_ids = ls.simulationStep, vehicle.getIDList
+    departed_ids, get_collisions = ls.simulation.getDepartedIDList, ls.simulation.getCollisions
+    n_steps = int(round((cfg.warmup_s + cfg.duration_s) / DT_S))
+    first_measured = int(round(cfg.warmup_s / DT_S)) + 1
+    lookahead = max(cfg.v2v_range_m, SENSOR_RANGE_M)
+    external = kind == "external"
+    acc = _Accumulator()
+    min_gap: dict[str, float] = {}
+    prev_speed: dict[str, float] = {}
+    prev_acc: dict[str, float] = {}
+    n_t = int(math.ceil(cfg.duration_s / HEATMAP_BIN_S))
+    n_x = int(math.ceil(lane_chain.length_m / HEATMAP_BIN_M))
+    heat_sum, heat_n = np.zeros((n_t, n_x)), np.zeros((n_t, n_x))
+    lane_ids = ls.lane.getLastStepVehicleIDs
+    inv_dt = 1.0 / DT_S
+    sumo_time, start = 0.0, time.perf_counter()
+    for k in range(1, n_steps + 1):
+        t0 = time.perf_counter()
+        sim_step()
+        sumo_time += time.perf_counter() - t0
+        for vid in departed_ids():
+            min_gap[vid] = vehicle.getMinGap(vid)
+            if vid in cacc_ids:
+                vehicle.setLaneChangeMode(vid, 0)
+                if external:
+                    vehicle.setSpeedMode(vid, SPEED_MODE_CACC)
+        measuring = k >= first_measured
+        ids = get_ids()
+        speeds = list(map(get_speed, ids))
+        speed_of = dict(zip(ids, speeds))
+        prev_v = [prev_speed.get(v) for v in ids]
+        accel = [(s - p) * inv_dt if p is not None else None for s, p in zip(speeds, prev_v)]
+        if measuring:
+            acc.collisions += len(get_collisions())
+            ahead = [get_leader(v, lookahead) for v in ids]
+            _measure(acc, ids, speeds, accel, ahead, speed_of, min_gap, prev_acc, inv_dt)
+            if k % 10 == 0:
+                row = min((k - first_measured) * DT_S // HEATMAP_BIN_S, n_t - 1)
+                for lane, x0 in zip(lane_chain.lanes, lane_chain.lane_starts):
+                    for vid in lane_ids(lane):
+                        col = min(int((x0 + vehicle.getLanePosition(vid)) // HEATMAP_BIN_M),
+                                  n_x - 1)
+                        heat_sum[int(row), col] += speed_of[vid]
+                        heat_n[int(row), col] += 1
+        else:
+            ahead = None
+        prev_speed = speed_of
+        prev_acc = {v: a for v, a in zip(ids, accel) if a is not None}
+        if external:
+            cidx = [i for i, v in enumerate(ids) if v in cacc_ids]
+            if not cidx:
+                continue
+            cids = [ids[i] for i in cidx]
+            cahead = ([ahead[i] for i in cidx] if ahead is not None
+                      else [get_leader(v, lookahead) for v in cids])
+            obs = np.empty((len(cids), 4))
+            chain_ahead: list[tuple[str, float] | None] = []
+            for row, (i, vid, item) in enumerate(zip(cidx, cids, cahead)):
+                v = speeds[i]
+                a = accel[i]
+                obs[row, 0] = v
+                obs[row, 1] = a if a is not None else 0.0
+                if item is None or item[0] == "":
+                    obs[row, 2], obs[row, 3] = lookahead, 0.0
+                    chain_ahead.append(None)
+                else:
+                    gap = item[1] + min_gap[vid]
+                    obs[row, 2], obs[row, 3] = gap, speed_of[item[0]] - v
+                    chain_ahead.append((item[0], gap))
+            chains = form_chains(cids, chain_ahead, cfg.v2v_range_m)
+            accel_cmd = total_acceleration(obs, controller.adjustment(obs, chains))
+            for vid, v, a in zip(cids, obs[:, 0].tolist(), accel_cmd.tolist()):
+                v += a * DT_S
+                set_speed(vid, v if v > 0.0 else 0.0)
+            if measuring:
+                acc.chain_sum += len(cids)
+                acc.chain_n += len(chains)
+                acc.chain_max = max(acc.chain_max, max(len(c) for c in chains))
+        if measuring:
+            acc.cacc_samples += sum(1 for v in ids if v in cacc_ids)
+    wall = time.perf_counter() - start
+    sim_s = n_steps * DT_S
+    return acc, (heat_sum, heat_n), {"sim_speed": sim_s / wall, "sumo_share": sumo_time / wall,
+                                     "wall_s": wall}
+
+
+def _measure(acc: _Accumulator, ids, speeds, accel, ahead, speed_of, min_gap, prev_acc,
+             inv_dt: float) -> None:
+    """Add one step's samples of every vehicle to the accumulator."""
+    n = len(ids)
+    acc.samples += n
+    acc.steps += 1
+    acc.vehicles_sum += n
+    acc.vehicles_max = max(acc.vehicles_max, n)
+    for vid, v, a, item in zip(ids, speeds, accel, ahead):
+        if a is not None:
+            pa = prev_acc.get(vid)
+            if pa is not None:
+                acc.jerk_sum += abs(a - pa) * inv_dt
+                acc.jerk_n += 1
+        if item is None or item[0] == "":
+            continue
+        gap = item[1] + min_gap[vid]
+        if gap <= FOLLOWING_GAP_M and v > HEADWAY_MIN_SPEED_MPS:
+            acc.headway_sum += gap / v
+            acc.headway_n += 1
+        closing = v - speed_of[item[0]]
+        if closing > 0.0 and gap > 0.0:
+            ttc = gap / closing
+            if ttc < 4.0:
+                acc.ttc4 += 1
+                if ttc < 1.5:
+                    acc.ttc15 += 1
+
+
+def _score(cfg: StudyConfig, acc: _Accumulator, outputs: dict[str, Path]) -> dict[str, float]:
+    """The run's metrics from the accumulator and SUMO's detector, edge and emission outputs."""
+    hours = cfg.duration_s / 3600.0
+    counted = 0.0
+    for interval in ET.parse(outputs["detectors"]).getroot().iter("interval"):
+        if float(interval.get("begin")) >= cfg.warmup_s - 1e-6:
+            counted += float(interval.get("nVehContrib"))
+    distance_m = time_s = 0.0
+    for edge in ET.parse(outputs["edgedata"]).getroot().iter("edge"):
+        sampled = float(edge.get("sampledSeconds", 0.0))
+        if sampled > 0:
+            distance_m += float(edge.get("speed")) * sampled
+            time_s += sampled
+    co2_mg = fuel_mg = 0.0
+    for edge in ET.parse(outputs["emissions"]).getroot().iter("edge"):
+        co2_mg += float(edge.get("CO2_abs", 0.0))
+        fuel_mg += float(edge.get("fuel_abs", 0.0))
+    veh_hours = acc.samples * DT_S / 3600.0
+    km = distance_m / 1000.0
+    nan = float("nan")
+    return {
+        "throughput_vph": counted / hours,
+        "speed_mps": distance_m / time_s if time_s > 0 else nan,
+        "headway_s": acc.headway_sum / acc.headway_n if acc.headway_n else nan,
+        "ttc_lt_4s_per_vh": acc.ttc4 / veh_hours if veh_hours > 0 else nan,
+        "ttc_lt_1_5s_per_vh": acc.ttc15 / veh_hours if veh_hours > 0 else nan,
+        "jerk_mps3": acc.jerk_sum / acc.jerk_n if acc.jerk_n else nan,
+        "collisions": float(acc.collisions),
+        "co2_g_per_km": co2_mg / 1000.0 / km if km > 0 else nan,
+        "fuel_g_per_km": fuel_mg / 1000.0 / km if km > 0 else nan,
+        "mean_vehicles": acc.vehicles_sum / acc.steps if acc.steps else 0.0,
+        "max_vehicles": float(acc.vehicles_max),
+        "cacc_share": acc.cacc_samples / acc.samples if acc.samples else 0.0,
+        "mean_chain_length": acc.chain_sum / acc.chain_n if acc.chain_n else nan,
+        "max_chain_length": float(acc.chain_max) if acc.chain_n else nan,
+    }
+
+
+# ----------------------------------------------------------------------------------- study
+def _worker(cfg: StudyConfig, penetration: float, seed: int, out_dir: str) -> RunResult:
+    return run_one(cfg, penetration, seed, Path(out_dir))
+
+
+def run_study(cfg: StudyConfig, out_dir: Path, progress: bool = False) -> list[RunResult]:
+    """All (p, seed) runs, in ``cfg.workers`` spawned processes (one libsumo each)."""
+    resolve_study_controller(cfg.controller)  # fails before any simulation starts
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    tasks = sorted(((p, s) for p in cfg.penetrations for s in cfg.seeds),
+                   key=lambda t: (-t[0], t[1]))  # heaviest (most CACC vehicles) first
+    workers = max(1, min(cfg.workers, len(tasks)))
+    if workers == 1:
+        from carl_sumo.simulate import _worker_init
+
+        _worker_init()  # one torch thread: the batches are small, threads only contend
+        results = []
+        for p, s in tasks:
+            results.append(run_one(cfg, p, s, out_dir))
+            if progress:
+                print(f"  done {run_name(p, s)}", flush=True)
+    else:
+        import multiprocessing as mp
+
+        from carl_sumo.simulate import _worker_init
+
+        with mp.get_context("spawn").Pool(workers, initializer=_worker_init) as pool:
+            pending = [pool.apply_async(_worker, (cfg, p, s, str(out_dir))) for p, s in tasks]
+            results = []
+            for (p, s), job in zip(tasks, pending):
+                results.append(job.get())
+                if progress:
+                    print(f"  done {run_name(p, s)}", flush=True)
+    return sorted(results, key=lambda r: (r.penetration, r.seed))
+
+
+def summarise(results: list[RunResult]) -> list[dict[str, float]]:
+    """One row per penetration rate: mean and standard deviation over seeds of every metric."""
+    rows = []
+    for p in sorted({r.penetration for r in results}):
+        group = [r for r in results if r.penetration == p]
+        row: dict[str, float] = {"penetration": p, "runs": len(group)}
+        for key in (*METRICS, *RUN_EXTRA):
+            values = np.array([r.metrics[key] for r in group], dtype=float)
+            row[key] = float(np.mean(values))
+            row[key + "_sd"] = float(np.std(values, ddof=1)) if len(values) > 1 else 0.0
+        rows.append(row)
+    return rows
+
+
+TABLE_COLUMNS = (("penetration", "p", "{:g}"), ("throughput_vph", "throughput (veh/h)", "{:.0f}"),
+                 ("speed_mps", "mean speed (m/s)", "{:.2f}"), ("headway_s", "headway (s)", "{:.3f}"),
+                 ("ttc_lt_4s_per_vh", "TTC<4 s (/veh-h)", "{:.1f}"),
+                 ("ttc_lt_1_5s_per_vh", "TTC<1.5 s (/veh-h)", "{:.2f}"),
+                 ("jerk_mps3", "jerk (m/s³)", "{:.3f}"), ("collisions", "collisions", "{:.1f}"),
+                 ("co2_g_per_km", "CO2 (g/veh-km)", "{:.1f}"),
+                 ("fuel_g_per_km", "fuel (g/veh-km)", "{:.1f}"),
+                 ("mean_vehicles", "vehicles on net", "{:.0f}"),
+                 ("mean_chain_length", "mean chain", "{:.2f}"),
+                 ("sim_speed", "sim s / wall s", "{:.2f}"))
+
+
+def markdown_table(rows: list[dict[str, float]]) -> str:
+    """The per-rate table in Markdown: mean ± sd over seeds."""
+    header = "| " + " | ".join(h for _, h, _ in TABLE_COLUMNS) + " |"
+    lines = [header, "|" + "---|" * len(TABLE_COLUMNS)]
+    for row in rows:
+        cells = []
+        for key, _, fmt in TABLE_COLUMNS:
+            value = row[key]
+            if isinstance(value, float) and math.isnan(value):
+                cells.append("-")
+                continue
+            cell = fmt.format(value)
+            sd = row.get(key + "_sd")
+            if key != "penetration" and sd and row["runs"] > 1 and not math.isnan(sd):
+                cell += " ± " + fmt.format(sd)
+            cells.append(cell)
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def write_outputs(cfg: StudyConfig, results: list[RunResult], out_dir: Path,
+                  command: str = "", wall_s: float | None = None) -> list[Path]:
+    """Write ``study.csv``, ``runs.csv``, ``study.md`` and the figures (each atomically)."""
+    out_dir = Path(out_dir)
+    rows = summarise(results)
+    written = [_write_csv(out_dir / "study.csv", rows),
+               _write_csv(out_dir / "runs.csv",
+                          [{"penetration": r.penetration, "seed": r.seed, **r.metrics}
+                           for r in results])]
+    from carl_sumo.study_figures import plot_heatmap, plot_metrics
+
+    written.append(plot_metrics(rows, out_dir / "metrics_vs_penetration.png", cfg.controller))
+    rates = sorted({r.penetration for r in results})
+    for p in {rates[0], rates[-1]}:
+        first = min((r for r in results if r.penetration == p), key=lambda r: r.seed)
+        written.append(plot_heatmap(first, out_dir / f"heatmap_p{p:g}.png", cfg.heatmap_lane))
+    settings = {k: v for k, v in asdict(cfg).items() if k not in ("demand",)}
+    text = ["# carl-sumo study", "", f"command: `{command}`" if command else "",
+            f"wall time: {wall_s:.0f} s" if wall_s is not None else "",
+            f"settings: {settings}", f"demand: {asdict(cfg.demand)}", "",
+            markdown_table(rows), ""]
+    written.append(_write_text(out_dir / "study.md", "\n".join(t for t in text if t is not None)))
+    return written
+
+
+def _write_csv(path: Path, rows: list[dict]) -> Path:
+    tmp = atomic_output(path)
+    try:
+        with tmp.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def _write_text(path: Path, text: str) -> Path:
+    tmp = atomic_output(path)
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
