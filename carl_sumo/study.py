@@ -133,12 +133,86 @@ def form_chains(vehicles: Sequence[str], ahead: Sequence[tuple[str, float] | Non
     return chains
 
 
+def cacc_observations(cids: Sequence[str], speeds: Sequence[float],
+                      accels: Sequence[float | None], ahead: Sequence[tuple[str, float] | None],
+                      speed_of: dict[str, float], min_gap: dict[str, float],
+                      sensor_range_m: float) -> tuple[np.ndarray, list[tuple[str, float] | None]]:
+    """Observations o_i = [v, a, d, Δv] (m, 4) of CACC vehicles and their vehicle ahead.
+
+    ``ahead[i]`` is SUMO's ``getLeader`` answer (id, gap without the follower's minGap) or None;
+    d = that gap + minGap (bumper to bumper, m), Δv = v_ahead - v (m/s). Without a vehicle ahead
+    within the sensing range, d = ``sensor_range_m`` and Δv = 0. Returns the observations and
+    (id, bumper gap) of the vehicle ahead of each (None if none), for :func:`form_chains`.
+    """
+    obs = np.empty((len(cids), 4))
+    chain_ahead: list[tuple[str, float] | None] = []
+    for row, (vid, v, a, item) in enumerate(zip(cids, speeds, accels, ahead)):
+        obs[row, 0] = v
+        obs[row, 1] = a if a is not None else 0.0
+        if item is None or item[0] == "":
+            obs[row, 2], obs[row, 3] = sensor_range_m, 0.0
+            chain_ahead.append(None)
+        else:
+            gap = item[1] + min_gap[vid]
+            obs[row, 2], obs[row, 3] = gap, speed_of[item[0]] - v
+            chain_ahead.append((item[0], gap))
+    return obs, chain_ahead
+
+
+def merging_lanes(net: str) -> dict[str, tuple[str, ...]]:
+    """For every lane that shares its successor lane with other lanes (a zipper merge, such as
+    ``i80_merge_0`` and ``i80_merge_1`` into ``i80_main_0``): those other lanes."""
+    import sumolib
+
+    feeders: dict[str, list[str]] = {}
+    for edge in sumolib.net.readNet(str(net)).getEdges():
+        for lane in edge.getLanes():
+            for conn in lane.getOutgoing():
+                feeders.setdefault(conn.getToLane().getID(), []).append(lane.getID())
+    out: dict[str, tuple[str, ...]] = {}
+    for lanes in feeders.values():
+        if len(lanes) > 1:
+            for lane in lanes:
+                out[lane] = tuple(x for x in lanes if x != lane)
+    return out
+
+
+def zipper_ahead(ls, vid: str, lane: str, siblings: tuple[str, ...],
+                 item: tuple[str, float] | None, min_gap_m: float,
+                 range_m: float) -> tuple[str, float] | None:
+    """The vehicle ahead of a CACC vehicle approaching a zipper merge, in ``getLeader`` form.
+
+    SUMO's ``getLeader`` sees only the vehicle's own lane; a vehicle on a sibling lane that is
+    nearer to the merge point will enter the same lane first, so it is a virtual vehicle ahead
+    with gap = (ego's distance to the lane end) - (its distance to the lane end) - its length
+    (as SUMO's zipper model does for its own drivers). Returns whichever of that and ``item`` is
+    nearer; ties in distance to the merge point go to the smaller id.
+    """
+    get_pos, get_length = ls.vehicle.getLanePosition, ls.lane.getLength
+    ego_rest = get_length(lane) - get_pos(vid)
+    if ego_rest > range_m:
+        return item
+    best: tuple[str, float] | None = None
+    for sibling in siblings:
+        sib_length = get_length(sibling)
+        for foe in ls.lane.getLastStepVehicleIDs(sibling):
+            foe_rest = sib_length - get_pos(foe)
+            if foe_rest < ego_rest or (foe_rest == ego_rest and foe < vid):
+                gap = ego_rest - foe_rest - ls.vehicle.getLength(foe) - min_gap_m
+                if best is None or gap < best[1]:
+                    best = (foe, gap)
+    if best is None or (item is not None and item[0] != "" and item[1] <= best[1]):
+        return item
+    return best
+
+
 class ChainController:
     """a_adj of all CACC vehicles from their chains: zero (``idm-external``) or a policy."""
 
     def __init__(self, name: str):
         self.name = name
         self.agent = None
+        self.compiled = None
         if name != "idm-external":
             from carl_sumo.policy import load_policy
 
@@ -149,12 +223,22 @@ class ChainController:
                                  "chains that form and break in traffic; use a CA-TD3, CA-DDPG, "
                                  "TD3 or DDPG policy")
             self.agent = agent
+            try:  # the numba inference path, where this version of carl-sumo has it
+                from carl_sumo.inference import CompiledActor
+            except ImportError:
+                CompiledActor = None
+            self.compiled = CompiledActor(agent) if CompiledActor is not None else None
 
     def adjustment(self, obs: np.ndarray, chains: list[list[int]]) -> np.ndarray:
         """a_adj (m/s², shape (m,)) for observations (m, 4) of the CACC vehicles and their chains."""
         m = obs.shape[0]
         if self.agent is None or m == 0:
             return np.zeros(m)
+        if self.compiled is not None:  # one chain at a time, cost grows with the vehicles
+            out = np.empty(m)
+            for chain in chains:
+                out[chain] = self.compiled(np.ascontiguousarray(obs[chain]))
+            return out
         length = max(len(c) for c in chains)
         x = np.zeros((len(chains), length, 4))
         mask = np.zeros((len(chains), length), dtype=bool)
@@ -292,6 +376,8 @@ def _simulate(ls, cfg: StudyConfig, kind: str, controller: ChainController | Non
     heat_sum, heat_n = np.zeros((n_t, n_x)), np.zeros((n_t, n_x))
     lane_ids = ls.lane.getLastStepVehicleIDs
     inv_dt = 1.0 / DT_S
+    merging = merging_lanes(cfg.net)
+    get_lane = vehicle.getLaneID
     sumo_time, start = 0.0, time.perf_counter()
     for k in range(1, n_steps + 1):
         t0 = time.perf_counter()
@@ -332,20 +418,14 @@ def _simulate(ls, cfg: StudyConfig, kind: str, controller: ChainController | Non
             cids = [ids[i] for i in cidx]
             cahead = ([ahead[i] for i in cidx] if ahead is not None
                       else [get_leader(v, lookahead) for v in cids])
-            obs = np.empty((len(cids), 4))
-            chain_ahead: list[tuple[str, float] | None] = []
-            for row, (i, vid, item) in enumerate(zip(cidx, cids, cahead)):
-                v = speeds[i]
-                a = accel[i]
-                obs[row, 0] = v
-                obs[row, 1] = a if a is not None else 0.0
-                if item is None or item[0] == "":
-                    obs[row, 2], obs[row, 3] = lookahead, 0.0
-                    chain_ahead.append(None)
-                else:
-                    gap = item[1] + min_gap[vid]
-                    obs[row, 2], obs[row, 3] = gap, speed_of[item[0]] - v
-                    chain_ahead.append((item[0], gap))
+            for row, vid in enumerate(cids):
+                lane = get_lane(vid)
+                if lane in merging:
+                    cahead[row] = zipper_ahead(ls, vid, lane, merging[lane], cahead[row],
+                                               min_gap[vid], lookahead)
+            obs, chain_ahead = cacc_observations(cids, [speeds[i] for i in cidx],
+                                                 [accel[i] for i in cidx], cahead, speed_of,
+                                                 min_gap, lookahead)
             chains = form_chains(cids, chain_ahead, cfg.v2v_range_m)
             accel_cmd = total_acceleration(obs, controller.adjustment(obs, chains))
             for vid, v, a in zip(cids, obs[:, 0].tolist(), accel_cmd.tolist()):
