@@ -98,6 +98,11 @@ def load_controller(path: Path) -> PolicyController:
     return PolicyController(agent, str(path))
 
 
+def _metric_list(values: dict[str, Any]) -> str:
+    return ", ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}"
+                     for k, v in values.items())
+
+
 def policy_card(path: Path) -> str:
     """A Markdown card of a policy file: algorithm, command, seed, wall time, validation metrics."""
     agent, meta = load_policy(path)
@@ -118,7 +123,8 @@ def policy_card(path: Path) -> str:
              f"- reward: {meta.get('reward')}",
              f"- versions: {meta.get('sumo_version')}, carl-sumo {meta.get('carl_sumo_version')}, "
              f"torch {meta.get('torch_version')}",
-             "- validation (held-out training events): " + ", ".join(
-                 f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in val.items()),
-             ""]
+             "- validation (held-out training events): " + _metric_list(val)]
+    if meta.get("validation_idm"):
+        lines.append("- IDM on the same events: " + _metric_list(meta["validation_idm"]))
+    lines.append("")
     return "\n".join(lines)
