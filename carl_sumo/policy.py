@@ -18,6 +18,7 @@ import torch
 
 from carl_sumo.agents import AgentConfig, Agent
 from carl_sumo.errors import InputError
+from carl_sumo.inference import CompiledActor
 from carl_sumo.sumo import atomic_output
 
 FORMAT = "carl-sumo-policy"
@@ -81,16 +82,22 @@ def load_policy(path: Path) -> tuple[Agent, dict[str, Any]]:
 
 
 class PolicyController:
-    """A trained policy as a :class:`carl_sumo.controllers.Controller`."""
+    """A trained policy as a :class:`carl_sumo.controllers.Controller`.
+
+    Acts through :class:`carl_sumo.inference.CompiledActor` (numba, same numbers as
+    ``agent.act``), compiled from ``agent``'s actor when the controller is made.
+    """
 
     def __init__(self, agent: Agent, name: str):
         self.agent, self.name = agent, name
+        self._actor = CompiledActor(agent)
 
     def reset(self, n_followers: int) -> None:
         self.agent.check_length(n_followers)
 
     def adjustment(self, obs: np.ndarray) -> np.ndarray:
-        return self.agent.act(obs)
+        """a_adj (m/s², shape (n,)) for one platoon observation (n, 4)."""
+        return self._actor(obs)
 
 
 def load_controller(path: Path) -> PolicyController:
