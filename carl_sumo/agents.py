@@ -23,6 +23,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from carl_sumo.config import BOUNDS, DT_S, IDM
 from carl_sumo.errors import InputError
 from carl_sumo.models import CentralCritic, CommunicationAware, PerAgentActors, PerVehicle
 
@@ -56,6 +57,8 @@ class AgentConfig:
     noise_correlation: float = 0.98  # AR(1) coefficient of that noise per 0.1 s step (τ ≈ 5 s)
     preactivation_l2: float = 0.01  # actor loss penalty on tanh inputs: keeps tanh unsaturated
     max_grad_norm: float = 10.0     # gradient norm clipping of actor and critic updates
+    smooth_jerk: float = 0.0      # actor loss weight on the policy's jerk, per (m/s³)² (CAPS-style)
+    smooth_accel: float = 0.0     # actor loss weight on the policy's acceleration, per (m/s²)²
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -75,6 +78,16 @@ def normalise(obs: torch.Tensor) -> torch.Tensor:
     scale = torch.tensor(OBS_SCALE, dtype=obs.dtype, device=obs.device)
     obs = torch.cat([obs[..., :2], obs[..., 2:3].clamp(max=GAP_CLIP_M), obs[..., 3:]], dim=-1)
     return obs / scale
+
+
+def idm_acceleration_torch(obs: torch.Tensor) -> torch.Tensor:
+    """IDM acceleration (m/s²) of observations [v, a, d, Δv] (..., 4): the same expression as
+    :func:`carl_sumo.controllers.idm_acceleration` (parameters in :data:`carl_sumo.config.IDM`),
+    differentiable, for the actor's smoothness terms."""
+    v, gap, dv = obs[..., 0], obs[..., 2].clamp(min=1e-6), obs[..., 3]
+    s_star = IDM.min_gap_m + (v * IDM.time_headway_s
+                              - v * dv / (2.0 * (IDM.accel_mps2 * IDM.decel_mps2) ** 0.5)).clamp(min=0)
+    return IDM.accel_mps2 * (1.0 - (v / IDM.desired_speed_mps) ** IDM.delta - (s_star / gap) ** 2)
 
 
 def _networks(cfg: AgentConfig) -> tuple[nn.Module, nn.Module]:
@@ -169,7 +182,10 @@ class Agent(nn.Module):
         if not cfg.twin or self.updates % cfg.policy_delay == 0:
             action_now, pre = self._act(self.actor, obs, mask, with_preactivation=True)
             q = self._q(self.critic1, obs, action_now, mask)
-            actor_loss = (((cfg.preactivation_l2 * pre ** 2) - q) * maskf).sum() / maskf.sum()
+            per_vehicle = cfg.preactivation_l2 * pre ** 2 - q
+            if cfg.smooth_jerk > 0 or cfg.smooth_accel > 0:
+                per_vehicle = per_vehicle + self._smoothness(obs, next_obs, action_now, mask)
+            actor_loss = (per_vehicle * maskf).sum() / maskf.sum()
             self.actor_opt.zero_grad()
             actor_loss.backward()
             nn.utils.clip_grad_norm_(self.actor.parameters(), cfg.max_grad_norm)
@@ -177,6 +193,21 @@ class Agent(nn.Module):
             stats["actor_loss"] = float(actor_loss.detach())
             self._soft_update()
         return stats
+
+    def _smoothness(self, obs: torch.Tensor, next_obs: torch.Tensor, action_now: torch.Tensor,
+                    mask: torch.Tensor) -> torch.Tensor:
+        """Per-vehicle smoothness penalty of the total acceleration a = a_IDM + a_adj (unclipped):
+        ``smooth_jerk``·((a(o') - a(o))/dt)² + ``smooth_accel``·a(o)², o → o' a stored transition.
+        It regularises the actor directly, as CAPS (Mysore et al. 2021) does, instead of waiting for
+        the critic to learn the jerk the reward punishes."""
+        acc_now = (idm_acceleration_torch(obs) + action_now).clamp(BOUNDS.acc_min_mps2,
+                                                                    BOUNDS.acc_max_mps2)
+        penalty = self.cfg.smooth_accel * acc_now ** 2
+        if self.cfg.smooth_jerk > 0:
+            acc_next = (idm_acceleration_torch(next_obs) + self._act(self.actor, next_obs, mask)
+                        ).clamp(BOUNDS.acc_min_mps2, BOUNDS.acc_max_mps2)
+            penalty = penalty + self.cfg.smooth_jerk * ((acc_next - acc_now) / DT_S) ** 2
+        return penalty
 
     @torch.no_grad()
     def _soft_update(self) -> None:

@@ -97,6 +97,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="exploration noise std as a fraction of the a_adj bound")
     p.add_argument("--noise-correlation", type=float, default=None,
                    help="AR(1) coefficient of the exploration noise per step (0 = white)")
+    p.add_argument("--smooth-jerk", type=float, default=None,
+                   help="actor loss weight on the policy's jerk, per (m/s³)² (default 0)")
+    p.add_argument("--smooth-accel", type=float, default=None,
+                   help="actor loss weight on the policy's acceleration, per (m/s²)² (default 0)")
+    p.add_argument("--eval-events", type=int, default=None,
+                   help="held-out training events used for validation (default 8)")
 
     p = sub.add_parser("export", help="write the current actor of a training checkpoint as a policy")
     p.add_argument("checkpoint", type=Path)
@@ -222,7 +228,8 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
 
 
 TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "jerk_scale", "message_dim", "hidden",
-                   "actor_lr", "critic_lr", "noise", "noise_correlation")
+                   "actor_lr", "critic_lr", "noise", "noise_correlation", "smooth_jerk",
+                   "smooth_accel", "eval_events")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 

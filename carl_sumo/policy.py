@@ -18,6 +18,7 @@ import torch
 
 from carl_sumo.agents import AgentConfig, Agent
 from carl_sumo.errors import InputError
+from carl_sumo.inference import CompiledActor
 from carl_sumo.sumo import atomic_output
 
 FORMAT = "carl-sumo-policy"
@@ -81,21 +82,32 @@ def load_policy(path: Path) -> tuple[Agent, dict[str, Any]]:
 
 
 class PolicyController:
-    """A trained policy as a :class:`carl_sumo.controllers.Controller`."""
+    """A trained policy as a :class:`carl_sumo.controllers.Controller`.
+
+    Acts through :class:`carl_sumo.inference.CompiledActor` (numba, same numbers as
+    ``agent.act``), compiled from ``agent``'s actor when the controller is made.
+    """
 
     def __init__(self, agent: Agent, name: str):
         self.agent, self.name = agent, name
+        self._actor = CompiledActor(agent)
 
     def reset(self, n_followers: int) -> None:
         self.agent.check_length(n_followers)
 
     def adjustment(self, obs: np.ndarray) -> np.ndarray:
-        return self.agent.act(obs)
+        """a_adj (m/s², shape (n,)) for one platoon observation (n, 4)."""
+        return self._actor(obs)
 
 
 def load_controller(path: Path) -> PolicyController:
     agent, _ = load_policy(path)
     return PolicyController(agent, str(path))
+
+
+def _metric_list(values: dict[str, Any]) -> str:
+    return ", ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}"
+                     for k, v in values.items())
 
 
 def policy_card(path: Path) -> str:
@@ -118,7 +130,8 @@ def policy_card(path: Path) -> str:
              f"- reward: {meta.get('reward')}",
              f"- versions: {meta.get('sumo_version')}, carl-sumo {meta.get('carl_sumo_version')}, "
              f"torch {meta.get('torch_version')}",
-             "- validation (held-out training events): " + ", ".join(
-                 f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in val.items()),
-             ""]
+             "- validation (held-out training events): " + _metric_list(val)]
+    if meta.get("validation_idm"):
+        lines.append("- IDM on the same events: " + _metric_list(meta["validation_idm"]))
+    lines.append("")
     return "\n".join(lines)

@@ -64,6 +64,8 @@ class TrainConfig:
     select: str = "metrics"        # how the best checkpoint is chosen: "metrics" or "reward"
     noise: float = AgentConfig.exploration_noise          # exploration std (fraction of adj_max)
     noise_correlation: float = AgentConfig.noise_correlation
+    smooth_jerk: float = AgentConfig.smooth_jerk          # actor smoothness terms (agents.py)
+    smooth_accel: float = AgentConfig.smooth_accel
 
     @property
     def reward(self) -> RewardConfig:
@@ -146,17 +148,31 @@ def validate(agent: Agent, env: PlatoonEnv, events: Sequence[Event]) -> dict[str
 SELECTIONS = ("metrics", "reward")
 
 
-def selection_score(val: dict[str, float], select: str = "metrics") -> float:
+def selection_score(val: dict[str, float], select: str = "metrics",
+                    baseline: dict[str, float] | None = None) -> float:
     """Higher is better. ``reward``: mean validation reward, -10 per collision. ``metrics``: the
-    product's quality criteria on the held-out events: -(dampening ratio + mean |jerk|), with any
-    collision, any TTC < 1.5 s sample, or a mean headway outside [1, 2.5] s ranked below all
-    policies that have none. An undefined term (NaN: a leader that never accelerates) counts 0."""
+    product's quality criteria on the held-out events: -(dampening ratio + mean |jerk|), each
+    divided by the IDM ``baseline``'s value on the same events when one is given, with any
+    collision, any TTC < 1.5 s sample, a mean headway outside [1, 2.5] s, or (with a baseline) a
+    lower mean speed than IDM's ranked below all policies that have none. An undefined term (NaN:
+    a leader that never accelerates) counts 0."""
     if select == "reward":
         return val["val_reward"] - 10.0 * val["collisions"]
     unsafe = val["collisions"] > 0 or val["ttc_lt_1_5s_count"] > 0 \
         or not 1.0 <= val["headway_s"] <= 2.5
-    smoothness = np.nan_to_num(val["dampening_ratio"]) + np.nan_to_num(val["jerk_mps3"])
-    return -float(smoothness) - (1000.0 if unsafe else 0.0)
+    damp, jerk = np.nan_to_num(val["dampening_ratio"]), np.nan_to_num(val["jerk_mps3"])
+    if baseline is not None:
+        unsafe = unsafe or val["speed_mps"] < baseline["speed_mps"]
+        damp = damp / max(np.nan_to_num(baseline["dampening_ratio"]), 1e-6)
+        jerk = jerk / max(np.nan_to_num(baseline["jerk_mps3"]), 1e-6)
+    return -float(damp + jerk) - (1000.0 if unsafe else 0.0)
+
+
+class _IDMOnly:
+    """a_adj = 0: plain IDM, the validation baseline."""
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return np.zeros(obs.shape[:-1])
 
 
 def seed_everything(seed: int) -> None:
@@ -165,13 +181,16 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: float) -> dict:
+def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: float,
+              baseline: dict[str, float] | None = None) -> dict:
     import libsumo
 
     return {"algo": cfg.algo, "trained_vehicles": cfg.n_vehicles, "seed": cfg.seed,
             "data": cfg.data, "split": cfg.split, "steps": cfg.steps,
             "observation": "[v m/s, a m/s^2, d m, dv m/s]", "reward": asdict(cfg.reward),
-            "validation": {k: float(v) for k, v in val.items()}, "wall_time_s": float(wall_s),
+            "validation": {k: float(v) for k, v in val.items()},
+            "validation_idm": {k: float(v) for k, v in (baseline or {}).items()},
+            "wall_time_s": float(wall_s),
             "command": cfg.command, "sumo_version": str(libsumo.getVersion()[1]),
             "carl_sumo_version": __version__, "torch_version": str(torch.__version__)}
 
@@ -195,7 +214,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     agent = Agent(AgentConfig(algo=cfg.algo, n_vehicles=n, message_dim=cfg.message_dim,
                               hidden=cfg.hidden, actor_lr=cfg.actor_lr, critic_lr=cfg.critic_lr,
                               exploration_noise=cfg.noise,
-                              noise_correlation=cfg.noise_correlation))
+                              noise_correlation=cfg.noise_correlation,
+                              smooth_jerk=cfg.smooth_jerk, smooth_accel=cfg.smooth_accel))
     buffer = ReplayBuffer(cfg.buffer_size, n)
     rng = np.random.default_rng(cfg.seed)
     start_step, best, wall_before = 0, -np.inf, 0.0
@@ -220,6 +240,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     val_env = PlatoonEnv(val_events, n, cfg.net, reward=cfg.reward)
     for event in train_events:  # fail here, not in a worker, when an event does not fit the net
         check_fits(val_env.sim.route, event, n)
+    baseline = validate(_IDMOnly(), val_env, val_events)  # IDM on the same held-out events
+    log("validation baseline (IDM): " + ", ".join(f"{k}={v:.3f}" for k, v in baseline.items()))
     vec = VecPlatoon(train_events, n, cfg.net, cfg.num_envs, cfg.seed + start_step, cfg.reward)
     obs = vec.reset(cfg.seed + start_step)
     new_log = not (resume is not None and log_path.exists())
@@ -269,11 +291,11 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                     for key, value in val.items():
                         board.add_scalar(f"validation/{key}", value, done_steps)
                     board.add_scalar("train/reward", train_reward, done_steps)
-                score = selection_score(val, cfg.select)
+                score = selection_score(val, cfg.select, baseline)
                 # only a trained actor can be the best; the first validation is a fallback
                 if agent.updates > 0 and score > best or not np.isfinite(best):
                     best = score if agent.updates > 0 else -np.inf
-                    save_policy(agent, out, _metadata(cfg, agent, val, wall))
+                    save_policy(agent, out, _metadata(cfg, agent, val, wall, baseline))
                 if bar is not None:
                     bar.set_postfix(reward=f"{train_reward:.3f}", val=f"{val['val_reward']:.3f}",
                                     jerk=f"{val['jerk_mps3']:.3f}", coll=val["collisions"])
@@ -290,7 +312,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
         if bar is not None:
             bar.close()
     wall = wall_before + time.perf_counter() - t0
-    return {"validation": val, "wall_time_s": wall, "best_score": best}
+    return {"validation": val, "validation_idm": baseline, "wall_time_s": wall, "best_score": best}
 
 
 def _tensorboard(logdir: Path):

@@ -6,13 +6,15 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pandas as pd
 import torch
 
-from carl_sumo.agents import Agent, AgentConfig
 from carl_sumo.bench import cruise_event
 from carl_sumo.env import PlatoonEnv
 from carl_sumo.policy import load_policy
+from carl_sumo.agents import Agent, AgentConfig, idm_acceleration_torch
+from carl_sumo.controllers import idm_acceleration
 from carl_sumo.train import (TrainConfig, export_policy, seed_everything, selection_score,
                              train, validate)
 
@@ -46,6 +48,45 @@ def test_selection_prefers_safe_smooth_policies():
     assert selection_score(smoother) > selection_score(base) > selection_score(unsafe)
     assert selection_score(base) > selection_score(too_close)
     assert selection_score(dict(base, val_reward=0.6), "reward") > selection_score(base, "reward")
+    idm = dict(base, speed_mps=8.0, dampening_ratio=0.8, jerk_mps3=0.2)
+    fast = dict(base, speed_mps=9.0)
+    assert selection_score(fast, baseline=idm) > selection_score(dict(fast, speed_mps=7.5),
+                                                                 baseline=idm)
+    # relative to IDM: 10 % less jerk outweighs 5 % more dampening
+    assert selection_score(dict(fast, jerk_mps3=0.18, dampening_ratio=0.84), baseline=idm) > \
+        selection_score(fast | {"jerk_mps3": 0.2, "dampening_ratio": 0.8}, baseline=idm)
+
+
+def test_idm_torch_matches_controllers():
+    rng = np.random.default_rng(0)
+    obs = rng.uniform([0, -1, 1, -3], [30, 1, 80, 3], (64, 4))
+    expected = idm_acceleration(obs[:, 0], obs[:, 2], obs[:, 3])
+    assert np.allclose(idm_acceleration_torch(torch.as_tensor(obs)).numpy(), expected, atol=1e-9)
+
+
+def test_smoothness_terms_lower_the_policy_jerk():
+    """With only the smoothness terms in the actor loss, the actor learns to cancel IDM's change."""
+    torch.manual_seed(0)
+    rng = np.random.default_rng(1)
+    obs = rng.uniform([5, 0, 10, -1], [15, 0, 40, 1], (64, 3, 4))
+    next_obs = obs + rng.normal(0, [0.1, 0.0, 0.5, 0.2], obs.shape)
+    batch = {"obs": torch.tensor(obs, dtype=torch.float32),
+             "next_obs": torch.tensor(next_obs, dtype=torch.float32),
+             "action": torch.zeros(64, 3), "reward": torch.zeros(64, 3), "done": torch.zeros(64),
+             "mask": torch.ones(64, 3, dtype=torch.bool)}
+    # critic_lr 0: Q stays as initialised, so the smoothness terms drive the actor
+    agent = Agent(AgentConfig(algo="ddpg", smooth_jerk=1.0, actor_lr=1e-3, critic_lr=0.0))
+
+    def policy_jerk() -> float:
+        with torch.no_grad():
+            return float(agent._smoothness(batch["obs"], batch["next_obs"],
+                                           agent._act(agent.actor, batch["obs"], None),
+                                           batch["mask"]).mean())
+
+    before = policy_jerk()
+    for _ in range(100):
+        agent.update(batch)
+    assert policy_jerk() < 0.7 * before
 
 
 def test_killed_run_resumes_from_checkpoint(tmp_path):

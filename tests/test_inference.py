@@ -1,0 +1,58 @@
+"""The compiled actor (carl_sumo.inference) gives Agent.act's numbers for every algorithm."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from carl_sumo.agents import ALGOS, Agent, AgentConfig
+from carl_sumo.errors import InputError
+from carl_sumo.inference import CompiledActor
+from carl_sumo.policy import load_controller, load_policy
+
+TOLERANCE_MPS2 = 1e-5
+SHIPPED_CA_POLICY = Path(__file__).resolve().parents[1] / "policies" / "ca_td3_10.pt"
+
+
+def random_platoon(rng: np.random.Generator, n: int) -> np.ndarray:
+    """Observations (n, 4) [v, a, d, Δv] over wide ranges, gaps beyond the 150 m clip included."""
+    return np.column_stack([rng.uniform(0, 35, n), rng.uniform(-4, 3, n),
+                            rng.uniform(-1, 250, n), rng.uniform(-10, 10, n)])
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+def test_compiled_actor_matches_agent_act(algo):
+    torch.manual_seed(1)
+    rng = np.random.default_rng(1)
+    fixed = 6
+    agent = Agent(AgentConfig(algo=algo, n_vehicles=fixed))
+    with torch.no_grad():  # larger weights than the default init: tanh far from linear
+        for p in agent.actor.parameters():
+            p.mul_(2.0)
+    compiled = CompiledActor(agent)
+    lengths = [fixed] if algo == "maddpg" else [1, 2, 6, 10, 23]
+    for n in lengths:
+        for _ in range(5):
+            obs = random_platoon(rng, n)
+            got = compiled(obs)
+            assert got.shape == (n,) and got.dtype == np.float64
+            np.testing.assert_allclose(got, agent.act(obs), rtol=0, atol=TOLERANCE_MPS2)
+
+
+def test_compiled_maddpg_refuses_other_lengths():
+    compiled = CompiledActor(Agent(AgentConfig(algo="maddpg", n_vehicles=4)))
+    with pytest.raises(InputError, match="trained for 4 vehicles"):
+        compiled(np.ones((5, 4)))
+
+
+def test_shipped_ca_policy_matches_and_controller_uses_it():
+    agent, _ = load_policy(SHIPPED_CA_POLICY)
+    controller = load_controller(SHIPPED_CA_POLICY)
+    rng = np.random.default_rng(2)
+    for n in (1, 10, 20):
+        controller.reset(n)
+        for _ in range(3):
+            obs = random_platoon(rng, n)
+            np.testing.assert_allclose(controller.adjustment(obs), agent.act(obs), rtol=0,
+                                       atol=TOLERANCE_MPS2)
