@@ -125,6 +125,7 @@ class JobResult:
     norms: list[np.ndarray] = field(default_factory=list)       # acceleration_norms per event
     samples: dict[str, list[np.ndarray]] = field(default_factory=dict)
     series: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    seconds: float = 0.0        # time its chunks took in the workers (s)
 
 
 # ------------------------------------------------------------------------------------ planning
@@ -336,24 +337,20 @@ def plan_tasks(suite: Suite, net: str) -> tuple[list[tuple], list[dict]]:
     return list(jobs), tasks
 
 
-def run_tasks(tasks: list[dict], workers: int, progress: bool = False) -> dict[tuple, JobResult]:
-    """Run tasks (longest first) in ``workers`` spawned processes; results merged per job."""
-    from carl_sumo.simulate import worker_pool
-
+def run_tasks(tasks: list[dict], pool=None, progress: bool = False) -> dict[tuple, JobResult]:
+    """Run tasks (longest first) in a worker pool, or in this process; results merged per job."""
     parts: dict[tuple, list[dict]] = {}
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=len(tasks), desc="evaluate", unit="task", leave=False)
-    if workers <= 1:
+    if pool is None:
         from carl_sumo.simulate import _worker_init
 
         _worker_init()  # one torch thread: several fight over the cores for these small networks
         outputs = map(run_task, tasks)
-        pool = None
     else:
-        pool = worker_pool(workers)
         outputs = pool.imap_unordered(run_task, tasks)
     try:
         for out in outputs:
@@ -361,9 +358,6 @@ def run_tasks(tasks: list[dict], workers: int, progress: bool = False) -> dict[t
             if bar is not None:
                 bar.update()
     finally:
-        if pool is not None:
-            pool.terminate()
-            pool.join()
         if bar is not None:
             bar.close()
     results: dict[tuple, JobResult] = {}
@@ -375,6 +369,7 @@ def run_tasks(tasks: list[dict], workers: int, progress: bool = False) -> dict[t
             for key, values in out["samples"].items():
                 res.samples[key] += values
             res.series.update(out["series"])
+            res.seconds += out["seconds"]
         results[job] = res
     return results
 
@@ -510,15 +505,37 @@ def run_suite(suite: Suite, out_dir: Path, workers: int = 2, net: str | Path =
               "networks/i80.net.xml", progress: bool = False, command: str = "") -> dict:
     """Run a planned suite and write its tables, figures and README into ``out_dir``."""
     from carl_sumo import figures
+    from carl_sumo.simulate import worker_pool
 
     start = time.perf_counter()
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"--out {out_dir} is a file; give a directory")
     _, tasks = plan_tasks(suite, str(net))
-    results = run_tasks(tasks, workers, progress)
-    simulated = time.perf_counter() - start
-    out_dir.mkdir(parents=True, exist_ok=True)
+    pool = worker_pool(workers) if workers > 1 else None
+    try:
+        results = run_tasks(tasks, pool, progress)
+        simulated = time.perf_counter() - start
+        out_dir.mkdir(parents=True, exist_ok=True)
+        jobs = figures.figure_jobs(suite, results, out_dir)
+        drawing = pool.map_async(figures.render, jobs) if pool is not None else None
+        all_rows, sections = _write_tables(suite, results, out_dir)  # while the figures draw
+        figure_files = drawing.get() if drawing is not None else [figures.render(j) for j in jobs]
+    finally:
+        if pool is not None:
+            pool.terminate()
+            pool.join()
+    wall = time.perf_counter() - start
+    readme = suite_readme(suite, sections, figure_files, wall, simulated, workers, len(tasks),
+                          command)
+    _write_text(out_dir / "README.md", readme)
+    return {"rows": all_rows, "wall_time_s": wall, "simulation_s": simulated, "tasks": len(tasks),
+            "figures": figure_files}
+
+
+def _write_tables(suite: Suite, results: dict[tuple, JobResult],
+                  out_dir: Path) -> tuple[dict[str, list[dict]], list[str]]:
+    """Every table (.md, .csv) and per_event.csv; the rows and Markdown sections."""
     all_rows, sections = {}, []
     for spec in suite.tables:
         rows = table_rows(spec, suite, results)
@@ -527,17 +544,15 @@ def run_suite(suite: Suite, out_dir: Path, workers: int = 2, net: str | Path =
         _write_text(out_dir / f"{spec.key}.md", md)
         _write_text(out_dir / f"{spec.key}.csv", csv_text(rows, CSV_COLUMNS))
         sections.append(md + f"\nCSV: [`{spec.key}.csv`]({spec.key}.csv)\n")
+    timing = [{"event_set": k[0], "controller": k[1], "followers": k[2],
+               "events": len(r.per_event), "seconds": round(r.seconds, 2)}
+              for k, r in sorted(results.items(), key=lambda kv: -kv[1].seconds)]
+    _write_text(out_dir / "timing.csv", csv_text(timing, list(timing[0])))
     per_event = per_event_rows(suite, results)
     _write_text(out_dir / "per_event.csv",
                 csv_text(per_event, ["event_set", "model", "seed", "followers", "event_id",
                                      *METRIC_KEYS]))
-    figure_files = figures.write_figures(suite, results, out_dir)
-    wall = time.perf_counter() - start
-    readme = suite_readme(suite, sections, figure_files, wall, simulated, workers, len(tasks),
-                          command)
-    _write_text(out_dir / "README.md", readme)
-    return {"rows": all_rows, "wall_time_s": wall, "simulation_s": simulated, "tasks": len(tasks),
-            "figures": figure_files}
+    return all_rows, sections
 
 
 def suite_readme(suite: Suite, sections: list[str], figure_files: list[tuple[str, str]],

@@ -26,6 +26,9 @@ from carl_sumo.sumo import atomic_output
 if TYPE_CHECKING:  # pragma: no cover
     from carl_sumo.evaluate import JobResult, Suite
 
+ECDF_POINTS = 2000
+"""Sample ranks at which an ECDF is drawn."""
+
 SAMPLE_LABELS = {"headway_s": "time headway (s)", "speed_mps": "speed (m/s)",
                  "jerk_mps3": "|jerk| (m/s³)"}
 
@@ -42,7 +45,7 @@ def _pyplot():
 def _save(fig, path: Path) -> None:
     tmp = atomic_output(path)
     try:
-        fig.savefig(tmp, format="png", dpi=100, bbox_inches="tight")
+        fig.savefig(tmp, format="png", dpi=90)
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
@@ -50,27 +53,46 @@ def _save(fig, path: Path) -> None:
 
 
 def _colors(n: int) -> list:
+    """n distinct colours: matplotlib's tab10, then black and greys."""
     plt = _pyplot()
-    cmap = plt.get_cmap("tab10" if n <= 10 else "tab20")
-    return [cmap(i % cmap.N) for i in range(n)]
+    base = [plt.get_cmap("tab10")(i) for i in range(10)] + ["black", "dimgray", "darkgray"]
+    return [base[i % len(base)] for i in range(n)]
 
 
-def ecdf_figure(samples: dict[str, dict[str, np.ndarray]], path: Path, title: str,
-                colors: dict[str, Any] | None = None) -> None:
-    """ECDFs of headway, speed and |jerk| (``samples[model][key]``), one line per model."""
+def ecdf_points(values: np.ndarray, points: int = ECDF_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """(x, F(x)) of the empirical distribution function at up to ``points`` sample ranks: exact
+    values of the ECDF, thinned so that a million samples draw as fast as a thousand."""
+    values = np.sort(values[np.isfinite(values)])
+    n = values.size
+    if n == 0:
+        return values, values
+    ranks = np.unique(np.linspace(0, n - 1, min(points, n)).round().astype(int))
+    return values[ranks], (ranks + 1) / n
+
+
+def ecdf_curves(samples: dict[str, np.ndarray]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Thinned ECDF points of each sample kind (|jerk| below 1e-3 m/s³ drawn at 1e-3: log axis)."""
+    curves = {}
+    for key, values in samples.items():
+        values = np.asarray(values, np.float64)
+        if key == "jerk_mps3":
+            values = np.maximum(values, 1e-3)
+        curves[key] = ecdf_points(values)
+    return curves
+
+
+def ecdf_figure(curves: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]], path: Path,
+                title: str, colors: dict[str, Any] | None = None) -> None:
+    """ECDFs of headway, speed and |jerk|: ``curves[model][key]`` = (x, F(x)), one line each."""
     plt = _pyplot()
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
-    colors = colors or dict(zip(samples, _colors(len(samples))))
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.4), layout="constrained")
+    colors = colors or dict(zip(curves, _colors(len(curves))))
     for ax, key in zip(axes, SAMPLE_LABELS):
-        for model, per_key in samples.items():
-            color = colors[model]
-            values = np.sort(per_key.get(key, np.empty(0)))
-            if not values.size:
+        for model, per_key in curves.items():
+            x, y = per_key.get(key, (np.empty(0), np.empty(0)))
+            if not x.size:
                 continue
-            if key == "jerk_mps3":
-                values = np.maximum(values, 1e-3)
-            ax.step(values, np.arange(1, values.size + 1) / values.size, where="post",
-                    color=color, label=model, lw=1.3,
+            ax.step(x, y, where="post", color=colors[model], label=model, lw=1.3,
                     ls="--" if model.startswith("human") else "-")
         if key == "jerk_mps3":
             ax.set_xscale("log")
@@ -89,7 +111,7 @@ def timeseries_figure(series: dict[str, dict[str, np.ndarray]], path: Path, titl
     plt = _pyplot()
     models = list(series)
     fig, axes = plt.subplots(3, len(models), figsize=(3.2 * len(models), 8.5), sharex=True,
-                             sharey="row", squeeze=False)
+                             sharey="row", squeeze=False, layout="constrained")
     cmap = plt.get_cmap("viridis")
     for col, model in enumerate(models):
         s = series[model]
@@ -122,7 +144,7 @@ def time_space_figure(series: dict[str, dict[str, np.ndarray]], path: Path, titl
     cols = min(4, len(models))
     rows = (len(models) + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.6 * rows), sharex=True,
-                             sharey=True, squeeze=False)
+                             sharey=True, squeeze=False, layout="constrained")
     vmax = max(float(s["speed"].max()) for s in series.values())
     norm = plt.Normalize(0.0, vmax)
     line = None
@@ -153,7 +175,8 @@ def norm_profile_figure(panels: list[tuple[str, dict[str, np.ndarray]]], path: P
                         colors: dict[str, Any] | None = None) -> None:
     """‖a_i‖/‖a_0‖ against vehicle index i (0 = leader), one panel per (title, {model: profile})."""
     plt = _pyplot()
-    fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels), 4.0), squeeze=False)
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels) + 1.8, 4.2),
+                             squeeze=False, layout="constrained")
     names = list(dict.fromkeys(m for _, profiles in panels for m in profiles))
     color = colors or dict(zip(names, _colors(len(names))))
     for ax, (title, profiles) in zip(axes[0], panels):
@@ -161,6 +184,7 @@ def norm_profile_figure(panels: list[tuple[str, dict[str, np.ndarray]]], path: P
             ax.plot(np.arange(profile.size), profile, marker="o", ms=2.5, lw=1.2,
                     color=color[model], label=model)
         ax.axhline(1.0, color="black", lw=0.8, ls=":")
+        ax.xaxis.get_major_locator().set_params(integer=True)
         ax.set_title(title, fontsize=10)
         ax.set_xlabel("vehicle (0 = leader)")
         ax.grid(alpha=0.3)
@@ -169,8 +193,7 @@ def norm_profile_figure(panels: list[tuple[str, dict[str, np.ndarray]]], path: P
     for ax in axes[0]:
         for handle, label in zip(*ax.get_legend_handles_labels()):
             handles.setdefault(label, handle)
-    fig.legend(list(handles.values()), list(handles), fontsize=8, loc="center left",
-               bbox_to_anchor=(1.0, 0.5))
+    fig.legend(list(handles.values()), list(handles), fontsize=8, loc="outside right center")
     _save(fig, path)
 
 
@@ -183,10 +206,14 @@ def mean_profile(norms: list[np.ndarray]) -> np.ndarray:
     return np.mean([r[:size] for r in ratios], axis=0)
 
 
-def write_figures(suite: "Suite", results: dict[tuple, "JobResult"],
-                  out_dir: Path) -> list[tuple[str, str]]:
-    """Every figure of a suite run; (file name, caption) of each."""
-    written: list[tuple[str, str]] = []
+FIGURE_FUNCTIONS = {"ecdf": ecdf_figure, "timeseries": timeseries_figure,
+                    "time_space": time_space_figure, "norm_profile": norm_profile_figure}
+
+
+def figure_jobs(suite: "Suite", results: dict[tuple, "JobResult"],
+                out_dir: Path) -> list[dict[str, Any]]:
+    """The figures of a suite run as small picklable jobs for :func:`render` (data reduced)."""
+    jobs: list[dict[str, Any]] = []
     by_key = {spec.key: spec for spec in suite.tables}
     t1, t2, t3 = (by_key["table1_ngsim_test"], by_key["table2_generalization"],
                   by_key["table3_stop_and_go"])
@@ -197,15 +224,19 @@ def write_figures(suite: "Suite", results: dict[tuple, "JobResult"],
         model = suite.models[key]
         return results.get((spec.events.key, model.controllers[0], 1 if key == "human" else n))
 
-    samples = {}
+    def add(kind: str, name: str, caption: str, *args) -> None:
+        jobs.append({"kind": kind, "path": Path(out_dir) / name, "caption": caption,
+                     "args": args})
+
+    curves = {}
     for key in t1.models:
         res = first_run(t1, key, t1.followers[0])
-        samples[label[key]] = {k: np.concatenate(v) if v else np.empty(0)
-                               for k, v in res.samples.items()}
-    name = "fig_ecdf_ngsim_test.png"
-    ecdf_figure(samples, out_dir / name, f"Empirical distributions, {t1.title} "
-                f"({len(suite.events[t1.events.key])} events)", colors)
-    written.append((name, "ECDFs of time headway, speed and |jerk| per model (Table 1 runs)"))
+        curves[label[key]] = ecdf_curves({k: np.concatenate(v) if v else np.empty(0)
+                                          for k, v in res.samples.items()})
+    add("ecdf", "fig_ecdf_ngsim_test.png",
+        "ECDFs of time headway, speed and |jerk| per model (Table 1 runs)", curves,
+        f"Empirical distributions, {t1.title} ({len(suite.events[t1.events.key])} events)",
+        colors)
 
     for spec, tag in ((t1, "ngsim"), (t3, "stop_and_go")):
         event_id = suite.figure_events[spec.events.key]
@@ -215,14 +246,12 @@ def write_figures(suite: "Suite", results: dict[tuple, "JobResult"],
             if res is not None and event_id in res.series:
                 series[label[key]] = res.series[event_id]
         where = f"event {event_id}" if tag == "ngsim" else "stop-and-go leader"
-        name = f"fig_timeseries_{tag}.png"
-        timeseries_figure(series, out_dir / name,
-                          f"Position, speed and acceleration, {where}, {spec.followers[0]} followers")
-        written.append((name, f"Position, speed and acceleration against time, {where}"))
-        name = f"fig_time_space_{tag}.png"
-        time_space_figure({k: v for k, v in series.items() if not k.startswith("human")},
-                          out_dir / name, f"Time-space diagram of the platoon, {where}")
-        written.append((name, f"Time-space diagram of the platoon, {where}"))
+        add("timeseries", f"fig_timeseries_{tag}.png",
+            f"Position, speed and acceleration against time, {where}", series,
+            f"Position, speed and acceleration, {where}, {spec.followers[0]} followers")
+        add("time_space", f"fig_time_space_{tag}.png", f"Time-space diagram of the platoon, {where}",
+            {k: v for k, v in series.items() if not k.startswith("human")},
+            f"Time-space diagram of the platoon, {where}")
 
     panels = []
     for n in t2.followers:
@@ -232,11 +261,23 @@ def write_figures(suite: "Suite", results: dict[tuple, "JobResult"],
     panels.append((f"stop-and-go, {t3.followers[0]} followers",
                    {label[key]: mean_profile(first_run(t3, key, t3.followers[0]).norms)
                     for key in t3.models}))
-    name = "fig_accel_norm_profile.png"
-    norm_profile_figure(panels, out_dir / name, colors)
-    written.append((name, "Acceleration norm along the platoon, ‖a_i‖₂/‖a_0‖₂, mean over events "
-                          "(string stability at a glance)"))
-    return written
+    add("norm_profile", "fig_accel_norm_profile.png",
+        "Acceleration norm along the platoon, ‖a_i‖₂/‖a_0‖₂, mean over events (string stability "
+        "at a glance; model (length trained on))", panels, colors)
+    return jobs
+
+
+def render(job: dict[str, Any]) -> tuple[str, str]:
+    """Draw and write one figure job (in any process); (file name, caption)."""
+    data, *rest = job["args"]
+    FIGURE_FUNCTIONS[job["kind"]](data, job["path"], *rest)
+    return job["path"].name, job["caption"]
+
+
+def write_figures(suite: "Suite", results: dict[tuple, "JobResult"],
+                  out_dir: Path) -> list[tuple[str, str]]:
+    """Every figure of a suite run, drawn in this process; (file name, caption) of each."""
+    return [render(job) for job in figure_jobs(suite, results, out_dir)]
 
 
 def model_label(model) -> str:
