@@ -223,8 +223,9 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
                       command="carl-sumo " + " ".join(sys.argv[1:]))
     for key, rows in result["rows"].items():
         print(f"wrote {args.out / (key + '.md')} and .csv ({len(rows)} rows)")
-    print(f"wrote {args.out / 'README.md'}, per_event.csv and {len(result['figures'])} figures; "
-          f"wall time {result['wall_time_s']:.0f} s ({result['tasks']} tasks, {workers} workers)")
+    print(f"wrote {args.out / 'README.md'}, per_event.csv, timing.csv and "
+          f"{len(result['figures'])} figures; wall time {result['wall_time_s']:.0f} s "
+          f"({result['tasks']} tasks, {workers} workers)")
 
 
 TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "jerk_scale", "message_dim", "hidden",

@@ -125,7 +125,8 @@ class JobResult:
     norms: list[np.ndarray] = field(default_factory=list)       # acceleration_norms per event
     samples: dict[str, list[np.ndarray]] = field(default_factory=dict)
     series: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
-    seconds: float = 0.0        # time its chunks took in the workers (s)
+    seconds: float = 0.0        # wall time its chunks took in the workers (s)
+    cpu_seconds: float = 0.0    # CPU time of those chunks (s)
 
 
 # ------------------------------------------------------------------------------------ planning
@@ -279,7 +280,7 @@ def run_task(task: dict[str, Any]) -> dict[str, Any]:
     """Run one chunk of a job in this process (a worker): metrics, norms, samples, series."""
     from carl_sumo.simulate import event_trajectories
 
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     per_event, norms, series = [], [], {}
     samples: dict[str, list[np.ndarray]] = {k: [] for k in SAMPLE_KEYS}
     for event, traj in event_trajectories(task["controller"], task["events"], task["followers"],
@@ -293,7 +294,7 @@ def run_task(task: dict[str, Any]) -> dict[str, Any]:
             series[event.event_id] = _series(event, traj)
     return {"job": task["job"], "index": task["index"], "per_event": per_event, "norms": norms,
             "samples": samples if task["samples"] else {}, "series": series,
-            "seconds": time.perf_counter() - start}
+            "seconds": time.perf_counter() - start, "cpu_seconds": time.process_time() - cpu}
 
 
 def _cost(controller: str, n_steps: int, followers: int) -> float:
@@ -370,6 +371,7 @@ def run_tasks(tasks: list[dict], pool=None, progress: bool = False) -> dict[tupl
                 res.samples[key] += values
             res.series.update(out["series"])
             res.seconds += out["seconds"]
+            res.cpu_seconds += out["cpu_seconds"]
         results[job] = res
     return results
 
@@ -526,11 +528,12 @@ def run_suite(suite: Suite, out_dir: Path, workers: int = 2, net: str | Path =
             pool.terminate()
             pool.join()
     wall = time.perf_counter() - start
-    readme = suite_readme(suite, sections, figure_files, wall, simulated, workers, len(tasks),
-                          command)
+    cpu = sum(r.cpu_seconds for r in results.values())
+    readme = suite_readme(suite, sections, figure_files, wall, simulated, cpu, workers,
+                          len(tasks), command)
     _write_text(out_dir / "README.md", readme)
-    return {"rows": all_rows, "wall_time_s": wall, "simulation_s": simulated, "tasks": len(tasks),
-            "figures": figure_files}
+    return {"rows": all_rows, "wall_time_s": wall, "simulation_s": simulated,
+            "worker_cpu_s": cpu, "tasks": len(tasks), "figures": figure_files}
 
 
 def _write_tables(suite: Suite, results: dict[tuple, JobResult],
@@ -545,7 +548,8 @@ def _write_tables(suite: Suite, results: dict[tuple, JobResult],
         _write_text(out_dir / f"{spec.key}.csv", csv_text(rows, CSV_COLUMNS))
         sections.append(md + f"\nCSV: [`{spec.key}.csv`]({spec.key}.csv)\n")
     timing = [{"event_set": k[0], "controller": k[1], "followers": k[2],
-               "events": len(r.per_event), "seconds": round(r.seconds, 2)}
+               "events": len(r.per_event), "seconds": round(r.seconds, 2),
+               "cpu_seconds": round(r.cpu_seconds, 2)}
               for k, r in sorted(results.items(), key=lambda kv: -kv[1].seconds)]
     _write_text(out_dir / "timing.csv", csv_text(timing, list(timing[0])))
     per_event = per_event_rows(suite, results)
@@ -555,8 +559,23 @@ def _write_tables(suite: Suite, results: dict[tuple, JobResult],
     return all_rows, sections
 
 
+def _sha(path: str) -> str:
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:12]
+
+
+def _load() -> str:
+    """The 1, 5 and 15 min load averages (other processes on the machine slow the suite)."""
+    try:
+        return ", ".join(f"{x:.1f}" for x in os.getloadavg())
+    except OSError:
+        return "unknown"
+
+
 def suite_readme(suite: Suite, sections: list[str], figure_files: list[tuple[str, str]],
-                 wall: float, simulated: float, workers: int, n_tasks: int, command: str) -> str:
+                 wall: float, simulated: float, cpu: float, workers: int, n_tasks: int,
+                 command: str) -> str:
     n_events = {k: len(v) for k, v in suite.events.items()}
     lines = ["# carl-sumo evaluate: the paper suite" + (" (--quick)" if suite.quick else ""), "",
              f"- command: `{command}`" if command else "- command: (Python API)",
@@ -564,9 +583,13 @@ def suite_readme(suite: Suite, sections: list[str], figure_files: list[tuple[str
              + ", ".join(f"{k} {v}" for k, v in n_events.items()),
              f"- machine: {machine()}",
              f"- wall time: {wall:.0f} s ({simulated:.0f} s simulating {n_tasks} tasks in "
-             f"{workers} worker process(es), the rest tables, bootstrap and figures)",
+             f"{workers} worker process(es), the rest tables, bootstrap and figures; the "
+             f"simulations took {cpu:.0f} s of CPU time; per job: `timing.csv`)",
+             f"- load average when it ended: {_load()}",
              "- metric definitions: `docs/metrics.md` of carl-sumo; the human row is the "
              "recorded NGSIM follower alone (1 follower)",
+             "- policy files (sha256, first 12 hex digits): " + ", ".join(
+                 f"`{Path(f).name}` {_sha(f)}" for m in suite.models.values() for f in m.files),
              "- figure event (time series, time-space): "
              + ", ".join(f"{k}: `{v}`" for k, v in suite.figure_events.items()), ""]
     for text in sections:
