@@ -32,6 +32,9 @@ ALGOS = ("ca-td3", "ca-ddpg", "td3", "ddpg", "maddpg")
 OBS_SCALE = (20.0, 3.0, 50.0, 5.0)
 """Observations [v (m/s), a (m/s²), d (m), Δv (m/s)] are divided by these before the networks."""
 
+ACC_SCALE = 3.0
+"""Accelerations given to the critics are divided by this (m/s²)."""
+
 GAP_CLIP_M = 150.0
 """Gaps above this are seen as this (m): beyond it a follower is effectively free."""
 
@@ -137,8 +140,18 @@ class Agent(nn.Module):
 
     def _q(self, critic: nn.Module, obs: torch.Tensor, action: torch.Tensor,
            mask: torch.Tensor | None) -> torch.Tensor:
-        x = torch.cat([normalise(obs), (action / self.cfg.adj_max).unsqueeze(-1)], dim=-1)
+        """Q of an adjustment, judged by the acceleration it makes: the critic's action input is
+        the applied a = clip(a_IDM(o) + a_adj) (m/s², divided by ACC_SCALE), so the jerk the
+        reward punishes, (a - a_prev)/dt, is a simple function of its inputs (a_prev is in o)."""
+        acc = self.total_acceleration(obs, action)
+        x = torch.cat([normalise(obs), (acc / ACC_SCALE).unsqueeze(-1)], dim=-1)
         return critic(x, mask).squeeze(-1)
+
+    @staticmethod
+    def total_acceleration(obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """a = clip(a_IDM(o) + a_adj, acc_min, acc_max) (m/s²), as the simulation applies it."""
+        return (idm_acceleration_torch(obs) + action).clamp(BOUNDS.acc_min_mps2,
+                                                            BOUNDS.acc_max_mps2)
 
     @torch.no_grad()
     def act(self, obs: np.ndarray, noise: np.ndarray | None = None) -> np.ndarray:
@@ -200,12 +213,10 @@ class Agent(nn.Module):
         ``smooth_jerk``·((a(o') - a(o))/dt)² + ``smooth_accel``·a(o)², o → o' a stored transition.
         It regularises the actor directly, as CAPS (Mysore et al. 2021) does, instead of waiting for
         the critic to learn the jerk the reward punishes."""
-        acc_now = (idm_acceleration_torch(obs) + action_now).clamp(BOUNDS.acc_min_mps2,
-                                                                    BOUNDS.acc_max_mps2)
+        acc_now = self.total_acceleration(obs, action_now)
         penalty = self.cfg.smooth_accel * acc_now ** 2
         if self.cfg.smooth_jerk > 0:
-            acc_next = (idm_acceleration_torch(next_obs) + self._act(self.actor, next_obs, mask)
-                        ).clamp(BOUNDS.acc_min_mps2, BOUNDS.acc_max_mps2)
+            acc_next = self.total_acceleration(next_obs, self._act(self.actor, next_obs, mask))
             penalty = penalty + self.cfg.smooth_jerk * ((acc_next - acc_now) / DT_S) ** 2
         return penalty
 

@@ -87,6 +87,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--w-gap", type=float, default=None, help="reward weight of the headway term")
     p.add_argument("--w-safe", type=float, default=None, help="reward weight of the TTC term")
     p.add_argument("--w-comfort", type=float, default=None, help="reward weight of the jerk term")
+    p.add_argument("--w-accel", type=float, default=None,
+                   help="weight of the optional control-effort term -w·a² (default 0: off)")
     p.add_argument("--jerk-scale", type=float, default=None,
                    help="jerk that normalises the comfort term (m/s³)")
     p.add_argument("--message-dim", type=int, default=None, help="V2V message width (CA models)")
@@ -228,8 +230,8 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
           f"({result['tasks']} tasks, {workers} workers)")
 
 
-TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "jerk_scale", "message_dim", "hidden",
-                   "actor_lr", "critic_lr", "noise", "noise_correlation", "smooth_jerk",
+TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_scale", "message_dim",
+                   "hidden", "actor_lr", "critic_lr", "noise", "noise_correlation", "smooth_jerk",
                    "smooth_accel", "eval_events")
 """Training options that, when given, override the defaults of TrainConfig."""
 

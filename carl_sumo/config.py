@@ -40,12 +40,14 @@ class RewardConfig:
     r_gap: lognormal pdf of the time headway h = d/v, parameters (μ, σ) fitted to NGSIM headways;
     r_safe: log(TTC/4) when 0 < TTC ≤ ttc_threshold_s, else 0;
     r_comfort: -min((jerk / jerk_scale)², 1), jerk = Δa/Δt;
+    optionally -w_accel·a² (control effort; 0 = off, the paper's reward);
     a collision (bumper gap ≤ 0) ends the episode and adds collision_penalty.
     """
 
     w_gap: float = 1.0
     w_safe: float = 1.0
     w_comfort: float = 1.0
+    w_accel: float = 0.0           # optional control effort -w_accel·a² (a in m/s²); not the paper's
     headway_mu: float = 0.4226     # μ of ln(h), h in s
     headway_sigma: float = 0.4366  # σ of ln(h)
     ttc_threshold_s: float = 4.0   # TTC below which r_safe is negative (s)

@@ -5,6 +5,8 @@ r_gap = lognormal pdf of the time headway h = d/v (μ = 0.4226, σ = 0.4366; lar
 exp(μ - σ²) ≈ 1.26 s), r_safe = log(TTC/4 s) for 0 < TTC ≤ 4 s (else 0), r_comfort =
 -min((jerk/jerk_scale)², 1) (jerk_scale 60 m/s³ by default: the normalised jerk lies in [-1, 1]
 for accelerations within ±3 m/s²), and ``collision_penalty`` for a follower whose gap d ≤ 0.
+An optional control-effort term -w_accel·a² (a in m/s²; w_accel = 0, i.e. off, by default) is
+this project's addition: it rewards attenuating the leader's accelerations (string stability).
 Compiled with numba because it runs every 0.1 s step.
 """
 
@@ -29,8 +31,8 @@ def _headway_reward(h: float, mu: float, sigma: float) -> float:
 
 
 @njit(cache=True)
-def _platoon_reward(obs, prev_acc, w_gap, w_safe, w_comfort, mu, sigma, ttc_max, jerk_scale,
-                    penalty, dt):
+def _platoon_reward(obs, prev_acc, w_gap, w_safe, w_comfort, w_accel, mu, sigma, ttc_max,
+                    jerk_scale, penalty, dt):
     n = obs.shape[0]
     reward = np.empty(n)
     collided = np.zeros(n, dtype=np.bool_)
@@ -42,7 +44,7 @@ def _platoon_reward(obs, prev_acc, w_gap, w_safe, w_comfort, mu, sigma, ttc_max,
             if ttc <= ttc_max:
                 r += w_safe * math.log(ttc / ttc_max)
         jerk = (a - prev_acc[i]) / dt / jerk_scale
-        r -= w_comfort * min(jerk * jerk, 1.0)
+        r -= w_comfort * min(jerk * jerk, 1.0) + w_accel * a * a
         if d <= 0.0:
             collided[i] = True
             r += penalty
@@ -52,7 +54,7 @@ def _platoon_reward(obs, prev_acc, w_gap, w_safe, w_comfort, mu, sigma, ttc_max,
 
 @lru_cache(maxsize=16)
 def _params(cfg: RewardConfig) -> tuple[float, ...]:
-    return (cfg.w_gap, cfg.w_safe, cfg.w_comfort, cfg.headway_mu, cfg.headway_sigma,
+    return (cfg.w_gap, cfg.w_safe, cfg.w_comfort, cfg.w_accel, cfg.headway_mu, cfg.headway_sigma,
             cfg.ttc_threshold_s, cfg.jerk_scale_mps3, cfg.collision_penalty, DT_S)
 
 

@@ -29,3 +29,12 @@ def test_collision_penalty():
     obs = np.array([[10.0, 0.0, -0.1, -5.0]])
     r, collided = platoon_reward(obs, np.zeros(1))
     assert collided[0] and r[0] < REWARD.collision_penalty + 1.0
+
+
+def test_optional_control_effort_term():
+    from dataclasses import replace
+
+    obs = np.array([[10.0, 2.0, 20.0, 0.0], [10.0, -1.0, 20.0, 0.0]])
+    plain, _ = platoon_reward(obs, obs[:, 1].copy())  # no jerk: only the headway term
+    with_effort, _ = platoon_reward(obs, obs[:, 1].copy(), replace(REWARD, w_accel=0.5))
+    assert np.allclose(plain - with_effort, [0.5 * 4.0, 0.5 * 1.0])
