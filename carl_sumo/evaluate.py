@@ -456,7 +456,7 @@ def markdown_table(spec: TableSpec, rows: list[dict], note: str = "") -> str:
             lines.append(f"| {r['model']} | `{r['policy']}` | {r['followers']} | "
                          f"n={r['seeds']} | " + " | ".join(cells) + " |")
     else:
-        lines += ["Every learned model has one seed (n=1), so there is no spread across seeds."]
+        lines += ["", "Every learned model has one seed (n=1), so there is no spread across seeds."]
     return "\n".join(lines) + "\n"
 
 
