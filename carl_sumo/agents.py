@@ -32,9 +32,6 @@ ALGOS = ("ca-td3", "ca-ddpg", "td3", "ddpg", "maddpg")
 OBS_SCALE = (20.0, 3.0, 50.0, 5.0)
 """Observations [v (m/s), a (m/s²), d (m), Δv (m/s)] are divided by these before the networks."""
 
-ACC_SCALE = 3.0
-"""Accelerations given to the critics are divided by this (m/s²)."""
-
 GAP_CLIP_M = 150.0
 """Gaps above this are seen as this (m): beyond it a follower is effectively free."""
 
@@ -140,11 +137,7 @@ class Agent(nn.Module):
 
     def _q(self, critic: nn.Module, obs: torch.Tensor, action: torch.Tensor,
            mask: torch.Tensor | None) -> torch.Tensor:
-        """Q of an adjustment, judged by the acceleration it makes: the critic's action input is
-        the applied a = clip(a_IDM(o) + a_adj) (m/s², divided by ACC_SCALE), so the jerk the
-        reward punishes, (a - a_prev)/dt, is a simple function of its inputs (a_prev is in o)."""
-        acc = self.total_acceleration(obs, action)
-        x = torch.cat([normalise(obs), (acc / ACC_SCALE).unsqueeze(-1)], dim=-1)
+        x = torch.cat([normalise(obs), (action / self.cfg.adj_max).unsqueeze(-1)], dim=-1)
         return critic(x, mask).squeeze(-1)
 
     @staticmethod
