@@ -8,8 +8,12 @@ seed) job on the shipped policies, in parallel worker processes (one libsumo eac
   (:func:`carl_sumo.metrics.bootstrap_ci`), and, for models with several seeds
   (``policies/<stem>_seed<K>.pt``), the mean ± standard deviation across seeds of the per-seed
   aggregate;
-- ``per_event.csv`` (every job's per-event metrics), the figures of :mod:`carl_sumo.figures` and
-  ``README.md`` (all tables, figure links, command, machine, wall time).
+- ``per_event.csv`` (every job's per-event metrics), ``timing.csv`` (wall and CPU seconds per
+  job), the figures of :mod:`carl_sumo.figures` and ``README.md`` (all tables, figure links,
+  command, machine, wall time, policy file hashes).
+
+Jobs are split into chunks of events and the chunks of all jobs form one queue, longest first, so
+that both cores stay busy to the end; Table 2's 10-follower rows reuse Table 1's runs.
 
 Tables (``--quick``: the shipped default leader set, 2 events per table, 10 and 20 followers in
 Table 2, a one-cycle stop-and-go leader, and the default set's train split standing in for US-101):
