@@ -52,6 +52,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--controller", default="idm")
     p.add_argument("--event", required=True, help="event ID (stop_and_go with --data stop-and-go)")
     p.add_argument("--fcd", type=Path, required=True, help="FCD output file (.xml)")
+    p.add_argument("--gui", action="store_true",
+                   help="show the run in sumo-gui (needs a display; closes when you close it)")
+
+    p = sub.add_parser("evaluate", help="the paper's tables and figures, written to --out")
+    p.add_argument("--suite", default="paper", choices=("paper",), help="which suite (paper)")
+    p.add_argument("--out", type=Path, default=Path("results"), help="output directory")
+    p.add_argument("--data", default=None,
+                   help="NGSIM event table (default: ../shared/data/ngsim/ngsim_cf_events.csv.gz;"
+                        " with --quick: the shipped default set)")
+    p.add_argument("--quick", action="store_true",
+                   help="a few events per table, 10 and 20 followers, one stop-and-go cycle")
+    p.add_argument("--events", type=int, default=None, metavar="K",
+                   help="only the first K events of each table (default: all; --quick: 2)")
+    p.add_argument("--policies", type=Path, default=None,
+                   help="directory of the policy files (default: policies/)")
+    p.add_argument("--net", default="networks/i80.net.xml", help="SUMO network (.net.xml)")
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                   help="parallel SUMO processes (default: the number of cores)")
 
     p = sub.add_parser("train", help="train a CA-RL (or baseline) agent inside SUMO")
     _add_common(p, split_default="train")
@@ -212,13 +230,31 @@ def cmd_replay(args: argparse.Namespace) -> None:
     from carl_sumo.data import load_events
     from carl_sumo.simulate import replay
 
+    from carl_sumo.sumo import has_display, use_gui
+
     _positive(args.vehicles, "--vehicles")
+    if args.gui and not has_display():
+        use_gui(True)  # raises the one-line "no display" error before anything runs
     (event,) = load_events(args.data, args.split, event_ids=[args.event])
-    metrics = replay(args.controller, event, args.vehicles, args.fcd, args.net)
+    metrics = replay(args.controller, event, args.vehicles, args.fcd, args.net, gui=args.gui)
     print(f"wrote {args.fcd}: event {event.event_id}, {args.vehicles} followers, "
           f"{event.duration_s:.1f} s, controller {args.controller}")
     print(", ".join(f"{k}={_fmt(v)}" for k, v in metrics.items() if not k.startswith("n_")
                     and k != "event_id"))
+
+
+def cmd_evaluate(args: argparse.Namespace) -> None:
+    from carl_sumo.evaluate import evaluate
+
+    workers = _positive(args.workers, "--workers")
+    result = evaluate(args.suite, args.out, args.data, args.quick, args.events, args.policies,
+                      args.net, workers, progress=sys.stderr.isatty(),
+                      command="carl-sumo " + " ".join(sys.argv[1:]))
+    for key, rows in result["rows"].items():
+        print(f"wrote {args.out / (key + '.md')} and .csv ({len(rows)} rows)")
+    print(f"wrote {args.out / 'README.md'}, per_event.csv, timing.csv and "
+          f"{len(result['figures'])} figures; wall time {result['wall_time_s']:.0f} s "
+          f"({result['tasks']} tasks, {workers} workers)")
 
 
 TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_scale", "message_dim",
@@ -375,8 +411,9 @@ def cmd_data(args: argparse.Namespace) -> None:
         print(f"wrote {out}: {table['event_id'].nunique()} events")
 
 
-COMMANDS = {"simulate": cmd_simulate, "train": cmd_train, "policy-info": cmd_policy_info, "export": cmd_export, "replay": cmd_replay, "bench": cmd_bench, "net": cmd_net,
-            "study": cmd_study,
+COMMANDS = {"simulate": cmd_simulate, "evaluate": cmd_evaluate, "train": cmd_train,
+            "policy-info": cmd_policy_info, "export": cmd_export, "replay": cmd_replay,
+            "bench": cmd_bench, "net": cmd_net, "study": cmd_study,
             "data": cmd_data}
 
 

@@ -53,22 +53,40 @@ def _norm(x: np.ndarray) -> np.ndarray:
     return np.sqrt(np.sum(x * x, axis=0))
 
 
+def metric_samples(traj: PlatoonTrajectory) -> dict[str, np.ndarray]:
+    """The samples the pooled means average: time headway (s, samples with v > 0.5 m/s), speed
+    (m/s) and |jerk| (m/s³) of every follower, flattened (what the ECDF figures show)."""
+    v = traj.speed
+    moving = v > HEADWAY_MIN_SPEED_MPS
+    acc = np.diff(v, axis=0) / traj.dt
+    return {"headway_s": traj.gap[moving] / v[moving], "speed_mps": v.ravel(),
+            "jerk_mps3": np.abs(np.diff(acc, axis=0)).ravel() / traj.dt}
+
+
+def acceleration_norms(traj: PlatoonTrajectory) -> np.ndarray:
+    """‖a_i‖₂ over the event's samples for the leader (index 0) and each follower (m/s²·√samples).
+
+    ``acceleration_norms(t)[1:] / acceleration_norms(t)[0]`` is the per-vehicle profile whose
+    mean is the dampening ratio.
+    """
+    leader_acc = np.diff(traj.leader_speed) / traj.dt
+    acc = np.diff(traj.speed, axis=0) / traj.dt
+    return np.concatenate([[np.sqrt(np.sum(leader_acc ** 2))], _norm(acc)])
+
+
 def score_event(traj: PlatoonTrajectory) -> dict[str, float]:
     """Metrics of one event (see the module docstring), plus the sample counts for pooling."""
     v = traj.speed
     pred = np.concatenate([traj.leader_speed[:, None], v[:, :-1]], axis=1)
     d = traj.gap
-    moving = v > HEADWAY_MIN_SPEED_MPS
-    headway = d[moving] / v[moving]
-    acc = np.diff(v, axis=0) / traj.dt
-    jerk = np.abs(np.diff(acc, axis=0)) / traj.dt
+    samples = metric_samples(traj)
+    headway, jerk = samples["headway_s"], samples["jerk_mps3"]
     closing = v - pred
     with np.errstate(divide="ignore", invalid="ignore"):
         ttc = np.where(closing > 0, d / closing, np.inf)
     valid_ttc = ttc > 0
-    leader_acc = np.diff(traj.leader_speed) / traj.dt
-    norms = _norm(acc)
-    chain = np.concatenate([[np.sqrt(np.sum(leader_acc ** 2))], norms])
+    chain = acceleration_norms(traj)
+    norms = chain[1:]
     with np.errstate(divide="ignore", invalid="ignore"):
         successive = chain[1:] / chain[:-1]
     successive = np.where(np.isfinite(successive), successive, np.nan)
@@ -104,3 +122,41 @@ def aggregate(per_event: list[dict[str, float]]) -> dict[str, float]:
         values = np.array([e[key] for e in per_event], float)
         out[key] = float(np.nanmean(values)) if np.isfinite(values).any() else float("nan")
     return {key: out[key] for key in METRIC_KEYS}
+
+
+def bootstrap_ci(per_event: list[dict[str, float]], n_boot: int = 2000, level: float = 0.95,
+                 seed: int = 0) -> dict[str, tuple[float, float]]:
+    """Percentile bootstrap interval of every :func:`aggregate` metric, resampling events.
+
+    Each of ``n_boot`` resamples draws len(per_event) events with replacement and aggregates them
+    exactly as :func:`aggregate` does (pooled means, event-mean ratios, summed counts). With fewer
+    than 2 events there is no interval: (nan, nan).
+    """
+    n = len(per_event)
+    if n < 2:
+        return {key: (float("nan"), float("nan")) for key in METRIC_KEYS}
+    rng = np.random.default_rng(seed)
+    counts = rng.multinomial(n, np.full(n, 1.0 / n), size=n_boot).astype(float)  # (B, n)
+    tail = 100.0 * (1.0 - level) / 2.0
+    out: dict[str, tuple[float, float]] = {}
+    for key in METRIC_KEYS:
+        values = np.array([e[key] for e in per_event], float)
+        if key in _POOLED:
+            weights = np.array([e[_POOLED[key]] for e in per_event], float)
+        elif key in RATIO_KEYS:
+            weights = np.ones(n)
+        else:
+            weights = None
+        if weights is None:
+            stats = counts @ values
+        else:
+            ok = np.isfinite(values) & (weights > 0)
+            w = np.where(ok, weights, 0.0)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                stats = (counts @ np.where(ok, values * w, 0.0)) / (counts @ w)
+        if not np.isfinite(stats).any():
+            out[key] = (float("nan"), float("nan"))
+            continue
+        lo, hi = np.nanpercentile(stats, [tail, 100.0 - tail])
+        out[key] = (float(lo), float(hi))
+    return out

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Sequence
+from typing import Iterator, Sequence
 
 import numpy as np
 
@@ -20,7 +20,7 @@ from carl_sumo.controllers import Controller, ZeroAdjustment, total_acceleration
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
 from carl_sumo.metrics import PlatoonTrajectory, aggregate, score_event
-from carl_sumo.sumo import DEFAULT_NET, PlatoonSim, atomic_output, close_sumo
+from carl_sumo.sumo import DEFAULT_NET, PlatoonSim, atomic_output, close_sumo, use_gui
 
 NATIVE_CONTROLLERS = {"idm": "idm", "krauss": "krauss"}
 BUILTIN_CONTROLLERS = ("idm", "krauss", "idm-external", "human")
@@ -77,9 +77,21 @@ def run_event(sim: PlatoonSim, event: Event, n_followers: int, controller: Contr
                              collisions)
 
 
-def _score_events(controller_name: str, events: Sequence[Event], n_followers: int,
-                  net_path: str, progress: bool = False) -> list[dict]:
-    """Per-event metrics of one controller, in this process."""
+_SIMS: dict[tuple[str, str], PlatoonSim] = {}
+
+
+def cached_sim(net_path: str | Path, follower_model: str) -> PlatoonSim:
+    """This process's :class:`PlatoonSim` for a network and follower model (parsed once)."""
+    key = (str(net_path), follower_model)
+    if key not in _SIMS:
+        _SIMS[key] = PlatoonSim(net_path, follower_model)
+    return _SIMS[key]
+
+
+def event_trajectories(controller_name: str, events: Sequence[Event], n_followers: int,
+                       net_path: str | Path = DEFAULT_NET, progress: bool = False
+                       ) -> Iterator[tuple[Event, PlatoonTrajectory]]:
+    """(event, trajectory) of one controller on each event, in this process, in order."""
     follower_model, controller = resolve_controller(controller_name)
     iterator = events
     if progress:
@@ -87,15 +99,32 @@ def _score_events(controller_name: str, events: Sequence[Event], n_followers: in
 
         iterator = tqdm(events, desc=controller_name, unit="event", leave=False)
     if follower_model == "human":
-        return [score_event(human_trajectory(e)) for e in iterator]
-    sim = PlatoonSim(net_path, follower_model)
-    return [score_event(run_event(sim, e, n_followers, controller)) for e in iterator]
+        for e in iterator:
+            yield e, human_trajectory(e)
+        return
+    sim = cached_sim(net_path, follower_model)
+    for e in iterator:
+        yield e, run_event(sim, e, n_followers, controller)
+
+
+def _score_events(controller_name: str, events: Sequence[Event], n_followers: int,
+                  net_path: str, progress: bool = False) -> list[dict]:
+    """Per-event metrics of one controller, in this process."""
+    return [score_event(traj) for _, traj in
+            event_trajectories(controller_name, events, n_followers, net_path, progress)]
 
 
 def _worker_init() -> None:
     import torch
 
     torch.set_num_threads(1)
+
+
+def worker_pool(workers: int):
+    """A pool of ``workers`` spawned processes (one libsumo and one torch thread each)."""
+    import multiprocessing as mp
+
+    return mp.get_context("spawn").Pool(workers, initializer=_worker_init)
 
 
 def simulate(controller_name: str, events: Sequence[Event], n_followers: int,
@@ -110,10 +139,8 @@ def simulate(controller_name: str, events: Sequence[Event], n_followers: int,
     if workers == 1 or follower_model == "human":
         per_event = _score_events(controller_name, events, n_followers, str(net_path), progress)
     else:
-        import multiprocessing as mp
-
         chunks = [list(events[i::workers]) for i in range(workers)]
-        with mp.get_context("spawn").Pool(workers, initializer=_worker_init) as pool:
+        with worker_pool(workers) as pool:
             parts = pool.starmap(_score_events, [(controller_name, chunk, n_followers,
                                                   str(net_path)) for chunk in chunks])
         order = {e.event_id: i for i, e in enumerate(events)}
@@ -123,20 +150,28 @@ def simulate(controller_name: str, events: Sequence[Event], n_followers: int,
 
 
 def replay(controller_name: str, event: Event, n_followers: int, fcd_path: Path,
-           net_path: str | Path = DEFAULT_NET) -> dict:
-    """Run one event and write SUMO's FCD output (with acceleration and leader fields)."""
+           net_path: str | Path = DEFAULT_NET, gui: bool = False) -> dict:
+    """Run one event and write SUMO's FCD output (with acceleration and leader fields).
+
+    With ``gui`` the same run is shown in sumo-gui (through TraCI; InputError without a display).
+    """
     follower_model, controller = resolve_controller(controller_name)
     if follower_model == "human":
         raise InputError("the recorded human follower is not simulated, so it has no FCD output; "
                          "choose idm, krauss, idm-external or a policy file")
+    if controller is not None:
+        controller.reset(n_followers)  # a MADDPG policy refuses another length before SUMO starts
     fcd_path = Path(fcd_path)
-    tmp = atomic_output(fcd_path)
     sim = PlatoonSim(net_path, follower_model)
+    use_gui(gui)
+    tmp = atomic_output(fcd_path)
     try:
         try:
             traj = run_event(sim, event, n_followers, controller, fcd_path=tmp)
         finally:
             close_sumo()  # SUMO finishes the FCD file when the simulation closes
+            if gui:
+                use_gui(False)
         os.replace(tmp, fcd_path)
     except BaseException:
         tmp.unlink(missing_ok=True)

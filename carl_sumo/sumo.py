@@ -40,12 +40,40 @@ FOLLOWER_TYPES = {"external": "cacc", "idm": "human_idm", "krauss": "human_kraus
 FCD_ATTRIBUTES = "id,type,x,y,speed,acceleration,pos,lane,odometer,leaderID,leaderSpeed,leaderGap"
 
 _sumo_running = False  # whether this process has a libsumo simulation open
+_gui = False  # whether simulations of this process run in sumo-gui through TraCI
 
 
 def _libsumo():
+    """The SUMO API of this process: libsumo, or TraCI (the same API) when the GUI is on."""
+    if _gui:
+        import traci
+
+        return traci
     import libsumo  # imported lazily: worker processes and the CLI import this module cheaply
 
     return libsumo
+
+
+def has_display() -> bool:
+    """Whether a GUI window can open: on Linux/BSD a DISPLAY or WAYLAND_DISPLAY must be set."""
+    import sys
+
+    if sys.platform in ("win32", "darwin"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def use_gui(enabled: bool) -> None:
+    """Run the next simulations of this process in sumo-gui (through TraCI) instead of libsumo.
+
+    Raises InputError when no display exists. Closes a simulation that is open.
+    """
+    global _gui
+    if enabled and not has_display():
+        raise InputError("--gui needs a display and none is set (DISPLAY is empty); run without "
+                         "--gui and open the FCD file, or run on a desktop session")
+    close_sumo()
+    _gui = enabled
 
 
 @dataclass(frozen=True)
@@ -176,12 +204,27 @@ def start_sumo(args: list[str]) -> None:
     try:
         if _sumo_running:
             libsumo.load(args)
+        elif _gui:
+            import contextlib
+            import io
+
+            import sumolib
+
+            # a fixed port: if sumo-gui exits at once (no usable display) TraCI gives up at once
+            # instead of restarting it; TraCI's "Retrying" lines are not shown
+            with contextlib.redirect_stdout(io.StringIO()):
+                libsumo.start([sumolib.checkBinary("sumo-gui"), "--start", "--delay", "50"] + args,
+                              port=sumolib.miscutils.getFreeSocketPort(), numRetries=30)
+            _sumo_running = True
         else:
             libsumo.start(["sumo"] + args)
             _sumo_running = True
     except Exception as exc:  # libsumo raises TraCIException / FatalTraCIError with SUMO's text
         close_sumo()
-        raise InputError(f"SUMO could not load the simulation: {exc}") from exc
+        what = (f"sumo-gui could not open on display {os.environ.get('DISPLAY', '')!r} (check "
+                "that the display works, or run without --gui)" if _gui
+                else "SUMO could not load the simulation")
+        raise InputError(f"{what}: {' '.join(str(exc).split())}") from exc
 
 
 def close_sumo() -> None:

@@ -1,0 +1,235 @@
+"""``carl-sumo evaluate`` (the paper suite, --quick, end to end), the bootstrap, and replay."""
+
+from __future__ import annotations
+
+import shutil
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from carl_sumo.cli import main
+from carl_sumo.evaluate import CSV_COLUMNS, discover_model, figure_event
+from carl_sumo.metrics import METRIC_KEYS, aggregate, bootstrap_ci
+
+from conftest import NET, REPO_ROOT, braking_event
+
+POLICIES = REPO_ROOT / "policies"
+SHIPPED = ("ca_td3_10", "ca_ddpg_10", "td3_1", "ddpg_1", "maddpg_10", "maddpg_20", "ca_td3_20",
+           "ca_ddpg_20")
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def extra_seed(src: Path, dst: Path, seed: int) -> None:
+    """A second training seed of a policy: the same network with perturbed weights."""
+    payload = torch.load(src, weights_only=True)
+    gen = torch.Generator().manual_seed(seed)
+    payload["actor"] = {k: v + 0.05 * torch.randn(v.shape, generator=gen) if v.is_floating_point()
+                        else v for k, v in payload["actor"].items()}
+    payload["metadata"] = {**payload["metadata"], "seed": seed}
+    torch.save(payload, dst)
+
+
+@pytest.fixture(scope="module")
+def quick_suite(tmp_path_factory) -> Path:
+    """The --quick suite, run once: policies copied, TD3 with a second seed (and a duplicate)."""
+    root = tmp_path_factory.mktemp("suite")
+    policies = root / "policies"
+    policies.mkdir()
+    for stem in SHIPPED:
+        shutil.copy(POLICIES / f"{stem}.pt", policies / f"{stem}.pt")
+    extra_seed(POLICIES / "td3_1.pt", policies / "td3_1_seed1.pt", 1)
+    shutil.copy(POLICIES / "td3_1.pt", policies / "td3_1_seed7.pt")  # seed 0 again: left out
+    out = root / "results"
+    code = main(["evaluate", "--suite", "paper", "--quick", "--out", str(out), "--policies",
+                 str(policies), "--net", str(NET), "--workers", "2"])
+    assert code == 0
+    return out
+
+
+TABLES = {  # file stem -> (rows, platoon lengths)
+    "table1_ngsim_test": (8, {1, 10}),
+    "table2_generalization": (18, {10, 20}),
+    "table3_stop_and_go": (7, {10}),
+    "cross_site_us101": (8, {1, 10}),
+}
+
+
+def test_quick_suite_writes_every_table_figure_and_readme(quick_suite):
+    names = {p.name for p in quick_suite.iterdir()}
+    for stem in TABLES:
+        assert {f"{stem}.md", f"{stem}.csv"} <= names
+    figures = sorted(n for n in names if n.endswith(".png"))
+    assert figures == ["fig_accel_norm_profile.png", "fig_ecdf_ngsim_test.png",
+                       "fig_time_space_ngsim.png", "fig_time_space_stop_and_go.png",
+                       "fig_timeseries_ngsim.png", "fig_timeseries_stop_and_go.png"]
+    for name in figures:
+        data = (quick_suite / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
+    readme = (quick_suite / "README.md").read_text()
+    assert all(f"]({name})" in readme for name in figures)
+    assert "wall time" in readme and "cores" in readme and "--quick" in readme
+    assert not [n for n in names if n.startswith(".")]  # no temporary file left
+
+
+def test_quick_suite_csv_rows_columns_and_intervals(quick_suite):
+    for stem, (n_rows, lengths) in TABLES.items():
+        table = pd.read_csv(quick_suite / f"{stem}.csv")
+        assert list(table.columns) == CSV_COLUMNS
+        assert len(table) == n_rows, stem
+        assert set(table["followers"]) == lengths
+        for m in METRIC_KEYS:
+            lo, mean, hi = table[f"{m}_lo"], table[m], table[f"{m}_hi"]
+            ok = lo.notna()
+            assert (lo[ok] <= mean[ok] + 1e-9).all() and (mean[ok] <= hi[ok] + 1e-9).all(), m
+        if stem == "table3_stop_and_go":  # one event: no interval
+            assert table["headway_s_lo"].isna().all()
+        else:
+            assert table["headway_s_lo"].notna().all() and (table["events"] == 2).all()
+    t1 = pd.read_csv(quick_suite / "table1_ngsim_test.csv")
+    assert list(t1["model"]) == ["human (recorded)", "IDM (SUMO)", "Krauss (SUMO)", "MADDPG",
+                                 "DDPG", "CA-DDPG", "TD3", "CA-TD3"]
+    t2 = pd.read_csv(quick_suite / "table2_generalization.csv")
+    maddpg = t2[t2["model"] == "MADDPG"]
+    assert sorted(zip(maddpg["policy"], maddpg["followers"])) == [("maddpg_10", 10),
+                                                                  ("maddpg_20", 20)]
+
+
+def test_quick_suite_spread_across_seeds(quick_suite):
+    t1 = pd.read_csv(quick_suite / "table1_ngsim_test.csv").set_index("policy")
+    assert t1.loc["td3_1", "seeds"] == 2 and t1.loc["ca_td3_10", "seeds"] == 1
+    assert np.isfinite(t1.loc["td3_1", "jerk_mps3_seed_std"])
+    assert np.isnan(t1.loc["ca_td3_10", "jerk_mps3_seed_std"])
+    per_event = pd.read_csv(quick_suite / "per_event.csv")
+    td3 = per_event[(per_event["model"] == "td3_1") & (per_event["event_set"] == "ngsim_test")
+                    & (per_event["followers"] == 10)]
+    by_seed = td3.groupby("seed")["jerk_mps3"].mean()
+    assert list(by_seed.index) == [0, 1] and by_seed[0] != by_seed[1]
+    md = (quick_suite / "table1_ngsim_test.md").read_text()
+    assert "Spread across seeds" in md and "n=2" in md and "n=1" in md
+
+
+def test_bootstrap_matches_a_direct_resampling_of_aggregate():
+    rng = np.random.default_rng(3)
+    events = []
+    for i in range(15):
+        n = int(rng.integers(50, 400))
+        events.append({"event_id": f"e{i}", "headway_s": rng.uniform(1, 3),
+                       "jerk_mps3": rng.uniform(0.1, 1), "speed_mps": rng.uniform(5, 15),
+                       "ttc_lt_4s_count": int(rng.integers(0, 20)), "ttc_lt_1_5s_count": 0,
+                       "dampening_ratio": rng.uniform(0.5, 1.5),
+                       "worst_successive_ratio": rng.uniform(0.8, 1.5), "collisions": 0,
+                       "n_headway": n, "n_jerk": n - 2, "n_speed": n})
+    ci = bootstrap_ci(events, n_boot=4000, seed=1)
+    direct = []
+    for _ in range(4000):
+        direct.append(aggregate([events[j] for j in rng.integers(0, len(events), len(events))]))
+    point = aggregate(events)
+    for key in METRIC_KEYS:
+        values = np.array([d[key] for d in direct], float)
+        lo, hi = np.percentile(values, [2.5, 97.5])
+        spread = max(hi - lo, 1e-9)
+        assert abs(ci[key][0] - lo) <= 0.1 * spread + 1e-9, key
+        assert abs(ci[key][1] - hi) <= 0.1 * spread + 1e-9, key
+        assert ci[key][0] <= point[key] <= ci[key][1], key
+
+
+def test_bootstrap_hand_made_cases():
+    base = {"ttc_lt_4s_count": 2, "ttc_lt_1_5s_count": 0, "dampening_ratio": 0.5,
+            "worst_successive_ratio": 1.0, "collisions": 0, "jerk_mps3": 0.2, "speed_mps": 10.0}
+    # pooled mean: values 1 and 3 with 1 and 3 samples -> every resample lies in [1, 3]; the
+    # point estimate is (1·1 + 3·3)/4 = 2.5
+    events = [{**base, "event_id": "a", "headway_s": 1.0, "n_headway": 1, "n_jerk": 1,
+               "n_speed": 1},
+              {**base, "event_id": "b", "headway_s": 3.0, "n_headway": 3, "n_jerk": 1,
+               "n_speed": 1}]
+    ci = bootstrap_ci(events, n_boot=500)
+    assert aggregate(events)["headway_s"] == 2.5
+    assert ci["headway_s"] == (1.0, 3.0)  # both all-a and all-b resamples occur (p = 1/4 each)
+    assert ci["ttc_lt_4s_count"] == (4.0, 4.0) and ci["dampening_ratio"] == (0.5, 0.5)
+    one = bootstrap_ci(events[:1])
+    assert all(np.isnan(lo) and np.isnan(hi) for lo, hi in one.values())
+
+
+def test_figure_event_is_the_largest_leader_speed_range():
+    calm = braking_event(n=400, event_id="calm", v0=6.0)
+    wild = braking_event(n=400, event_id="wild", v0=14.0)
+    short = braking_event(n=200, event_id="short", v0=20.0)  # 19.9 s: too short
+    assert figure_event([calm, wild, short]) == "wild"
+    assert figure_event([short]) == "short"
+
+
+def test_seed_files_are_found_and_duplicates_left_out(tmp_path):
+    shutil.copy(POLICIES / "ca_td3_10.pt", tmp_path / "ca_td3_10.pt")
+    extra_seed(POLICIES / "ca_td3_10.pt", tmp_path / "ca_td3_10_seed2.pt", 2)
+    extra_seed(POLICIES / "ca_td3_10.pt", tmp_path / "ca_td3_10_seed1.pt", 1)
+    shutil.copy(POLICIES / "ca_td3_10.pt", tmp_path / "ca_td3_10_seed3.pt")  # seed 0 again
+    shutil.copy(POLICIES / "ca_td3_10.pt", tmp_path / "ca_td3_10_seedx.pt")  # not a seed name
+    model = discover_model("ca_td3_10", tmp_path)
+    assert model.seeds == (0, 1, 2) and model.name == "CA-TD3" and model.trained_on == 10
+    assert [Path(f).name for f in model.files] == ["ca_td3_10.pt", "ca_td3_10_seed1.pt",
+                                                   "ca_td3_10_seed2.pt"]
+    maddpg = tmp_path / "m"
+    maddpg.mkdir()
+    shutil.copy(POLICIES / "maddpg_20.pt", maddpg / "maddpg_20.pt")
+    model = discover_model("maddpg_20", maddpg)
+    assert model.fixed_length == 20 and model.runs_on(20) and not model.runs_on(10)
+
+
+def test_evaluate_bad_input_is_one_line_exit_2(capsys, tmp_path, monkeypatch):
+    cases = [
+        (["evaluate", "--quick", "--data", tmp_path / "none.csv"], "does not exist"),
+        (["evaluate", "--suite", "tables", "--quick"], "invalid choice"),
+        (["evaluate", "--quick", "--policies", tmp_path / "nowhere"], "policy directory"),
+        (["evaluate", "--quick", "--policies", tmp_path], "does not exist"),
+        (["evaluate", "--quick", "--events", "0"], "at least 1"),
+        (["evaluate", "--quick", "--workers", "0"], "at least 1"),
+    ]
+    for argv, message in cases:
+        code, out, err = run(capsys, *argv, "--out", tmp_path / "out")
+        assert code == 2 and message in err and len(err.strip().splitlines()) == 1, (argv, err)
+    monkeypatch.chdir(tmp_path)  # no ../shared/data/ngsim here
+    code, _, err = run(capsys, "evaluate", "--out", tmp_path / "out", "--net", NET)
+    assert code == 2 and "pass --data" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()
+
+
+def test_replay_gui_without_display_is_one_line_exit_2(capsys, tmp_path, monkeypatch):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr("sys.platform", "linux")
+    fcd = tmp_path / "out.xml"
+    code, _, err = run(capsys, "replay", "--controller", POLICIES / "ca_td3_10.pt", "--event",
+                       "stop_and_go", "--data", "stop-and-go", "--fcd", fcd, "--net", NET, "--gui")
+    assert code == 2 and "display" in err and len(err.strip().splitlines()) == 1
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("stem,vehicles", [("ca_td3_10", 10), ("td3_1", 3), ("maddpg_10", 10)])
+def test_replay_works_for_policy_files(capsys, tmp_path, stem, vehicles):
+    fcd = tmp_path / "out.xml"
+    code, out, err = run(capsys, "replay", "--controller", POLICIES / f"{stem}.pt", "--event",
+                         "stop_and_go", "--data", "stop-and-go", "--vehicles", vehicles,
+                         "--fcd", fcd, "--net", NET)
+    assert code == 0, err
+    steps = ET.parse(fcd).getroot().findall("timestep")
+    assert len(steps) > 1000
+    ids = {v.get("id") for v in steps[-1].findall("vehicle")}
+    assert ids == {"leader", *(f"f{i}" for i in range(vehicles))}
+    assert "collisions=0" in out
+
+
+def test_replay_maddpg_other_length_is_refused_before_running(capsys, tmp_path):
+    code, _, err = run(capsys, "replay", "--controller", POLICIES / "maddpg_10.pt", "--event",
+                       "stop_and_go", "--data", "stop-and-go", "--vehicles", "5",
+                       "--fcd", tmp_path / "out.xml", "--net", NET)
+    assert code == 2 and "trained for 10 vehicles" in err
+    assert list(tmp_path.iterdir()) == []
