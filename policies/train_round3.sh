@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Trains every shipped policy with the final recipe (third round), two runs at a time on the 2-core
 # machine: CA-TD3 and TD3 with seeds 0, 1, 2 (the seed-0 files are the shipped ones; the others are
-# `<name>_seed<K>.pt`), CA-DDPG, DDPG, MADDPG for 10 and 20 vehicles, CA-TD3 and CA-DDPG on 20.
+# `<name>_seed<K>.pt`), CA-DDPG, DDPG, MADDPG for 10 and 20 vehicles. (CA-TD3 and CA-DDPG trained on
+# 20 vehicles are still the first-round files of policies/train_all.sh: not retrained for lack of time.)
 # Recipe: comfort weight 100, actor / critic learning rates 1e-4 / 3e-4, AR(1) exploration noise
 # (std 0.05 × 3 m/s², coefficient 0.99), validation every 500 steps on 16 held-out training events,
 # best checkpoint by the validation metrics relative to IDM on the same events (--select metrics).
@@ -14,8 +15,6 @@ COMMON="--net networks/i80.net.xml --data $DATA --split train --w-comfort 100 --
 cat <<RUNS | xargs -P 2 -I{} bash -c '{}'
 carl-sumo train --algo ca-td3 --vehicles 10 --steps 10000 --seed 0 $COMMON --out policies/ca_td3_10.pt > policies/logs/ca_td3_10.log 2>&1
 carl-sumo train --algo ca-ddpg --vehicles 10 --steps 10000 --seed 0 $COMMON --out policies/ca_ddpg_10.pt > policies/logs/ca_ddpg_10.log 2>&1
-carl-sumo train --algo ca-td3 --vehicles 20 --steps 6000 --seed 0 $COMMON --out policies/ca_td3_20.pt > policies/logs/ca_td3_20.log 2>&1
-carl-sumo train --algo ca-ddpg --vehicles 20 --steps 6000 --seed 0 $COMMON --out policies/ca_ddpg_20.pt > policies/logs/ca_ddpg_20.log 2>&1
 carl-sumo train --algo ca-td3 --vehicles 10 --steps 10000 --seed 1 $COMMON --out policies/ca_td3_10_seed1.pt > policies/logs/ca_td3_10_seed1.log 2>&1
 carl-sumo train --algo ca-td3 --vehicles 10 --steps 10000 --seed 2 $COMMON --out policies/ca_td3_10_seed2.pt > policies/logs/ca_td3_10_seed2.log 2>&1
 carl-sumo train --algo maddpg --vehicles 10 --steps 10000 --seed 0 $COMMON --out policies/maddpg_10.pt > policies/logs/maddpg_10.log 2>&1
