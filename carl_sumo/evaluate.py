@@ -46,7 +46,7 @@ from carl_sumo.data.synthetic import stop_and_go_event
 from carl_sumo.errors import InputError
 from carl_sumo.metrics import (METRIC_KEYS, acceleration_norms, aggregate, bootstrap_ci,
                                metric_samples, score_event)
-from carl_sumo.sumo import REPO_ROOT, atomic_output, check_fits, lane_route
+from carl_sumo.sumo import REPO_ROOT, check_fits, lane_route, write_text_atomic
 
 DEFAULT_NGSIM = Path("../shared/data/ngsim/ngsim_cf_events.csv.gz")
 """The NGSIM event table, relative to the directory carl-sumo runs in (the repository root)."""
@@ -464,15 +464,6 @@ def markdown_table(spec: TableSpec, rows: list[dict], note: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-def _write_text(path: Path, text: str) -> None:
-    tmp = atomic_output(path)
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 def csv_text(rows: list[dict], columns: list[str]) -> str:
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=columns, extrasaction="ignore", lineterminator="\n")
@@ -535,7 +526,7 @@ def run_suite(suite: Suite, out_dir: Path, workers: int = 2, net: str | Path =
     cpu = sum(r.cpu_seconds for r in results.values())
     readme = suite_readme(suite, sections, figure_files, wall, simulated, cpu, workers,
                           len(tasks), command)
-    _write_text(out_dir / "README.md", readme)
+    write_text_atomic(out_dir / "README.md", readme)
     return {"rows": all_rows, "wall_time_s": wall, "simulation_s": simulated,
             "worker_cpu_s": cpu, "tasks": len(tasks), "figures": figure_files}
 
@@ -548,16 +539,16 @@ def _write_tables(suite: Suite, results: dict[tuple, JobResult],
         rows = table_rows(spec, suite, results)
         all_rows[spec.key] = rows
         md = markdown_table(spec, rows, spec.events.note)
-        _write_text(out_dir / f"{spec.key}.md", md)
-        _write_text(out_dir / f"{spec.key}.csv", csv_text(rows, CSV_COLUMNS))
+        write_text_atomic(out_dir / f"{spec.key}.md", md)
+        write_text_atomic(out_dir / f"{spec.key}.csv", csv_text(rows, CSV_COLUMNS))
         sections.append(md + f"\nCSV: [`{spec.key}.csv`]({spec.key}.csv)\n")
     timing = [{"event_set": k[0], "controller": k[1], "followers": k[2],
                "events": len(r.per_event), "seconds": round(r.seconds, 2),
                "cpu_seconds": round(r.cpu_seconds, 2)}
               for k, r in sorted(results.items(), key=lambda kv: -kv[1].seconds)]
-    _write_text(out_dir / "timing.csv", csv_text(timing, list(timing[0])))
+    write_text_atomic(out_dir / "timing.csv", csv_text(timing, list(timing[0])))
     per_event = per_event_rows(suite, results)
-    _write_text(out_dir / "per_event.csv",
+    write_text_atomic(out_dir / "per_event.csv",
                 csv_text(per_event, ["event_set", "model", "seed", "followers", "event_id",
                                      *METRIC_KEYS]))
     return all_rows, sections

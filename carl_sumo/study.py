@@ -51,8 +51,9 @@ import numpy as np
 from carl_sumo.config import DT_S, HEADWAY_MIN_SPEED_MPS
 from carl_sumo.controllers import total_acceleration
 from carl_sumo.errors import InputError
-from carl_sumo.sumo import DEFAULT_NET, VTYPES_FILE, atomic_output, close_sumo, lane_route, start_sumo
-from carl_sumo.traffic import CACC_TYPES, DEFAULT_DEMAND, MAIN_EDGE, Demand, write_detectors, write_routes
+from carl_sumo.sumo import (DEFAULT_NET, VTYPES_FILE, atomic_output, close_sumo, lane_route,
+                            start_sumo, write_text_atomic)
+from carl_sumo.traffic import DEFAULT_DEMAND, MAIN_EDGE, Demand, write_detectors, write_routes
 
 SENSOR_RANGE_M = 300.0
 """Range within which a CACC vehicle sees the vehicle ahead (radar), m; at least the V2V range."""
@@ -614,7 +615,7 @@ def write_outputs(cfg: StudyConfig, results: list[RunResult], out_dir: Path,
             f"wall time: {wall_s:.0f} s" if wall_s is not None else "",
             f"settings: {settings}", f"demand: {asdict(cfg.demand)}", "",
             markdown_table(rows), ""]
-    written.append(_write_text(out_dir / "study.md", "\n".join(t for t in text if t is not None)))
+    written.append(write_text_atomic(out_dir / "study.md", "\n".join(t for t in text if t is not None)))
     return written
 
 
@@ -631,11 +632,3 @@ def _write_csv(path: Path, rows: list[dict]) -> Path:
     return path
 
 
-def _write_text(path: Path, text: str) -> Path:
-    tmp = atomic_output(path)
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path

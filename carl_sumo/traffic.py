@@ -27,14 +27,13 @@ Powell Street on-ramp; the defaults sit in the middle of that range.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from carl_sumo.errors import InputError
-from carl_sumo.sumo import atomic_output
+from carl_sumo.sumo import write_text_atomic
 
 MAINLINE_EDGE = "i80_approach"
 ONRAMP_EDGE = "powell_onramp"
@@ -141,7 +140,7 @@ def write_routes(path: Path, penetration: float, seed: int, horizon_s: float,
         lines.append(f'    <vehicle id="{vid}" type="{vtype}" route="{route}" depart="{t:.1f}" '
                      f'departLane="{lane}" departPos="base" departSpeed="max"/>')
     lines.append("</routes>")
-    _write_text_atomic(Path(path), "\n".join(lines) + "\n")
+    write_text_atomic(Path(path), "\n".join(lines) + "\n")
     return RouteSet(Path(path), n, len(cacc_ids), cacc_ids)
 
 
@@ -170,14 +169,7 @@ def write_detectors(path: Path, n_lanes: int, position_m: float, begin_s: float,
     lines.append(f'    <edgeData id="emissions" type="emissions" file="emissions.xml" '
                  f'begin="{begin_s:g}" end="{end_s:g}" period="{end_s - begin_s:g}"/>')
     lines.append("</additional>")
-    _write_text_atomic(path, "\n".join(lines) + "\n")
+    write_text_atomic(path, "\n".join(lines) + "\n")
     return outputs
 
 
-def _write_text_atomic(path: Path, text: str) -> None:
-    tmp = atomic_output(path)
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)

@@ -9,7 +9,6 @@ training events; the best policy by :func:`selection_score` is the one written t
 from __future__ import annotations
 
 import csv
-import os
 import random
 import sys
 import time

@@ -24,7 +24,7 @@ def _worker(conn, events: Sequence[Event], n: int, net_path: str, seed: int,
 
     env = PlatoonEnv(events, n, net_path, reward=reward)
     rng_seed = seed
-    obs = env.reset_array(seed=rng_seed)
+    env.reset_array(seed=rng_seed)
     while True:
         cmd, data = conn.recv()
         if cmd == "step":

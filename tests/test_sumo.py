@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from carl_sumo.config import DT_S
-from carl_sumo.controllers import ZeroAdjustment, total_acceleration
+from carl_sumo.controllers import ZeroAdjustment
 from carl_sumo.data.synthetic import stop_and_go_event
 from carl_sumo.errors import InputError
 from carl_sumo.simulate import run_event
