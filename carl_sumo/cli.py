@@ -99,6 +99,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="exploration noise std as a fraction of the a_adj bound")
     p.add_argument("--noise-correlation", type=float, default=None,
                    help="AR(1) coefficient of the exploration noise per step (0 = white)")
+    p.add_argument("--gamma", type=float, default=None, help="discount per 0.1 s step (0.98)")
+    p.add_argument("--adj-max", type=float, default=None,
+                   help="bound of the learned adjustment |a_adj| (m/s², default 3)")
     p.add_argument("--smooth-jerk", type=float, default=None,
                    help="actor loss weight on the policy's jerk, per (m/s³)² (default 0)")
     p.add_argument("--smooth-accel", type=float, default=None,
@@ -259,7 +262,7 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
 
 TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_scale", "message_dim",
                    "hidden", "actor_lr", "critic_lr", "noise", "noise_correlation", "smooth_jerk",
-                   "smooth_accel", "eval_events")
+                   "smooth_accel", "eval_events", "gamma", "adj_max")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 

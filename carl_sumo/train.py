@@ -64,6 +64,8 @@ class TrainConfig:
     select: str = "metrics"        # how the best checkpoint is chosen: "metrics" or "reward"
     noise: float = AgentConfig.exploration_noise          # exploration std (fraction of adj_max)
     noise_correlation: float = AgentConfig.noise_correlation
+    gamma: float = AgentConfig.gamma                      # discount per 0.1 s step
+    adj_max: float = AgentConfig.adj_max                  # |a_adj| bound of the actor (m/s²)
     smooth_jerk: float = AgentConfig.smooth_jerk          # actor smoothness terms (agents.py)
     smooth_accel: float = AgentConfig.smooth_accel
 
@@ -219,7 +221,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                               hidden=cfg.hidden, actor_lr=cfg.actor_lr, critic_lr=cfg.critic_lr,
                               exploration_noise=cfg.noise,
                               noise_correlation=cfg.noise_correlation,
-                              smooth_jerk=cfg.smooth_jerk, smooth_accel=cfg.smooth_accel))
+                              smooth_jerk=cfg.smooth_jerk, smooth_accel=cfg.smooth_accel,
+                              gamma=cfg.gamma, adj_max=cfg.adj_max))
     buffer = ReplayBuffer(cfg.buffer_size, n)
     rng = np.random.default_rng(cfg.seed)
     start_step, best, wall_before = 0, -np.inf, 0.0
@@ -351,7 +354,8 @@ def export_policy(checkpoint: Path, out: Path) -> dict[str, Any]:
         raise InputError(f"{checkpoint} is not a carl-sumo training checkpoint")
     cfg = TrainConfig(**state["train_config"])
     agent = Agent(AgentConfig(algo=cfg.algo, n_vehicles=cfg.n_vehicles,
-                              message_dim=cfg.message_dim, hidden=cfg.hidden))
+                              message_dim=cfg.message_dim, hidden=cfg.hidden,
+                              gamma=cfg.gamma, adj_max=cfg.adj_max))
     agent.load_state_dict(state["agent"])
     meta = _metadata(cfg, agent, {}, float(state["wall_s"]))
     meta["exported_from"] = f"{Path(checkpoint).name} at step {int(state['step'])}"
