@@ -56,3 +56,14 @@ def test_shipped_ca_policy_matches_and_controller_uses_it():
             obs = random_platoon(rng, n)
             np.testing.assert_allclose(controller.adjustment(obs), agent.act(obs), rtol=0,
                                        atol=TOLERANCE_MPS2)
+
+
+def test_compiled_actor_keeps_a_smaller_adjustment_bound():
+    torch.manual_seed(0)
+    agent = Agent(AgentConfig(algo="ca-td3", adj_max=1.0))
+    for p in agent.actor.parameters():
+        p.data *= 5.0  # saturate tanh so the bound shows
+    obs = np.random.default_rng(0).uniform([0, -1, 1, -3], [30, 1, 80, 3], (10, 4))
+    out = CompiledActor(agent)(obs)
+    assert np.abs(out).max() <= 1.0 and np.abs(out).max() > 0.9
+    assert np.allclose(out, agent.act(obs), atol=1e-5)
