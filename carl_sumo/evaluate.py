@@ -311,21 +311,26 @@ def _cost(controller: str, n_steps: int, followers: int) -> float:
     return n_steps * (1.0 + per_vehicle * followers)
 
 
+def _table_cells(spec: TableSpec, suite: Suite):
+    """(model key, model, platoon length, followers simulated) of every row of a table: the
+    lengths a model can run; the recorded human follower is always one vehicle."""
+    for key in spec.models:
+        model = suite.models[key]
+        for n in spec.followers:
+            if model.runs_on(n):
+                yield key, model, n, 1 if key == "human" else n
+
+
 def plan_tasks(suite: Suite, net: str) -> tuple[list[tuple], list[dict]]:
     """The unique jobs (event set, controller, followers) of a suite, split into chunked tasks."""
     jobs: dict[tuple, dict] = {}
     for spec in suite.tables:
-        for key in spec.models:
-            model = suite.models[key]
-            for n in spec.followers:
-                if not model.runs_on(n):
-                    continue
-                n_run = 1 if key == "human" else n
-                for i, controller in enumerate(model.controllers):
-                    job = (spec.events.key, controller, n_run)
-                    flags = jobs.setdefault(job, {"samples": False, "series": False})
-                    if spec.figures and i == 0:
-                        flags["samples"] = flags["series"] = True
+        for _, model, _, n_run in _table_cells(spec, suite):
+            for i, controller in enumerate(model.controllers):
+                job = (spec.events.key, controller, n_run)
+                flags = jobs.setdefault(job, {"samples": False, "series": False})
+                if spec.figures and i == 0:
+                    flags["samples"] = flags["series"] = True
     tasks = []
     for job, flags in jobs.items():
         set_key, controller, n = job
@@ -384,30 +389,25 @@ def run_tasks(tasks: list[dict], pool=None, progress: bool = False) -> dict[tupl
 def table_rows(spec: TableSpec, suite: Suite, results: dict[tuple, JobResult]) -> list[dict]:
     """One row per (model, platoon length): seed-0 aggregate, bootstrap CI, spread over seeds."""
     rows = []
-    for key in spec.models:
-        model = suite.models[key]
-        for n in spec.followers:
-            if not model.runs_on(n):
-                continue
-            n_run = 1 if key == "human" else n
-            runs = [results[(spec.events.key, c, n_run)] for c in model.controllers]
-            main = runs[0].per_event
-            agg = aggregate(main)
-            ci = bootstrap_ci(main, n_boot=N_BOOT)
-            per_seed = [aggregate(r.per_event) for r in runs]
-            row: dict[str, Any] = {
-                "table": spec.key, "model": model.name, "policy": Path(model.files[0]).stem
-                if model.files else model.key, "trained_on": model.trained_on or "",
-                "followers": n_run, "events": len(main),
-                "seeds": len(model.files) if model.files else ""}
-            for m in METRIC_KEYS:
-                values = np.array([s[m] for s in per_seed], float)
-                row[m] = agg[m]
-                row[f"{m}_lo"], row[f"{m}_hi"] = ci[m]
-                row[f"{m}_seed_mean"] = float(np.mean(values)) if model.files else math.nan
-                row[f"{m}_seed_std"] = float(np.std(values, ddof=1)) if len(values) > 1 \
-                    else math.nan
-            rows.append(row)
+    for key, model, _, n_run in _table_cells(spec, suite):
+        runs = [results[(spec.events.key, c, n_run)] for c in model.controllers]
+        main = runs[0].per_event
+        agg = aggregate(main)
+        ci = bootstrap_ci(main, n_boot=N_BOOT)
+        per_seed = [aggregate(r.per_event) for r in runs]
+        row: dict[str, Any] = {
+            "table": spec.key, "model": model.name, "policy": Path(model.files[0]).stem
+            if model.files else model.key, "trained_on": model.trained_on or "",
+            "followers": n_run, "events": len(main),
+            "seeds": len(model.files) if model.files else ""}
+        for m in METRIC_KEYS:
+            values = np.array([s[m] for s in per_seed], float)
+            row[m] = agg[m]
+            row[f"{m}_lo"], row[f"{m}_hi"] = ci[m]
+            row[f"{m}_seed_mean"] = float(np.mean(values)) if model.files else math.nan
+            row[f"{m}_seed_std"] = float(np.std(values, ddof=1)) if len(values) > 1 \
+                else math.nan
+        rows.append(row)
     return rows
 
 
