@@ -108,6 +108,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="actor loss weight on the policy's acceleration, per (m/s²)² (default 0)")
     p.add_argument("--eval-events", type=int, default=None,
                    help="held-out training events used for validation (default 8)")
+    p.add_argument("--val-seed", type=int, default=None,
+                   help="seed choosing the held-out events (default: --seed); give runs of "
+                        "several seeds one --val-seed to compare them on the same events")
 
     p = sub.add_parser("export", help="write the current actor of a training checkpoint as a policy")
     p.add_argument("checkpoint", type=Path)
@@ -262,7 +265,7 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
 
 TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_scale", "message_dim",
                    "hidden", "actor_lr", "critic_lr", "noise", "noise_correlation", "smooth_jerk",
-                   "smooth_accel", "eval_events", "gamma", "adj_max")
+                   "smooth_accel", "eval_events", "val_seed", "gamma", "adj_max")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 

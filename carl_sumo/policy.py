@@ -110,6 +110,13 @@ def _metric_list(values: dict[str, Any]) -> str:
                      for k, v in values.items())
 
 
+def _held_out(meta: dict[str, Any]) -> str:
+    ids = meta.get("validation_events") or []
+    if not ids:
+        return "held-out training events"
+    return f"{len(ids)} held-out training events, listed in the metadata's validation_events"
+
+
 def policy_card(path: Path) -> str:
     """A Markdown card of a policy file: algorithm, command, seed, wall time, validation metrics."""
     agent, meta = load_policy(path)
@@ -130,7 +137,7 @@ def policy_card(path: Path) -> str:
              f"- reward: {meta.get('reward')}",
              f"- versions: {meta.get('sumo_version')}, carl-sumo {meta.get('carl_sumo_version')}, "
              f"torch {meta.get('torch_version')}",
-             "- validation (held-out training events): " + _metric_list(val)]
+             f"- validation ({_held_out(meta)}): " + _metric_list(val)]
     if meta.get("validation_idm"):
         lines.append("- IDM on the same events: " + _metric_list(meta["validation_idm"]))
     lines.append("")

@@ -46,6 +46,7 @@ class TrainConfig:
     buffer_size: int = 200_000     # platoon transitions
     eval_every: int = 2_000        # vector steps between validations
     eval_events: int = 8           # held-out training events used for validation
+    val_seed: int | None = None    # seed choosing those events (None: the training seed)
     checkpoint_every: int = 5_000  # vector steps between checkpoints
     net: str = str(DEFAULT_NET)
     data: str = "default"
@@ -129,6 +130,13 @@ def split_validation(events: Sequence[Event], k: int, seed: int) -> tuple[list[E
             [e for i, e in enumerate(events) if i in held])
 
 
+def held_out_split(events: Sequence[Event], cfg: TrainConfig) -> tuple[list[Event], list[Event]]:
+    """(training, validation) events of a run: ``cfg.eval_events`` held out with ``cfg.val_seed``
+    (the training seed when None), so runs of several seeds can share one validation set."""
+    return split_validation(events, cfg.eval_events,
+                            cfg.seed if cfg.val_seed is None else cfg.val_seed)
+
+
 def validate(agent: Agent, env: PlatoonEnv, events: Sequence[Event]) -> dict[str, float]:
     """Greedy policy on each event: mean per-vehicle reward and the paper's metrics."""
     from carl_sumo.inference import CompiledActor
@@ -188,7 +196,8 @@ def seed_everything(seed: int) -> None:
 
 
 def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: float,
-              baseline: dict[str, float] | None = None) -> dict:
+              baseline: dict[str, float] | None = None,
+              val_events: Sequence[Event] = ()) -> dict:
     import libsumo
 
     return {"algo": cfg.algo, "trained_vehicles": cfg.n_vehicles, "seed": cfg.seed,
@@ -196,6 +205,7 @@ def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: flo
             "observation": "[v m/s, a m/s^2, d m, dv m/s]", "reward": asdict(cfg.reward),
             "validation": {k: float(v) for k, v in val.items()},
             "validation_idm": {k: float(v) for k, v in (baseline or {}).items()},
+            "validation_events": [e.event_id for e in val_events],
             "wall_time_s": float(wall_s),
             "command": cfg.command, "sumo_version": str(libsumo.getVersion()[1]),
             "carl_sumo_version": __version__, "torch_version": str(torch.__version__)}
@@ -214,7 +224,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     ckpt_path = out.with_suffix(".ckpt")
     log_path = out.with_suffix(".csv")
     n = cfg.n_vehicles
-    train_events, val_events = split_validation(events, cfg.eval_events, cfg.seed)
+    train_events, val_events = held_out_split(events, cfg)
     torch.set_num_threads(1)  # the SUMO workers have the other cores; small nets gain nothing
     seed_everything(cfg.seed)
     agent = Agent(AgentConfig(algo=cfg.algo, n_vehicles=n, message_dim=cfg.message_dim,
@@ -302,7 +312,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                 # only a trained actor can be the best; the first validation is a fallback
                 if agent.updates > 0 and score > best or not np.isfinite(best):
                     best = score if agent.updates > 0 else -np.inf
-                    save_policy(agent, out, _metadata(cfg, agent, val, wall, baseline))
+                    save_policy(agent, out, _metadata(cfg, agent, val, wall, baseline,
+                                                      val_events))
                 if bar is not None:
                     bar.set_postfix(reward=f"{train_reward:.3f}", val=f"{val['val_reward']:.3f}",
                                     jerk=f"{val['jerk_mps3']:.3f}", coll=val["collisions"])

@@ -1,5 +1,6 @@
 """Training inside SUMO: a tiny run improves its reward; a killed run resumes from its checkpoint."""
 
+import dataclasses
 import os
 import signal
 import subprocess
@@ -15,8 +16,8 @@ from carl_sumo.env import PlatoonEnv
 from carl_sumo.policy import load_policy
 from carl_sumo.agents import Agent, AgentConfig, idm_acceleration_torch
 from carl_sumo.controllers import idm_acceleration
-from carl_sumo.train import (TrainConfig, export_policy, seed_everything, selection_score,
-                             train, validate)
+from carl_sumo.train import (TrainConfig, export_policy, held_out_split, seed_everything,
+                             selection_score, train, validate)
 
 from conftest import NET, REPO_ROOT, event_table
 
@@ -37,6 +38,18 @@ def test_tiny_training_run_improves_reward(tmp_path):
     meta = export_policy(tmp_path / "td3.ckpt", tmp_path / "final.pt")
     assert meta["exported_from"] == "td3.ckpt at step 800"
     assert load_policy(tmp_path / "final.pt")[0].cfg.algo == "td3"
+
+
+def test_runs_of_several_seeds_share_one_validation_set_with_val_seed():
+    events = [dataclasses.replace(cruise_event(50), event_id=f"e{i}") for i in range(40)]
+
+    def held(**kw):
+        return [e.event_id for e in held_out_split(events, TrainConfig(eval_events=8, **kw))[1]]
+
+    assert held(seed=1) != held(seed=2)  # by default the training seed picks them
+    assert held(seed=1, val_seed=0) == held(seed=2, val_seed=0) == held(seed=0)
+    train_ids = {e.event_id for e in held_out_split(events, TrainConfig(seed=1, val_seed=0))[0]}
+    assert len(held(seed=0)) == 8 and not train_ids & set(held(seed=0))
 
 
 def test_selection_prefers_safe_smooth_policies():
