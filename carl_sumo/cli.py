@@ -111,6 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--val-seed", type=int, default=None,
                    help="seed choosing the held-out events (default: --seed); give runs of "
                         "several seeds one --val-seed to compare them on the same events")
+    p.add_argument("--val-source", default=None,
+                   help="hold the validation events out of this event source only (the data "
+                        "file's `source` column), e.g. the one most like the test set")
 
     p = sub.add_parser("export", help="write the current actor of a training checkpoint as a policy")
     p.add_argument("checkpoint", type=Path)
@@ -265,7 +268,8 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
 
 TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_scale", "message_dim",
                    "hidden", "actor_lr", "critic_lr", "noise", "noise_correlation", "smooth_jerk",
-                   "smooth_accel", "eval_events", "val_seed", "gamma", "adj_max")
+                   "smooth_accel", "eval_events", "val_seed", "val_source", "gamma",
+                   "adj_max")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 

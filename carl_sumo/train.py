@@ -47,6 +47,7 @@ class TrainConfig:
     eval_every: int = 2_000        # vector steps between validations
     eval_events: int = 8           # held-out training events used for validation
     val_seed: int | None = None    # seed choosing those events (None: the training seed)
+    val_source: str | None = None  # draw them from this event source only (None: any)
     checkpoint_every: int = 5_000  # vector steps between checkpoints
     net: str = str(DEFAULT_NET)
     data: str = "default"
@@ -119,22 +120,34 @@ class ReplayBuffer:
         return buf
 
 
-def split_validation(events: Sequence[Event], k: int, seed: int) -> tuple[list[Event], list[Event]]:
-    """(training events, held-out validation events): k events chosen with the seed."""
+def split_validation(events: Sequence[Event], k: int, seed: int, source: str | None = None
+                     ) -> tuple[list[Event], list[Event]]:
+    """(training events, held-out validation events): k events chosen with the seed, among the
+    events of ``source`` only when one is given (at most half of them, so training still sees
+    that source). InputError for a source that no event has."""
     if len(events) < 2:
         return list(events), list(events)
-    k = min(k, max(1, len(events) // 5))
-    order = np.random.default_rng(seed).permutation(len(events))
-    held = set(order[:k].tolist())
+    if source is None:
+        candidates = np.arange(len(events))
+        k = min(k, max(1, len(events) // 5))
+    else:
+        candidates = np.array([i for i, e in enumerate(events) if e.source == source], dtype=int)
+        if len(candidates) == 0:
+            known = ", ".join(sorted({e.source for e in events}))
+            raise InputError(f"--val-source {source!r}: no training event comes from it; "
+                             f"choose one of {known}")
+        k = min(k, max(1, len(candidates) // 2))
+    held = set(candidates[np.random.default_rng(seed).permutation(len(candidates))[:k]].tolist())
     return ([e for i, e in enumerate(events) if i not in held],
             [e for i, e in enumerate(events) if i in held])
 
 
 def held_out_split(events: Sequence[Event], cfg: TrainConfig) -> tuple[list[Event], list[Event]]:
     """(training, validation) events of a run: ``cfg.eval_events`` held out with ``cfg.val_seed``
-    (the training seed when None), so runs of several seeds can share one validation set."""
+    (the training seed when None), so runs of several seeds can share one validation set, from
+    the events of ``cfg.val_source`` when given (e.g. the source most like the test set)."""
     return split_validation(events, cfg.eval_events,
-                            cfg.seed if cfg.val_seed is None else cfg.val_seed)
+                            cfg.seed if cfg.val_seed is None else cfg.val_seed, cfg.val_source)
 
 
 def validate(agent: Agent, env: PlatoonEnv, events: Sequence[Event]) -> dict[str, float]:
@@ -219,12 +232,12 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     """
     from carl_sumo.vec_env import VecPlatoon
 
+    train_events, val_events = held_out_split(events, cfg)  # InputError before any file
     out = Path(cfg.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     ckpt_path = out.with_suffix(".ckpt")
     log_path = out.with_suffix(".csv")
     n = cfg.n_vehicles
-    train_events, val_events = held_out_split(events, cfg)
     torch.set_num_threads(1)  # the SUMO workers have the other cores; small nets gain nothing
     seed_everything(cfg.seed)
     agent = Agent(AgentConfig(algo=cfg.algo, n_vehicles=n, message_dim=cfg.message_dim,

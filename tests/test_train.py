@@ -8,11 +8,13 @@ import sys
 import time
 
 import numpy as np
+import pytest
 import pandas as pd
 import torch
 
 from carl_sumo.bench import cruise_event
 from carl_sumo.env import PlatoonEnv
+from carl_sumo.errors import InputError
 from carl_sumo.policy import load_policy
 from carl_sumo.agents import Agent, AgentConfig, idm_acceleration_torch
 from carl_sumo.controllers import idm_acceleration
@@ -50,6 +52,12 @@ def test_runs_of_several_seeds_share_one_validation_set_with_val_seed():
     assert held(seed=1, val_seed=0) == held(seed=2, val_seed=0) == held(seed=0)
     train_ids = {e.event_id for e in held_out_split(events, TrainConfig(seed=1, val_seed=0))[0]}
     assert len(held(seed=0)) == 8 and not train_ids & set(held(seed=0))
+    events = [dataclasses.replace(e, source="zhu" if i % 4 == 0 else "other")
+              for i, e in enumerate(events)]
+    from_zhu = held(seed=0, val_source="zhu")
+    assert len(from_zhu) == 5 and all(int(i[1:]) % 4 == 0 for i in from_zhu)  # half of 10
+    with pytest.raises(InputError, match="--val-source 'nope'.*choose one of other, zhu"):
+        held(val_source="nope")
 
 
 def test_selection_prefers_safe_smooth_policies():
