@@ -89,9 +89,11 @@ def format_bench(rows: list[dict[str, float]]) -> str:
 
 
 def run_training_bench(algo: str = "ca-td3", n: int = 10, num_envs: int = 2, steps: int = 500,
-                       net_path=DEFAULT_NET) -> list[dict[str, float]]:
+                       net_path=DEFAULT_NET, smooth_jerk: float = 0.0,
+                       smooth_accel: float = 0.0) -> list[dict[str, float]]:
     """Training throughput: env steps/s and vehicle transitions/s in the parallel SUMO workers,
-    with batched policy inference, without and with one gradient update per vector step."""
+    with batched policy inference, without and with one gradient update per vector step (with
+    the actor smoothness terms of training when given)."""
     import torch
 
     from carl_sumo.agents import Agent, AgentConfig, ColoredNoise
@@ -99,7 +101,8 @@ def run_training_bench(algo: str = "ca-td3", n: int = 10, num_envs: int = 2, ste
     from carl_sumo.vec_env import VecPlatoon
 
     torch.set_num_threads(1)
-    agent = Agent(AgentConfig(algo=algo, n_vehicles=n))
+    agent = Agent(AgentConfig(algo=algo, n_vehicles=n, smooth_jerk=smooth_jerk,
+                              smooth_accel=smooth_accel))
     buffer = ReplayBuffer(50_000, n)
     rng = np.random.default_rng(0)
     vec = VecPlatoon([cruise_event(400)], n, net_path, num_envs, seed=0)

@@ -132,6 +132,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--algo", default="ca-td3", help="with --training: the algorithm")
     p.add_argument("--vehicles", type=int, default=10, help="with --training: platoon length")
     p.add_argument("--envs", type=int, default=2, help="with --training: worker processes")
+    p.add_argument("--smooth-jerk", type=float, default=0.0,
+                   help="with --training: the actor smoothness terms of `train` (default 0), "
+                        "which add one actor pass per update")
+    p.add_argument("--smooth-accel", type=float, default=0.0, help="with --training: see above")
 
     p = sub.add_parser("study", help="mixed human/CACC traffic on the freeway against the "
                        "CACC penetration rate: tables and figures")
@@ -321,7 +325,7 @@ def cmd_bench(args: argparse.Namespace) -> None:
             raise InputError(f"unknown algorithm {args.algo!r}; choose one of {', '.join(ALGOS)}")
         rows = run_training_bench(args.algo, _positive(args.vehicles, "--vehicles"),
                                   _positive(args.envs, "--envs"), _positive(args.steps, "--steps"),
-                                  args.net)
+                                  args.net, args.smooth_jerk, args.smooth_accel)
         print(format_training_bench(rows))
         return
 
