@@ -107,6 +107,8 @@ class TableSpec:
     followers: tuple[int, ...]
     models: tuple[str, ...]        # model keys, in row order
     figures: bool = False          # collect samples and trajectories for the figures
+    seed_lengths: tuple[int, ...] | None = None  # lengths whose rows run the seed files too
+    # (None: every length; the others run the shipped seed-0 file only)
 
 
 @dataclass
@@ -238,7 +240,7 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
         TableSpec("table1_ngsim_test", "Table 1: NGSIM test split, 10 followers", test, (10,),
                   table1_models, figures=True),
         TableSpec("table2_generalization", "Table 2: generalization to other platoon lengths",
-                  test, (10, 20) if quick else (10, 20, 50), table2_models),
+                  test, (10, 20) if quick else (10, 20, 50), table2_models, seed_lengths=(10,)),
         TableSpec("table3_stop_and_go", "Table 3: stop-and-go leader, 10 followers", sg, (10,),
                   table1_models[1:], figures=True),
         TableSpec("cross_site_us101", "Cross-site: US-101 (no model was trained on it), "
@@ -312,21 +314,24 @@ def _cost(controller: str, n_steps: int, followers: int) -> float:
 
 
 def _table_cells(spec: TableSpec, suite: Suite):
-    """(model key, model, platoon length, followers simulated) of every row of a table: the
-    lengths a model can run; the recorded human follower is always one vehicle."""
+    """(model key, model, platoon length, followers simulated, controllers run) of every row of
+    a table: the lengths a model can run (the recorded human follower is always one vehicle),
+    with the seed files where ``spec.seed_lengths`` allows."""
     for key in spec.models:
         model = suite.models[key]
         for n in spec.followers:
             if model.runs_on(n):
-                yield key, model, n, 1 if key == "human" else n
+                spread = spec.seed_lengths is None or n in spec.seed_lengths
+                yield (key, model, n, 1 if key == "human" else n,
+                       model.controllers if spread else model.controllers[:1])
 
 
 def plan_tasks(suite: Suite, net: str) -> tuple[list[tuple], list[dict]]:
     """The unique jobs (event set, controller, followers) of a suite, split into chunked tasks."""
     jobs: dict[tuple, dict] = {}
     for spec in suite.tables:
-        for _, model, _, n_run in _table_cells(spec, suite):
-            for i, controller in enumerate(model.controllers):
+        for _, _, _, n_run, controllers in _table_cells(spec, suite):
+            for i, controller in enumerate(controllers):
                 job = (spec.events.key, controller, n_run)
                 flags = jobs.setdefault(job, {"samples": False, "series": False})
                 if spec.figures and i == 0:
@@ -389,8 +394,8 @@ def run_tasks(tasks: list[dict], pool=None, progress: bool = False) -> dict[tupl
 def table_rows(spec: TableSpec, suite: Suite, results: dict[tuple, JobResult]) -> list[dict]:
     """One row per (model, platoon length): seed-0 aggregate, bootstrap CI, spread over seeds."""
     rows = []
-    for key, model, _, n_run in _table_cells(spec, suite):
-        runs = [results[(spec.events.key, c, n_run)] for c in model.controllers]
+    for key, model, _, n_run, controllers in _table_cells(spec, suite):
+        runs = [results[(spec.events.key, c, n_run)] for c in controllers]
         main = runs[0].per_event
         agg = aggregate(main)
         ci = bootstrap_ci(main, n_boot=N_BOOT)
@@ -399,7 +404,7 @@ def table_rows(spec: TableSpec, suite: Suite, results: dict[tuple, JobResult]) -
             "table": spec.key, "model": model.name, "policy": Path(model.files[0]).stem
             if model.files else model.key, "trained_on": model.trained_on or "",
             "followers": n_run, "events": len(main),
-            "seeds": len(model.files) if model.files else ""}
+            "seeds": len(controllers) if model.files else ""}
         for m in METRIC_KEYS:
             values = np.array([s[m] for s in per_seed], float)
             row[m] = agg[m]

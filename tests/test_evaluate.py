@@ -115,6 +115,11 @@ def test_quick_suite_spread_across_seeds(quick_suite):
     assert list(by_seed.index) == [0, 1] and by_seed[0] != by_seed[1]
     md = (quick_suite / "table1_ngsim_test.md").read_text()
     assert "Spread across seeds" in md and "n=2" in md and "n=1" in md
+    t2 = pd.read_csv(quick_suite / "table2_generalization.csv")
+    td3_t2 = t2[t2["policy"] == "td3_1"].set_index("followers")["seeds"]
+    assert td3_t2[10] == 2 and td3_t2[20] == 1  # Table 2 runs the seed files at 10 only
+    longer = per_event[(per_event["model"] == "td3_1") & (per_event["followers"] == 20)]
+    assert set(longer["seed"]) == {0}
 
 
 def test_bootstrap_matches_a_direct_resampling_of_aggregate():
