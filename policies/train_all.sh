@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Trains every shipped policy on the NGSIM train split, two runs at a time (2-core machine).
+# First training round (replaced; the shipped policies come from train_round5.sh): every policy on
+# the NGSIM train split, two runs at a time (2-core machine).
 # Usage: bash policies/train_all.sh [PATH_TO_ngsim_cf_events.csv.gz]
 set -euo pipefail
 cd "$(dirname "$0")/.."

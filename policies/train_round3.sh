@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Trains every shipped policy with the final recipe (third round), two runs at a time on the 2-core
-# machine: CA-TD3 and TD3 with seeds 0, 1, 2 (the seed-0 files are the shipped ones; the others are
+# Third training round (replaced; the shipped policies come from train_round5.sh). It trained every
+# policy, two runs at a time on the 2-core machine: CA-TD3 and TD3 with seeds 0, 1, 2 (the seed-0 files are the shipped ones; the others are
 # `<name>_seed<K>.pt`), CA-DDPG, DDPG, MADDPG for 10 and 20 vehicles. (CA-TD3 and CA-DDPG trained on
 # 20 vehicles are still the first-round files of policies/train_all.sh: not retrained for lack of time.)
 # Recipe: comfort weight 100, actor / critic learning rates 1e-4 / 3e-4, AR(1) exploration noise

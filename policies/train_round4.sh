@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Fourth training round (the shipped policies, except ca_td3_20 / ca_ddpg_20 of the first round):
+# Fourth training round (replaced by the fifth, train_round5.sh; kept for the record):
 # the third round's recipe with a smaller adjustment bound (|a_adj| ≤ 1 m/s²), a weaker headway term
 # (w_gap 0.3) and a stronger comfort term (w_comfort 300). Two runs at a time on the 2-core machine.
 # CA-TD3 and TD3 with seeds 0, 1, 2 (the seed-0 files are the shipped ones, the others
