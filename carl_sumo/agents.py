@@ -157,21 +157,6 @@ class Agent(nn.Module):
                              self.cfg.adj_max)
         return action[0] if single else action
 
-    @torch.no_grad()
-    def act_padded(self, obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        """a_adj (m/s², shape (b, n)) for platoons of different lengths, padded at the tail.
-
-        ``obs`` has shape (b, n, 4), ``mask`` (b, n) marks real vehicles; the CA module gives
-        the boundary messages to each platoon's real ends. Values at padded places are meaningless.
-        """
-        if self.cfg.algo == "maddpg":
-            raise InputError("a MADDPG policy has one actor per platoon position and a fixed "
-                             f"length ({self.cfg.n_vehicles}); it cannot run platoons of changing "
-                             "length: use a CA-TD3, CA-DDPG, TD3 or DDPG policy")
-        x = torch.as_tensor(obs, dtype=torch.float32)
-        m = torch.as_tensor(mask, dtype=torch.bool)
-        return self._act(self.actor, x, m).numpy().astype(np.float64)
-
     # ---------------------------------------------------------------------------- learning
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
         """One gradient step on a replay batch: obs, action, reward, next_obs, done, mask."""

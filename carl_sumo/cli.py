@@ -353,7 +353,8 @@ def _rates(text: str) -> tuple[float, ...]:
 def cmd_study(args: argparse.Namespace) -> None:
     from dataclasses import replace
 
-    from carl_sumo.study import StudyConfig, resolve_study_controller, run_study, write_outputs
+    from carl_sumo.study import (StudyConfig, markdown_table, resolve_study_controller,
+                                 run_study, summarise, write_outputs)
     from carl_sumo.sumo import lane_route
     from carl_sumo.traffic import DEFAULT_DEMAND
 
@@ -381,8 +382,6 @@ def cmd_study(args: argparse.Namespace) -> None:
     results = run_study(cfg, args.out, progress=sys.stderr.isatty())
     wall = time.perf_counter() - start
     written = write_outputs(cfg, results, args.out, "carl-sumo " + " ".join(sys.argv[1:]), wall)
-    from carl_sumo.study import markdown_table, summarise
-
     print(markdown_table(summarise(results)))
     print(f"{len(results)} runs in {wall:.0f} s wall; wrote " + ", ".join(str(p) for p in written))
 

@@ -161,7 +161,7 @@ def discover_model(stem: str, directory: Path) -> Model:
 
     Files whose training seed repeats one already found are left out (the same run twice).
     """
-    from carl_sumo.policy import FORMAT, load_torch
+    from carl_sumo.policy import read_policy_payload
 
     shipped = directory / f"{stem}.pt"
     if not shipped.is_file():
@@ -173,11 +173,8 @@ def discover_model(stem: str, directory: Path) -> Model:
     files, seeds = [], []
     algo, trained, fixed = "", None, None
     for path in [shipped, *extra]:
-        payload = load_torch(path, "policy file")  # the metadata only: no network is built here
-        cfg, meta = payload.get("agent_config"), payload.get("metadata") or {}
-        if payload.get("format") != FORMAT or not isinstance(cfg, dict) or "algo" not in cfg:
-            raise InputError(f"policy file {path} is not a carl-sumo policy; give a file written "
-                             "by `carl-sumo train`")
+        payload = read_policy_payload(path)  # the metadata only: no network is built here
+        cfg, meta = payload["agent_config"], payload.get("metadata") or {}
         seed = meta.get("seed")
         if seed is None:
             seed = int(pattern.fullmatch(path.name).group(1)) if path != shipped else 0
@@ -326,8 +323,9 @@ def _table_cells(spec: TableSpec, suite: Suite):
                        model.controllers if spread else model.controllers[:1])
 
 
-def plan_tasks(suite: Suite, net: str) -> tuple[list[tuple], list[dict]]:
-    """The unique jobs (event set, controller, followers) of a suite, split into chunked tasks."""
+def plan_tasks(suite: Suite, net: str) -> list[dict]:
+    """The unique jobs (event set, controller, followers) of a suite, split into chunked tasks,
+    longest first."""
     jobs: dict[tuple, dict] = {}
     for spec in suite.tables:
         for _, _, _, n_run, controllers in _table_cells(spec, suite):
@@ -349,7 +347,7 @@ def plan_tasks(suite: Suite, net: str) -> tuple[list[tuple], list[dict]]:
                           "series": wanted & {e.event_id for e in part},
                           "cost": _cost(controller, sum(e.n_samples for e in part), n)})
     tasks.sort(key=lambda t: -t["cost"])
-    return list(jobs), tasks
+    return tasks
 
 
 def run_tasks(tasks: list[dict], pool=None, progress: bool = False) -> dict[tuple, JobResult]:
@@ -513,7 +511,7 @@ def run_suite(suite: Suite, out_dir: Path, workers: int = 2, net: str | Path =
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"--out {out_dir} is a file; give a directory")
-    _, tasks = plan_tasks(suite, str(net))
+    tasks = plan_tasks(suite, str(net))
     pool = worker_pool(workers) if workers > 1 else None
     try:
         results = run_tasks(tasks, pool, progress)
@@ -554,8 +552,8 @@ def _write_tables(suite: Suite, results: dict[tuple, JobResult],
     write_text_atomic(out_dir / "timing.csv", csv_text(timing, list(timing[0])))
     per_event = per_event_rows(suite, results)
     write_text_atomic(out_dir / "per_event.csv",
-                csv_text(per_event, ["event_set", "model", "seed", "followers", "event_id",
-                                     *METRIC_KEYS]))
+                      csv_text(per_event, ["event_set", "model", "seed", "followers", "event_id",
+                                           *METRIC_KEYS]))
     return all_rows, sections
 
 

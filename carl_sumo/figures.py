@@ -33,7 +33,8 @@ SAMPLE_LABELS = {"headway_s": "time headway (s)", "speed_mps": "speed (m/s)",
                  "jerk_mps3": "|jerk| (m/s³)"}
 
 
-def _pyplot():
+def pyplot():
+    """matplotlib.pyplot on the file-only Agg backend (no display needed)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -42,19 +43,22 @@ def _pyplot():
     return plt
 
 
-def _save(fig, path: Path) -> None:
+def save_png(fig, path: Path, dpi: int = 90, **savefig_kw) -> Path:
+    """Write a figure as PNG through a temporary file (never half-written), then close it."""
+    path = Path(path)
     tmp = atomic_output(path)
     try:
-        fig.savefig(tmp, format="png", dpi=90)
+        fig.savefig(tmp, format="png", dpi=dpi, **savefig_kw)
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
-        _pyplot().close(fig)
+        pyplot().close(fig)
+    return path
 
 
 def _colors(n: int) -> list:
     """n distinct colours: matplotlib's tab10, then black and greys."""
-    plt = _pyplot()
+    plt = pyplot()
     base = [plt.get_cmap("tab10")(i) for i in range(10)] + ["black", "dimgray", "darkgray"]
     return [base[i % len(base)] for i in range(n)]
 
@@ -84,7 +88,7 @@ def ecdf_curves(samples: dict[str, np.ndarray]) -> dict[str, tuple[np.ndarray, n
 def ecdf_figure(curves: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]], path: Path,
                 title: str, colors: dict[str, Any] | None = None) -> None:
     """ECDFs of headway, speed and |jerk|: ``curves[model][key]`` = (x, F(x)), one line each."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.4), layout="constrained")
     colors = colors or dict(zip(curves, _colors(len(curves))))
     for ax, key in zip(axes, SAMPLE_LABELS):
@@ -103,12 +107,12 @@ def ecdf_figure(curves: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]], pat
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8, loc="lower right")
     fig.suptitle(title)
-    _save(fig, path)
+    save_png(fig, path)
 
 
 def timeseries_figure(series: dict[str, dict[str, np.ndarray]], path: Path, title: str) -> None:
     """Position, speed and acceleration against time: rows = quantity, columns = models."""
-    plt = _pyplot()
+    plt = pyplot()
     models = list(series)
     fig, axes = plt.subplots(3, len(models), figsize=(3.2 * len(models), 8.5), sharex=True,
                              sharey="row", squeeze=False, layout="constrained")
@@ -132,12 +136,12 @@ def timeseries_figure(series: dict[str, dict[str, np.ndarray]], path: Path, titl
     axes[2, 0].set_ylabel("acceleration (m/s²)")
     axes[0, 0].legend(fontsize=7, loc="upper left")
     fig.suptitle(title)
-    _save(fig, path)
+    save_png(fig, path)
 
 
 def time_space_figure(series: dict[str, dict[str, np.ndarray]], path: Path, title: str) -> None:
     """Time-space diagram per model: each vehicle's position against time, coloured by speed."""
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.collections import LineCollection
 
     models = list(series)
@@ -168,13 +172,13 @@ def time_space_figure(series: dict[str, dict[str, np.ndarray]], path: Path, titl
     if line is not None:
         fig.colorbar(line, ax=axes, label="speed (m/s)", shrink=0.8)
     fig.suptitle(title)
-    _save(fig, path)
+    save_png(fig, path)
 
 
 def norm_profile_figure(panels: list[tuple[str, dict[str, np.ndarray]]], path: Path,
                         colors: dict[str, Any] | None = None) -> None:
     """‖a_i‖/‖a_0‖ against vehicle index i (0 = leader), one panel per (title, {model: profile})."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels) + 1.8, 4.2),
                              squeeze=False, layout="constrained")
     names = list(dict.fromkeys(m for _, profiles in panels for m in profiles))
@@ -194,7 +198,7 @@ def norm_profile_figure(panels: list[tuple[str, dict[str, np.ndarray]]], path: P
         for handle, label in zip(*ax.get_legend_handles_labels()):
             handles.setdefault(label, handle)
     fig.legend(list(handles.values()), list(handles), fontsize=8, loc="outside right center")
-    _save(fig, path)
+    save_png(fig, path)
 
 
 def mean_profile(norms: list[np.ndarray]) -> np.ndarray:
@@ -272,12 +276,6 @@ def render(job: dict[str, Any]) -> tuple[str, str]:
     data, *rest = job["args"]
     FIGURE_FUNCTIONS[job["kind"]](data, job["path"], *rest)
     return job["path"].name, job["caption"]
-
-
-def write_figures(suite: "Suite", results: dict[tuple, "JobResult"],
-                  out_dir: Path) -> list[tuple[str, str]]:
-    """Every figure of a suite run, drawn in this process; (file name, caption) of each."""
-    return [render(job) for job in figure_jobs(suite, results, out_dir)]
 
 
 def model_label(model) -> str:

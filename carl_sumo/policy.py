@@ -59,15 +59,23 @@ def save_policy(agent: Agent, path: Path, metadata: dict[str, Any]) -> None:
     save_torch_atomic(payload, path)
 
 
-def load_policy(path: Path) -> tuple[Agent, dict[str, Any]]:
-    """The agent (actor loaded) and metadata of a policy file; InputError if it is not one."""
+def read_policy_payload(path: Path) -> dict[str, Any]:
+    """The stored dict of a policy file (weights, ``agent_config``, ``metadata``), no network
+    built; InputError if it is missing, corrupt, foreign or of another format version."""
     payload = load_torch(path, "policy file")
-    if payload.get("format") != FORMAT:
+    cfg = payload.get("agent_config")
+    if payload.get("format") != FORMAT or not isinstance(cfg, dict) or "algo" not in cfg:
         raise InputError(f"policy file {path} is not a carl-sumo policy (format "
                          f"{payload.get('format')!r}); give a file written by `carl-sumo train`")
     if payload.get("format_version") != FORMAT_VERSION:
         raise InputError(f"policy file {path} has format version {payload.get('format_version')}"
                          f", this carl-sumo reads {FORMAT_VERSION}; retrain it")
+    return payload
+
+
+def load_policy(path: Path) -> tuple[Agent, dict[str, Any]]:
+    """The agent (actor loaded) and metadata of a policy file; InputError if it is not one."""
+    payload = read_policy_payload(path)
     try:
         cfg = AgentConfig(**payload["agent_config"])
         agent = Agent(cfg)

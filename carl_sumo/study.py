@@ -12,9 +12,9 @@ CACC vehicles (controller ``idm-external`` or a policy file) are driven by carl-
 - the observation is o_i = [v_i (m/s), a_i (m/s²), d_i (m, bumper gap), Δv_i = v_ahead - v_i
   (m/s)]; with no vehicle within the sensing range d_i = the sensing range and Δv_i = 0;
 - chains (:func:`form_chains`): consecutive CACC vehicles in one lane, each within ``v2v_range_m``
-  of the one ahead; a human or a longer gap ends a chain. The policy runs on all chains at once
-  (padded batch with a mask: the Communication-Aware module gives the boundary messages to each
-  chain's ends);
+  of the one ahead; a human or a longer gap ends a chain. The policy runs on each chain as one
+  platoon (the numba-compiled actor of :mod:`carl_sumo.inference`; the Communication-Aware module
+  gives the boundary messages to each chain's ends);
 - a = clip(a_IDM + a_adj) (:func:`carl_sumo.controllers.total_acceleration`), applied exactly with
   ``setSpeed(max(v + a·dt, 0))`` (speedMode 0); lane changes off (laneChangeMode 0).
 
@@ -37,6 +37,7 @@ Metrics of a run (over the measurement interval, every vehicle on the network):
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 import shutil
@@ -51,7 +52,7 @@ import numpy as np
 from carl_sumo.config import DT_S, HEADWAY_MIN_SPEED_MPS
 from carl_sumo.controllers import total_acceleration
 from carl_sumo.errors import InputError
-from carl_sumo.sumo import (DEFAULT_NET, VTYPES_FILE, atomic_output, close_sumo, lane_route,
+from carl_sumo.sumo import (DEFAULT_NET, VTYPES_FILE, close_sumo, lane_route,
                             start_sumo, write_text_atomic)
 from carl_sumo.traffic import DEFAULT_DEMAND, MAIN_EDGE, Demand, write_detectors, write_routes
 
@@ -223,33 +224,19 @@ class ChainController:
                                  f"for exactly {agent.cfg.n_vehicles} vehicles and cannot run CACC "
                                  "chains that form and break in traffic; use a CA-TD3, CA-DDPG, "
                                  "TD3 or DDPG policy")
+            from carl_sumo.inference import CompiledActor
+
             self.agent = agent
-            try:  # the numba inference path, where this version of carl-sumo has it
-                from carl_sumo.inference import CompiledActor
-            except ImportError:
-                CompiledActor = None
-            self.compiled = CompiledActor(agent) if CompiledActor is not None else None
+            self.compiled = CompiledActor(agent)
 
     def adjustment(self, obs: np.ndarray, chains: list[list[int]]) -> np.ndarray:
         """a_adj (m/s², shape (m,)) for observations (m, 4) of the CACC vehicles and their chains."""
         m = obs.shape[0]
-        if self.agent is None or m == 0:
+        if self.compiled is None or m == 0:
             return np.zeros(m)
-        if self.compiled is not None:  # one chain at a time, cost grows with the vehicles
-            out = np.empty(m)
-            for chain in chains:
-                out[chain] = self.compiled(np.ascontiguousarray(obs[chain]))
-            return out
-        length = max(len(c) for c in chains)
-        x = np.zeros((len(chains), length, 4))
-        mask = np.zeros((len(chains), length), dtype=bool)
-        rows = np.concatenate([np.full(len(c), b) for b, c in enumerate(chains)])
-        cols = np.concatenate([np.arange(len(c)) for c in chains])
-        order = np.concatenate(chains)
-        x[rows, cols] = obs[order]
-        mask[rows, cols] = True
         out = np.empty(m)
-        out[order] = self.agent.act_padded(x, mask)[rows, cols]
+        for chain in chains:  # one chain at a time: the cost grows with the vehicles, not the chains
+            out[chain] = self.compiled(np.ascontiguousarray(obs[chain]))
         return out
 
 
@@ -392,6 +379,7 @@ def _simulate(ls, cfg: StudyConfig, kind: str, controller: ChainController | Non
                     vehicle.setSpeedMode(vid, SPEED_MODE_CACC)
         measuring = k >= first_measured
         ids = get_ids()
+        cidx = [i for i, v in enumerate(ids) if v in cacc_ids] if external or measuring else []
         speeds = list(map(get_speed, ids))
         speed_of = dict(zip(ids, speeds))
         prev_v = [prev_speed.get(v) for v in ids]
@@ -412,10 +400,9 @@ def _simulate(ls, cfg: StudyConfig, kind: str, controller: ChainController | Non
             ahead = None
         prev_speed = speed_of
         prev_acc = {v: a for v, a in zip(ids, accel) if a is not None}
-        if external:
-            cidx = [i for i, v in enumerate(ids) if v in cacc_ids]
-            if not cidx:
-                continue
+        if measuring:
+            acc.cacc_samples += len(cidx)
+        if external and cidx:
             cids = [ids[i] for i in cidx]
             cahead = ([ahead[i] for i in cidx] if ahead is not None
                       else [get_leader(v, lookahead) for v in cids])
@@ -436,8 +423,6 @@ def _simulate(ls, cfg: StudyConfig, kind: str, controller: ChainController | Non
                 acc.chain_sum += len(cids)
                 acc.chain_n += len(chains)
                 acc.chain_max = max(acc.chain_max, max(len(c) for c in chains))
-        if measuring:
-            acc.cacc_samples += sum(1 for v in ids if v in cacc_ids)
     wall = time.perf_counter() - start
     sim_s = n_steps * DT_S
     return acc, (heat_sum, heat_n), {"sim_speed": sim_s / wall, "sumo_share": sumo_time / wall,
@@ -534,11 +519,9 @@ def run_study(cfg: StudyConfig, out_dir: Path, progress: bool = False) -> list[R
             if progress:
                 print(f"  done {run_name(p, s)}", flush=True)
     else:
-        import multiprocessing as mp
+        from carl_sumo.simulate import worker_pool
 
-        from carl_sumo.simulate import _worker_init
-
-        with mp.get_context("spawn").Pool(workers, initializer=_worker_init) as pool:
+        with worker_pool(workers) as pool:
             pending = [pool.apply_async(_worker, (cfg, p, s, str(out_dir))) for p, s in tasks]
             results = []
             for (p, s), job in zip(tasks, pending):
@@ -620,15 +603,10 @@ def write_outputs(cfg: StudyConfig, results: list[RunResult], out_dir: Path,
 
 
 def _write_csv(path: Path, rows: list[dict]) -> Path:
-    tmp = atomic_output(path)
-    try:
-        with tmp.open("w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=list(rows[0]))
+    writer.writeheader()
+    writer.writerows(rows)
+    return write_text_atomic(path, buffer.getvalue())
 
 

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from carl_sumo.sumo import atomic_output
+from carl_sumo.figures import pyplot, save_png
 
 if TYPE_CHECKING:
     from carl_sumo.study import RunResult
@@ -20,29 +19,9 @@ PANELS = (("throughput_vph", "throughput (veh/h)"), ("speed_mps", "mean speed (m
           ("fuel_g_per_km", "fuel (g/veh-km)"))
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _save(fig, path: Path) -> Path:
-    path = Path(path)
-    tmp = atomic_output(path)
-    try:
-        fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
-
-
 def plot_metrics(rows: list[dict[str, float]], path: Path, controller: str) -> Path:
     """A 3x3 grid: every study metric (mean ± sd over seeds) against the penetration rate."""
-    plt = _pyplot()
+    plt = pyplot()
     p = np.array([r["penetration"] for r in rows])
     fig, axes = plt.subplots(3, 3, figsize=(12, 9))
     for ax, (key, label) in zip(axes.ravel(), PANELS):
@@ -55,14 +34,12 @@ def plot_metrics(rows: list[dict[str, float]], path: Path, controller: str) -> P
     fig.suptitle(f"Mixed traffic on the I-80-like freeway, CACC controller {controller} "
                  "(mean ± sd over seeds)")
     fig.tight_layout()
-    out = _save(fig, path)
-    plt.close(fig)
-    return out
+    return save_png(fig, path, dpi=110, bbox_inches="tight")
 
 
 def plot_heatmap(result: "RunResult", path: Path, ngsim_lane: int) -> Path:
     """Time-space map of the mean speed (m/s) along one lane of the mainline, one run."""
-    plt = _pyplot()
+    plt = pyplot()
     grid = np.array(result.heatmap, dtype=float)
     t0, t1, x0, x1 = result.heatmap_extent
     fig, ax = plt.subplots(figsize=(10, 4.5))
@@ -74,6 +51,4 @@ def plot_heatmap(result: "RunResult", path: Path, ngsim_lane: int) -> Path:
     ax.set_title(f"NGSIM lane {ngsim_lane}, p = {result.penetration:g}, seed {result.seed} "
                  "(white: no vehicle)")
     fig.tight_layout()
-    out = _save(fig, path)
-    plt.close(fig)
-    return out
+    return save_png(fig, path, dpi=110, bbox_inches="tight")

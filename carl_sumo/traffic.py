@@ -85,8 +85,11 @@ class RouteSet:
 
     path: Path
     n_vehicles: int
-    n_cacc: int
     cacc_ids: set[str] = field(default_factory=set)
+
+    @property
+    def n_cacc(self) -> int:
+        return len(self.cacc_ids)
 
 
 def _arrivals(rng: np.random.Generator, vph: float, min_headway_s: float,
@@ -141,7 +144,7 @@ def write_routes(path: Path, penetration: float, seed: int, horizon_s: float,
                      f'departLane="{lane}" departPos="base" departSpeed="max"/>')
     lines.append("</routes>")
     write_text_atomic(Path(path), "\n".join(lines) + "\n")
-    return RouteSet(Path(path), n, len(cacc_ids), cacc_ids)
+    return RouteSet(Path(path), n, cacc_ids)
 
 
 def write_detectors(path: Path, n_lanes: int, position_m: float, begin_s: float, end_s: float,
