@@ -82,8 +82,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint-every", type=int, default=5_000)
     p.add_argument("--out", type=Path, default=None, help="policy file (default policies/ALGO.pt)")
     p.add_argument("--resume", type=Path, default=None, help="checkpoint (.ckpt) to continue")
-    p.add_argument("--select", default=None, choices=("metrics", "reward"),
-                   help="keep the best validation checkpoint by metrics (default) or by reward")
+    p.add_argument("--select", default=None, choices=("margin", "metrics", "reward"),
+                   help="how the best validation checkpoint is kept: margin (default: the "
+                        "largest smallest z of the improvement over IDM on jerk, dampening and "
+                        "speed), metrics (jerk and dampening relative to IDM, speed at least "
+                        "IDM's) or reward")
     p.add_argument("--w-gap", type=float, default=None, help="reward weight of the headway term")
     p.add_argument("--w-safe", type=float, default=None, help="reward weight of the TTC term")
     p.add_argument("--w-comfort", type=float, default=None, help="reward weight of the jerk term")

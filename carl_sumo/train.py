@@ -63,7 +63,7 @@ class TrainConfig:
     hidden: int = AgentConfig.hidden                      # hidden layer width
     actor_lr: float = AgentConfig.actor_lr
     critic_lr: float = AgentConfig.critic_lr
-    select: str = "metrics"        # how the best checkpoint is chosen: "metrics" or "reward"
+    select: str = "margin"         # how the best checkpoint is chosen: see selection_score
     noise: float = AgentConfig.exploration_noise          # exploration std (fraction of adj_max)
     noise_correlation: float = AgentConfig.noise_correlation
     gamma: float = AgentConfig.gamma                      # discount per 0.1 s step
@@ -150,8 +150,9 @@ def held_out_split(events: Sequence[Event], cfg: TrainConfig) -> tuple[list[Even
                             cfg.seed if cfg.val_seed is None else cfg.val_seed, cfg.val_source)
 
 
-def validate(agent: Agent, env: PlatoonEnv, events: Sequence[Event]) -> dict[str, float]:
-    """Greedy policy on each event: mean per-vehicle reward and the paper's metrics."""
+def validate_events(agent: Agent, env: PlatoonEnv, events: Sequence[Event]
+                    ) -> tuple[float, list[dict[str, float]]]:
+    """Greedy policy on each event: mean per-vehicle reward and each event's metrics."""
     from carl_sumo.inference import CompiledActor
 
     act = CompiledActor(agent) if isinstance(agent, Agent) else agent.act  # numba, ~40 µs a step
@@ -169,30 +170,80 @@ def validate(agent: Agent, env: PlatoonEnv, events: Sequence[Event]) -> dict[str
         per_event.append(score_event(PlatoonTrajectory(event.event_id, np.array(leader),
                                                        np.array(speeds), np.array(gaps),
                                                        collisions)))
-    return {"val_reward": float(np.mean(rewards)), **aggregate(per_event)}
+    return float(np.mean(rewards)), per_event
 
 
-SELECTIONS = ("metrics", "reward")
+def validate(agent: Agent, env: PlatoonEnv, events: Sequence[Event]) -> dict[str, float]:
+    """Greedy policy on each event: mean per-vehicle reward and the paper's metrics."""
+    reward, per_event = validate_events(agent, env, events)
+    return {"val_reward": reward, **aggregate(per_event)}
+
+
+MARGIN_KEYS = {"jerk_mps3": ("z_jerk", -1.0), "dampening_ratio": ("z_dampening", -1.0),
+               "speed_mps": ("z_speed", 1.0)}
+"""The criteria the quality bar compares with IDM: their z key and the better direction."""
+
+
+def improvement_z(per_event: Sequence[dict], baseline: Sequence[dict]) -> dict[str, float]:
+    """Paired z-statistic of the improvement over the baseline (IDM on the same events, in the
+    same order) on each criterion of the quality bar: less jerk, a lower dampening ratio, a higher
+    mean speed. Per event e the difference d_e (signed so that positive is better) is weighted as
+    :func:`aggregate` weights it (jerk and speed by sample count, the ratio by event); z = the
+    weighted mean of d_e over its standard error. Events where either value is undefined (NaN) are
+    left out; with no usable event z is 0, with one it is the sign of the difference."""
+    out = {}
+    for key, (name, sign) in MARGIN_KEYS.items():
+        x = np.array([e[key] for e in per_event], float)
+        y = np.array([e[key] for e in baseline], float)
+        if key == "dampening_ratio":
+            w = np.ones(len(x))
+        else:
+            w = np.array([e["n_" + key.split("_")[0]] for e in per_event], float)
+        ok = np.isfinite(x) & np.isfinite(y) & (w > 0)
+        if not ok.any():
+            out[name] = 0.0
+            continue
+        d, w = sign * (x[ok] - y[ok]), w[ok]
+        mean = float(np.sum(w * d) / np.sum(w))
+        if len(d) < 2:  # no spread to measure: the sign of the difference
+            out[name] = float(np.sign(mean))
+            continue
+        se = np.sqrt(np.sum((w * (d - mean)) ** 2) * len(d) / (len(d) - 1)) / np.sum(w)
+        out[name] = mean / max(float(se), 1e-12)
+    return out
+
+
+SELECTIONS = ("margin", "metrics", "reward")
 
 
 def selection_score(val: dict[str, float], select: str = "metrics",
                     baseline: dict[str, float] | None = None) -> float:
-    """Higher is better. ``reward``: mean validation reward, -10 per collision. ``metrics``: the
-    product's quality criteria on the held-out events: -(dampening ratio + mean |jerk|), each
-    divided by the IDM ``baseline``'s value on the same events when one is given, with any
-    collision, any TTC < 1.5 s sample, a mean headway outside [1, 2.5] s, or (with a baseline) a
-    lower mean speed than IDM's ranked below all policies that have none. An undefined term (NaN:
-    a leader that never accelerates) counts 0."""
+    """Higher is better. Every rule but ``reward`` ranks an unsafe checkpoint (any collision, any
+    TTC < 1.5 s sample, a mean headway outside [1, 2.5] s) below all safe ones.
+
+    - ``reward``: mean validation reward, -10 per collision.
+    - ``metrics``: -(dampening ratio + mean |jerk|), each divided by the IDM ``baseline``'s value
+      on the same events when one is given, with (given a baseline) a lower mean speed than
+      IDM's ranked as unsafe. An undefined term (NaN: a leader that never accelerates) counts 0.
+    - ``margin``: the smallest of the paired z-statistics of the improvement over IDM on jerk,
+      dampening ratio and speed (``z_jerk``, ``z_dampening``, ``z_speed`` in ``val``, from
+      :func:`improvement_z`): the checkpoint that beats IDM most convincingly on its weakest
+      criterion of the quality bar.
+    """
     if select == "reward":
         return val["val_reward"] - 10.0 * val["collisions"]
     unsafe = val["collisions"] > 0 or val["ttc_lt_1_5s_count"] > 0 \
         or not 1.0 <= val["headway_s"] <= 2.5
+    penalty = 1000.0 if unsafe else 0.0
+    if select == "margin":
+        return min(val[name] for name, _ in MARGIN_KEYS.values()) - penalty
     damp, jerk = np.nan_to_num(val["dampening_ratio"]), np.nan_to_num(val["jerk_mps3"])
     if baseline is not None:
-        unsafe = unsafe or val["speed_mps"] < baseline["speed_mps"]
+        if val["speed_mps"] < baseline["speed_mps"]:
+            penalty = 1000.0
         damp = damp / max(np.nan_to_num(baseline["dampening_ratio"]), 1e-6)
         jerk = jerk / max(np.nan_to_num(baseline["jerk_mps3"]), 1e-6)
-    return -float(damp + jerk) - (1000.0 if unsafe else 0.0)
+    return -float(damp + jerk) - penalty
 
 
 class _IDMOnly:
@@ -270,7 +321,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     val_env = PlatoonEnv(val_events, n, cfg.net, reward=cfg.reward)
     for event in train_events:  # fail here, not in a worker, when an event does not fit the net
         check_fits(val_env.sim.route, event, n)
-    baseline = validate(_IDMOnly(), val_env, val_events)  # IDM on the same held-out events
+    idm_reward, baseline_events = validate_events(_IDMOnly(), val_env, val_events)  # same events
+    baseline = {"val_reward": idm_reward, **aggregate(baseline_events)}
     log("validation baseline (IDM): " + ", ".join(f"{k}={v:.3f}" for k, v in baseline.items()))
     vec = VecPlatoon(train_events, n, cfg.net, cfg.num_envs, cfg.seed + start_step, cfg.reward)
     obs = vec.reset(cfg.seed + start_step)
@@ -279,7 +331,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     writer = csv.writer(log_file)
     if new_log:
         writer.writerow(["step", "transitions", "wall_s", "train_reward", "val_reward",
-                         "headway_s", "jerk_mps3", "speed_mps", "dampening_ratio", "collisions"])
+                         "headway_s", "jerk_mps3", "speed_mps", "dampening_ratio", "collisions",
+                         *(name for name, _ in MARGIN_KEYS.values())])
     board = _tensorboard(out.with_suffix(".tb"))
     bar = None
     if progress:
@@ -308,14 +361,17 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                     agent.update(buffer.sample(agent.cfg.batch_size, rng))
             done_steps = step + 1
             if done_steps % cfg.eval_every == 0 or done_steps == cfg.steps:
-                val = validate(agent, val_env, val_events)
+                val_reward, per_event = validate_events(agent, val_env, val_events)
+                val = {"val_reward": val_reward, **aggregate(per_event),
+                       **improvement_z(per_event, baseline_events)}
                 wall = wall_before + time.perf_counter() - t0
                 train_reward = float(np.mean(recent[-cfg.eval_every:])) if recent else float("nan")
                 writer.writerow([done_steps, done_steps * cfg.num_envs, f"{wall:.1f}",
                                  f"{train_reward:.4f}", f"{val['val_reward']:.4f}",
                                  *(f"{val[k]:.4f}" for k in ("headway_s", "jerk_mps3",
                                                               "speed_mps", "dampening_ratio")),
-                                 val["collisions"]])
+                                 val["collisions"],
+                                 *(f"{val[name]:.3f}" for name, _ in MARGIN_KEYS.values())])
                 log_file.flush()
                 if board is not None:
                     for key, value in val.items():

@@ -18,8 +18,8 @@ from carl_sumo.errors import InputError
 from carl_sumo.policy import load_policy
 from carl_sumo.agents import Agent, AgentConfig, idm_acceleration_torch
 from carl_sumo.controllers import idm_acceleration
-from carl_sumo.train import (TrainConfig, export_policy, held_out_split, seed_everything,
-                             selection_score, train, validate)
+from carl_sumo.train import (TrainConfig, export_policy, held_out_split, improvement_z,
+                             seed_everything, selection_score, train, validate)
 
 from conftest import NET, REPO_ROOT, event_table
 
@@ -76,6 +76,37 @@ def test_selection_prefers_safe_smooth_policies():
     # relative to IDM: 10 % less jerk outweighs 5 % more dampening
     assert selection_score(dict(fast, jerk_mps3=0.18, dampening_ratio=0.84), baseline=idm) > \
         selection_score(fast | {"jerk_mps3": 0.2, "dampening_ratio": 0.8}, baseline=idm)
+
+
+def _event(jerk, damp, speed, n=100):
+    return {"jerk_mps3": jerk, "dampening_ratio": damp, "speed_mps": speed,
+            "n_jerk": n, "n_speed": n}
+
+
+def test_margin_selection_keeps_the_checkpoint_that_beats_idm_on_its_weakest_criterion():
+    rng = np.random.default_rng(0)
+    idm = [_event(0.2 + 0.05 * rng.random(), 0.7 + 0.1 * rng.random(), 8 + rng.random())
+           for _ in range(30)]
+    noise = rng.normal(0.0, 0.01, size=(30, 3))
+
+    def run(djerk, ddamp, dspeed):
+        return [_event(e["jerk_mps3"] + djerk + a, e["dampening_ratio"] + ddamp + b,
+                       e["speed_mps"] + dspeed + c) for e, (a, b, c) in zip(idm, noise)]
+
+    z = improvement_z(run(-0.02, -0.02, 0.02), idm)
+    assert all(v > 5 for v in z.values())  # paired: per-event noise 0.01 against a 0.02 gain
+    z_slow = improvement_z(run(-0.05, -0.05, -0.01), idm)
+    assert z_slow["z_jerk"] > 10 and z_slow["z_speed"] < -2  # slower than IDM: negative z
+    # an undefined dampening ratio (a leader that never accelerates) leaves that event out
+    nan_event = run(-0.02, -0.02, 0.02)
+    nan_event[0]["dampening_ratio"] = float("nan")
+    assert np.isfinite(improvement_z(nan_event, idm)["z_dampening"])
+    safe = {"collisions": 0, "ttc_lt_1_5s_count": 0, "headway_s": 1.8}
+    balanced, lopsided = safe | z, safe | z_slow
+    assert selection_score(balanced, "margin") == min(z.values())
+    assert selection_score(balanced, "margin") > selection_score(lopsided, "margin")
+    assert selection_score(lopsided, "margin") > selection_score(balanced | {"collisions": 1},
+                                                                 "margin")
 
 
 def test_idm_torch_matches_controllers():
