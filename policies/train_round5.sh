@@ -9,11 +9,12 @@
 # seed-0 files are the shipped ones, the others `<name>_seed<K>.pt`); MADDPG and the CA models
 # for 20 vehicles with seed 0. Two runs at a time on the 2-core machine.
 # Usage: bash policies/train_round5.sh [PATH_TO_ngsim_cf_events.csv.gz]
+# (SELECT=margin: the sixth round, policies/train_round6.sh)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 mkdir -p policies/logs
 DATA=${1:-../shared/data/ngsim/ngsim_cf_events.csv.gz}
-COMMON="--net networks/i80.net.xml --data $DATA --split train --adj-max 1 --w-gap 0.3 --w-comfort 300 --smooth-jerk 0.05 --smooth-accel 0.1 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.05 --noise-correlation 0.99 --select metrics --eval-every 500 --eval-events 64 --val-seed 0 --val-source zhu2020_pool_transfollower --checkpoint-every 2000"
+COMMON="--net networks/i80.net.xml --data $DATA --split train --adj-max 1 --w-gap 0.3 --w-comfort 300 --smooth-jerk 0.05 --smooth-accel 0.1 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.05 --noise-correlation 0.99 --select ${SELECT:-metrics} --eval-every 500 --eval-events 64 --val-seed 0 --val-source zhu2020_pool_transfollower --checkpoint-every 2000"
 run() {  # NAME ALGO VEHICLES STEPS SEED
   local out=policies/$1.pt
   echo "carl-sumo train --algo $2 --vehicles $3 --steps $4 --seed $5 $COMMON --out $out > policies/logs/$1.log 2>&1"

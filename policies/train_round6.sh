@@ -1,43 +1,10 @@
 #!/usr/bin/env bash
-# Sixth training round (the shipped policies): the fifth round's runs, unchanged (same seeds,
-# same recipe, so the same training trajectories), kept by a new checkpoint rule: --select
-# margin keeps the checkpoint whose smallest paired z-statistic of the improvement over IDM on
-# jerk, dampening ratio and speed (validation events) is largest. The fifth round's rule
-# (jerk/IDM + dampening/IDM, speed at least IDM's) kept checkpoints with no speed margin.
-# Fifth round, for reference: the fourth round's recipe (|a_adj| ≤ 1 m/s²,
-# w_gap 0.3, w_comfort 300) plus CAPS-style actor smoothness terms (--smooth-jerk 0.05
-# --smooth-accel 0.1), validated on 64 held-out training events that are the same for every run
-# (--val-seed 0) and come from the source most like the test set (zhu2020_pool_transfollower:
-# the same extraction of the same study as the test source zhu2020_testset), so seeds and
-# algorithms are compared on one validation set that resembles the test.
-# Every algorithm gets the same recipe. CA-TD3, CA-DDPG, TD3 and DDPG with seeds 0, 1, 2 (the
-# seed-0 files are the shipped ones, the others `<name>_seed<K>.pt`); MADDPG and the CA models
-# for 20 vehicles with seed 0. Two runs at a time on the 2-core machine.
+# Sixth training round (the shipped policies): the fifth round's runs unchanged (same recipe, same
+# seeds, hence the same training trajectories and learning curves), with a new rule for the
+# checkpoint that is kept: --select margin keeps the checkpoint whose smallest paired z-statistic
+# of the improvement over IDM on the validation events (less jerk, a lower dampening ratio, a
+# higher mean speed) is largest. The fifth round's rule (--select metrics: jerk/IDM's +
+# dampening/IDM's, any mean speed at least IDM's) could keep a checkpoint with no speed margin.
 # Usage: bash policies/train_round6.sh [PATH_TO_ngsim_cf_events.csv.gz]
 set -euo pipefail
-cd "$(dirname "$0")/.."
-mkdir -p policies/logs
-DATA=${1:-../shared/data/ngsim/ngsim_cf_events.csv.gz}
-COMMON="--net networks/i80.net.xml --data $DATA --split train --adj-max 1 --w-gap 0.3 --w-comfort 300 --smooth-jerk 0.05 --smooth-accel 0.1 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.05 --noise-correlation 0.99 --select margin --eval-every 500 --eval-events 64 --val-seed 0 --val-source zhu2020_pool_transfollower --checkpoint-every 2000"
-run() {  # NAME ALGO VEHICLES STEPS SEED
-  local out=policies/$1.pt
-  echo "carl-sumo train --algo $2 --vehicles $3 --steps $4 --seed $5 $COMMON --out $out > policies/logs/$1.log 2>&1"
-}
-{
-  run ca_td3_10 ca-td3 10 10000 0
-  run ca_ddpg_10 ca-ddpg 10 10000 0
-  run ca_td3_20 ca-td3 20 8000 0
-  run ca_ddpg_20 ca-ddpg 20 8000 0
-  run ca_td3_10_seed1 ca-td3 10 10000 1
-  run ca_td3_10_seed2 ca-td3 10 10000 2
-  run ca_ddpg_10_seed1 ca-ddpg 10 10000 1
-  run ca_ddpg_10_seed2 ca-ddpg 10 10000 2
-  run maddpg_10 maddpg 10 10000 0
-  run maddpg_20 maddpg 20 6000 0
-  run td3_1 td3 1 20000 0
-  run td3_1_seed1 td3 1 20000 1
-  run td3_1_seed2 td3 1 20000 2
-  run ddpg_1 ddpg 1 20000 0
-  run ddpg_1_seed1 ddpg 1 20000 1
-  run ddpg_1_seed2 ddpg 1 20000 2
-} | xargs -P 2 -I{} bash -c '{}'
+SELECT=margin exec bash "$(dirname "$0")/train_round5.sh" "$@"
