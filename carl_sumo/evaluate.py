@@ -8,6 +8,10 @@ seed) job on the shipped policies, in parallel worker processes (one libsumo eac
   (:func:`carl_sumo.metrics.bootstrap_ci`), and, for models with several seeds
   (``policies/<stem>_seed<K>.pt``), the mean ± standard deviation across seeds of the per-seed
   aggregate;
+- for Table 1, ``table1_ngsim_test_paired.csv`` (and a section of its Markdown): the paired
+  comparisons of :data:`PAIRED_COMPARISONS`, each model minus its reference on the same events
+  with a paired bootstrap interval (:func:`carl_sumo.metrics.paired_difference`) and how many of
+  the model's seeds beat the reference on jerk, dampening and speed;
 - ``per_event.csv`` (every job's per-event metrics), ``timing.csv`` (wall and CPU seconds per
   job), the figures of :mod:`carl_sumo.figures` and ``README.md`` (all tables, figure links,
   command, machine, wall time, policy file hashes).
@@ -45,7 +49,7 @@ from carl_sumo.data.events import Event
 from carl_sumo.data.synthetic import stop_and_go_event
 from carl_sumo.errors import InputError
 from carl_sumo.metrics import (METRIC_KEYS, acceleration_norms, aggregate, bootstrap_ci,
-                               metric_samples, score_event)
+                               metric_samples, paired_difference, score_event)
 from carl_sumo.sumo import REPO_ROOT, check_fits, lane_route, write_text_atomic
 
 DEFAULT_NGSIM = Path("../shared/data/ngsim/ngsim_cf_events.csv.gz")
@@ -109,6 +113,7 @@ class TableSpec:
     figures: bool = False          # collect samples and trajectories for the figures
     seed_lengths: tuple[int, ...] | None = None  # lengths whose rows run the seed files too
     # (None: every length; the others run the shipped seed-0 file only)
+    paired: tuple[tuple[str, str], ...] = ()  # (model, reference) pairs compared event by event
 
 
 @dataclass
@@ -133,6 +138,14 @@ class JobResult:
     series: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     seconds: float = 0.0        # wall time its chunks took in the workers (s)
     cpu_seconds: float = 0.0    # CPU time of those chunks (s)
+
+
+PAIRED_COMPARISONS = (("ca_td3_10", "idm"), ("ca_ddpg_10", "idm"), ("ca_td3_10", "td3_1"),
+                      ("ca_ddpg_10", "ddpg_1"), ("td3_1", "idm"), ("ddpg_1", "idm"),
+                      ("maddpg_10", "idm"))
+"""Table 1's paired comparisons: the quality bar's (CA models against IDM and against their
+plain variants), and the other learned models against IDM."""
+PAIRED_KEYS = ("headway_s", "jerk_mps3", "speed_mps", "dampening_ratio")
 
 
 # ------------------------------------------------------------------------------------ planning
@@ -235,7 +248,7 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
                      "ca_td3_10", "ca_ddpg_20", "ca_td3_20")
     tables = [
         TableSpec("table1_ngsim_test", "Table 1: NGSIM test split, 10 followers", test, (10,),
-                  table1_models, figures=True),
+                  table1_models, figures=True, paired=PAIRED_COMPARISONS),
         TableSpec("table2_generalization", "Table 2: generalization to other platoon lengths",
                   test, (10, 20) if quick else (10, 20, 50), table2_models, seed_lengths=(10,)),
         TableSpec("table3_stop_and_go", "Table 3: stop-and-go leader, 10 followers", sg, (10,),
@@ -414,6 +427,60 @@ def table_rows(spec: TableSpec, suite: Suite, results: dict[tuple, JobResult]) -
     return rows
 
 
+def paired_rows(spec: TableSpec, suite: Suite, results: dict[tuple, JobResult]) -> list[dict]:
+    """One row per (model, reference) pair of ``spec.paired`` and platoon length: the seed-0
+    difference of each of :data:`PAIRED_KEYS` with its paired bootstrap interval, and how many
+    of the model's seeds are better than the reference (lower jerk and dampening, higher
+    speed)."""
+    rows = []
+    for key, ref in spec.paired:
+        model, reference = suite.models[key], suite.models[ref]
+        for n in spec.followers:
+            if not (model.runs_on(n) and reference.runs_on(n)):
+                continue
+            spread = spec.seed_lengths is None or n in spec.seed_lengths
+            seeds = model.controllers if spread else model.controllers[:1]
+            runs = [results[(spec.events.key, c, n)].per_event for c in seeds]
+            base = results[(spec.events.key, reference.controllers[0], n)].per_event
+            diff = paired_difference(runs[0], base, PAIRED_KEYS, n_boot=N_BOOT)
+            base_agg = aggregate(base)
+            row: dict[str, Any] = {"table": spec.key, "model": model.name, "reference":
+                                   reference.name, "followers": n, "events": len(base),
+                                   "seeds": len(runs)}
+            for m in PAIRED_KEYS:
+                row[f"d_{m}"], row[f"d_{m}_lo"], row[f"d_{m}_hi"] = diff[m]
+                if m in BETTER:
+                    row[f"{m}_seeds_better"] = sum(
+                        BETTER[m] * (aggregate(r)[m] - base_agg[m]) > 0 for r in runs)
+            rows.append(row)
+    return rows
+
+
+BETTER = {"jerk_mps3": -1, "speed_mps": 1, "dampening_ratio": -1}
+"""The quality bar's criteria and their better direction."""
+PAIRED_COLUMNS = ["table", "model", "reference", "followers", "events", "seeds"] + [
+    f"d_{m}{suffix}" for m in PAIRED_KEYS for suffix in ("", "_lo", "_hi")] + [
+    f"{m}_seeds_better" for m in BETTER]
+
+
+def paired_markdown(rows: list[dict]) -> str:
+    """The paired comparisons as Markdown, under a table's own section."""
+    labels = [f"Δ {METRIC_LABELS[m]}" for m in PAIRED_KEYS]
+    lines = ["Paired comparisons (model − reference on the same events, shipped seed-0 files; "
+             f"[95 % paired bootstrap interval, {N_BOOT} resamples of the events]; seeds better: "
+             "how many of the model's seeds beat the reference on jerk / dampening / speed):", "",
+             "| model | reference | " + " | ".join(labels) + " | seeds better |",
+             "|" + "---|" * (3 + len(labels))]
+    for r in rows:
+        cells = [f"{r[f'd_{m}']:+.3f} [{r[f'd_{m}_lo']:+.3f}, {r[f'd_{m}_hi']:+.3f}]"
+                 for m in PAIRED_KEYS]
+        better = " / ".join(f"{r[f'{m}_seeds_better']}" for m in
+                            ("jerk_mps3", "dampening_ratio", "speed_mps"))
+        lines.append(f"| {r['model']} | {r['reference']} | " + " | ".join(cells)
+                     + f" | {better} of {r['seeds']} |")
+    return "\n".join(lines) + "\n"
+
+
 CSV_COLUMNS = ["table", "model", "policy", "trained_on", "followers", "events", "seeds"] + [
     f"{m}{suffix}" for m in METRIC_KEYS for suffix in ("", "_lo", "_hi", "_seed_mean",
                                                        "_seed_std")]
@@ -542,9 +609,15 @@ def _write_tables(suite: Suite, results: dict[tuple, JobResult],
         rows = table_rows(spec, suite, results)
         all_rows[spec.key] = rows
         md = markdown_table(spec, rows, spec.events.note)
+        links = f"CSV: [`{spec.key}.csv`]({spec.key}.csv)"
+        if spec.paired:
+            pairs = paired_rows(spec, suite, results)
+            md += "\n" + paired_markdown(pairs)
+            write_text_atomic(out_dir / f"{spec.key}_paired.csv", csv_text(pairs, PAIRED_COLUMNS))
+            links += f", [`{spec.key}_paired.csv`]({spec.key}_paired.csv)"
         write_text_atomic(out_dir / f"{spec.key}.md", md)
         write_text_atomic(out_dir / f"{spec.key}.csv", csv_text(rows, CSV_COLUMNS))
-        sections.append(md + f"\nCSV: [`{spec.key}.csv`]({spec.key}.csv)\n")
+        sections.append(md + f"\n{links}\n")
     timing = [{"event_set": k[0], "controller": k[1], "followers": k[2],
                "events": len(r.per_event), "seconds": round(r.seconds, 2),
                "cpu_seconds": round(r.cpu_seconds, 2)}

@@ -124,6 +124,36 @@ def aggregate(per_event: list[dict[str, float]]) -> dict[str, float]:
     return {key: out[key] for key in METRIC_KEYS}
 
 
+def _resample_counts(n: int, n_boot: int, seed: int) -> np.ndarray:
+    """How often each of n events is drawn in each of n_boot resamples, shape (n_boot, n)."""
+    rng = np.random.default_rng(seed)
+    return rng.multinomial(n, np.full(n, 1.0 / n), size=n_boot).astype(float)
+
+
+def _resampled(per_event: list[dict[str, float]], key: str, counts: np.ndarray) -> np.ndarray:
+    """``key`` aggregated as :func:`aggregate` does, once per resample (row of ``counts``)."""
+    n = len(per_event)
+    values = np.array([e[key] for e in per_event], float)
+    if key in _POOLED:
+        weights = np.array([e[_POOLED[key]] for e in per_event], float)
+    elif key in RATIO_KEYS:
+        weights = np.ones(n)
+    else:
+        return counts @ values
+    ok = np.isfinite(values) & (weights > 0)
+    w = np.where(ok, weights, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return (counts @ np.where(ok, values * w, 0.0)) / (counts @ w)
+
+
+def _interval(stats: np.ndarray, level: float) -> tuple[float, float]:
+    if not np.isfinite(stats).any():
+        return float("nan"), float("nan")
+    tail = 100.0 * (1.0 - level) / 2.0
+    lo, hi = np.nanpercentile(stats, [tail, 100.0 - tail])
+    return float(lo), float(hi)
+
+
 def bootstrap_ci(per_event: list[dict[str, float]], n_boot: int = 2000, level: float = 0.95,
                  seed: int = 0) -> dict[str, tuple[float, float]]:
     """Percentile bootstrap interval of every :func:`aggregate` metric, resampling events.
@@ -135,28 +165,32 @@ def bootstrap_ci(per_event: list[dict[str, float]], n_boot: int = 2000, level: f
     n = len(per_event)
     if n < 2:
         return {key: (float("nan"), float("nan")) for key in METRIC_KEYS}
-    rng = np.random.default_rng(seed)
-    counts = rng.multinomial(n, np.full(n, 1.0 / n), size=n_boot).astype(float)  # (B, n)
-    tail = 100.0 * (1.0 - level) / 2.0
-    out: dict[str, tuple[float, float]] = {}
-    for key in METRIC_KEYS:
-        values = np.array([e[key] for e in per_event], float)
-        if key in _POOLED:
-            weights = np.array([e[_POOLED[key]] for e in per_event], float)
-        elif key in RATIO_KEYS:
-            weights = np.ones(n)
-        else:
-            weights = None
-        if weights is None:
-            stats = counts @ values
-        else:
-            ok = np.isfinite(values) & (weights > 0)
-            w = np.where(ok, weights, 0.0)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                stats = (counts @ np.where(ok, values * w, 0.0)) / (counts @ w)
-        if not np.isfinite(stats).any():
-            out[key] = (float("nan"), float("nan"))
+    counts = _resample_counts(n, n_boot, seed)
+    return {key: _interval(_resampled(per_event, key, counts), level) for key in METRIC_KEYS}
+
+
+def paired_difference(a: list[dict[str, float]], b: list[dict[str, float]],
+                      keys: tuple[str, ...] = METRIC_KEYS, n_boot: int = 2000,
+                      level: float = 0.95, seed: int = 0) -> dict[str, tuple[float, float, float]]:
+    """aggregate(a) - aggregate(b) for two models run on the same events, with a paired
+    percentile bootstrap interval: each resample draws the same events for both, so what the
+    events have in common cancels (much narrower than comparing the two models' own intervals).
+
+    Returns key -> (difference, lo, hi); (nan, nan) intervals with fewer than 2 events.
+    ValueError when the two lists do not hold the same events.
+    """
+    by_id = {e["event_id"]: e for e in b}
+    if len(a) != len(b) or set(by_id) != {e["event_id"] for e in a}:
+        raise ValueError("paired_difference needs the same events for both models")
+    b = [by_id[e["event_id"]] for e in a]
+    agg_a, agg_b = aggregate(a), aggregate(b)
+    counts = _resample_counts(len(a), n_boot, seed) if len(a) >= 2 else None
+    out = {}
+    for key in keys:
+        diff = float(agg_a[key] - agg_b[key])
+        if counts is None:
+            out[key] = (diff, float("nan"), float("nan"))
             continue
-        lo, hi = np.nanpercentile(stats, [tail, 100.0 - tail])
-        out[key] = (float(lo), float(hi))
+        out[key] = (diff, *_interval(_resampled(a, key, counts) - _resampled(b, key, counts),
+                                     level))
     return out

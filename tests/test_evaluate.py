@@ -13,7 +13,7 @@ import torch
 
 from carl_sumo.cli import main
 from carl_sumo.evaluate import CSV_COLUMNS, discover_model, figure_event
-from carl_sumo.metrics import METRIC_KEYS, aggregate, bootstrap_ci
+from carl_sumo.metrics import METRIC_KEYS, aggregate, bootstrap_ci, paired_difference
 
 from conftest import NET, REPO_ROOT, braking_event
 
@@ -78,6 +78,20 @@ def test_quick_suite_writes_every_table_figure_and_readme(quick_suite):
     assert all(f"]({name})" in readme for name in figures)
     assert "wall time" in readme and "cores" in readme and "--quick" in readme
     assert not [n for n in names if n.startswith(".")]  # no temporary file left
+    assert "Paired comparisons" in readme and "table1_ngsim_test_paired.csv" in readme
+
+
+def test_quick_suite_paired_comparisons(quick_suite):
+    paired = pd.read_csv(quick_suite / "table1_ngsim_test_paired.csv")
+    assert list(paired["model"])[:4] == ["CA-TD3", "CA-DDPG", "CA-TD3", "CA-DDPG"]
+    assert list(paired["reference"])[:4] == ["IDM (SUMO)", "IDM (SUMO)", "TD3", "DDPG"]
+    t1 = pd.read_csv(quick_suite / "table1_ngsim_test.csv").set_index("model")
+    for _, row in paired.iterrows():
+        for m in ("jerk_mps3", "speed_mps", "dampening_ratio"):
+            expected = t1.loc[row["model"], m] - t1.loc[row["reference"], m]
+            assert abs(row[f"d_{m}"] - expected) < 1e-5, (row["model"], m)
+            assert row[f"d_{m}_lo"] <= row[f"d_{m}"] + 1e-9 <= row[f"d_{m}_hi"] + 2e-9
+            assert 0 <= row[f"{m}_seeds_better"] <= row["seeds"]
 
 
 def test_quick_suite_csv_rows_columns_and_intervals(quick_suite):
@@ -162,6 +176,25 @@ def test_bootstrap_hand_made_cases():
     assert ci["ttc_lt_4s_count"] == (4.0, 4.0) and ci["dampening_ratio"] == (0.5, 0.5)
     one = bootstrap_ci(events[:1])
     assert all(np.isnan(lo) and np.isnan(hi) for lo, hi in one.values())
+
+
+def test_paired_difference_cancels_what_the_events_share():
+    rng = np.random.default_rng(5)
+    base = {"ttc_lt_4s_count": 0, "ttc_lt_1_5s_count": 0, "worst_successive_ratio": 1.0,
+            "collisions": 0, "headway_s": 1.8, "n_headway": 100, "n_jerk": 98, "n_speed": 100}
+    # events differ a lot (speed 5-15 m/s), the model is 0.1 m/s faster on every one of them
+    ref = [{**base, "event_id": f"e{i}", "speed_mps": s, "jerk_mps3": 0.2,
+            "dampening_ratio": 0.7} for i, s in enumerate(rng.uniform(5, 15, 40))]
+    model = [{**e, "speed_mps": e["speed_mps"] + 0.1 + rng.normal(0, 0.01)}
+             for e in reversed(ref)]  # another order: paired by event id
+    diff = paired_difference(model, ref, n_boot=1000)
+    d, lo, hi = diff["speed_mps"]
+    assert abs(d - 0.1) < 0.01 and 0.09 < lo < d < hi < 0.11
+    own_lo, own_hi = bootstrap_ci(model, n_boot=1000)["speed_mps"]
+    assert own_hi - own_lo > 50 * (hi - lo)  # unpaired intervals would hide the difference
+    assert diff["jerk_mps3"] == (0.0, 0.0, 0.0)
+    with pytest.raises(ValueError, match="same events"):
+        paired_difference(model[1:], ref)
 
 
 def test_figure_event_is_the_largest_leader_speed_range():
