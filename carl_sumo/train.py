@@ -9,6 +9,7 @@ training events; the best policy by :func:`selection_score` is the one written t
 from __future__ import annotations
 
 import csv
+import io
 import random
 import sys
 import time
@@ -27,7 +28,7 @@ from carl_sumo.env import PlatoonEnv
 from carl_sumo.errors import InputError
 from carl_sumo.metrics import PlatoonTrajectory, aggregate, score_event
 from carl_sumo.policy import load_torch, save_policy, save_torch_atomic
-from carl_sumo.sumo import DEFAULT_NET, check_fits
+from carl_sumo.sumo import DEFAULT_NET, check_fits, write_text_atomic
 
 CHECKPOINT_FORMAT = "carl-sumo-checkpoint"
 
@@ -216,7 +217,7 @@ def improvement_z(per_event: Sequence[dict], baseline: Sequence[dict]) -> dict[s
 SELECTIONS = ("margin", "metrics", "reward")
 
 
-def selection_score(val: dict[str, float], select: str = "metrics",
+def selection_score(val: dict[str, float], select: str,
                     baseline: dict[str, float] | None = None) -> float:
     """Higher is better. Every rule but ``reward`` ranks an unsafe checkpoint (any collision, any
     TTC < 1.5 s sample, a mean headway outside [1, 2.5] s) below all safe ones.
@@ -251,6 +252,25 @@ class _IDMOnly:
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         return np.zeros(obs.shape[:-1])
+
+
+LOG_COLUMNS = ["step", "transitions", "wall_s", "train_reward", "val_reward", "headway_s",
+               "jerk_mps3", "speed_mps", "dampening_ratio", "collisions",
+               *(name for name, _ in MARGIN_KEYS.values())]
+"""Columns of the learning-curve CSV written beside the policy."""
+
+
+def _upgrade_log(path: Path) -> None:
+    """Give a learning curve written by an older carl-sumo (fewer columns) the current header,
+    its missing values empty, so that a resumed run can append to it."""
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    if not rows or rows[0] == LOG_COLUMNS:
+        return
+    width = len(LOG_COLUMNS)
+    out = io.StringIO()
+    csv.writer(out).writerows([LOG_COLUMNS] + [r + [""] * (width - len(r)) for r in rows[1:]])
+    write_text_atomic(path, out.getvalue())
 
 
 def seed_everything(seed: int) -> None:
@@ -327,12 +347,12 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     vec = VecPlatoon(train_events, n, cfg.net, cfg.num_envs, cfg.seed + start_step, cfg.reward)
     obs = vec.reset(cfg.seed + start_step)
     new_log = not (resume is not None and log_path.exists())
+    if not new_log:
+        _upgrade_log(log_path)
     log_file = open(log_path, "w" if new_log else "a", newline="")
     writer = csv.writer(log_file)
     if new_log:
-        writer.writerow(["step", "transitions", "wall_s", "train_reward", "val_reward",
-                         "headway_s", "jerk_mps3", "speed_mps", "dampening_ratio", "collisions",
-                         *(name for name, _ in MARGIN_KEYS.values())])
+        writer.writerow(LOG_COLUMNS)
     board = _tensorboard(out.with_suffix(".tb"))
     bar = None
     if progress:

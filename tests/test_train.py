@@ -66,16 +66,17 @@ def test_selection_prefers_safe_smooth_policies():
     smoother = dict(base, dampening_ratio=0.7)
     unsafe = dict(base, dampening_ratio=0.1, collisions=1)
     too_close = dict(base, dampening_ratio=0.1, headway_s=0.8)
-    assert selection_score(smoother) > selection_score(base) > selection_score(unsafe)
-    assert selection_score(base) > selection_score(too_close)
+    assert selection_score(smoother, "metrics") > selection_score(base, "metrics") > \
+        selection_score(unsafe, "metrics")
+    assert selection_score(base, "metrics") > selection_score(too_close, "metrics")
     assert selection_score(dict(base, val_reward=0.6), "reward") > selection_score(base, "reward")
     idm = dict(base, speed_mps=8.0, dampening_ratio=0.8, jerk_mps3=0.2)
     fast = dict(base, speed_mps=9.0)
-    assert selection_score(fast, baseline=idm) > selection_score(dict(fast, speed_mps=7.5),
-                                                                 baseline=idm)
+    slow = dict(fast, speed_mps=7.5)
+    assert selection_score(fast, "metrics", idm) > selection_score(slow, "metrics", idm)
     # relative to IDM: 10 % less jerk outweighs 5 % more dampening
-    assert selection_score(dict(fast, jerk_mps3=0.18, dampening_ratio=0.84), baseline=idm) > \
-        selection_score(fast | {"jerk_mps3": 0.2, "dampening_ratio": 0.8}, baseline=idm)
+    assert selection_score(dict(fast, jerk_mps3=0.18, dampening_ratio=0.84), "metrics", idm) > \
+        selection_score(fast | {"jerk_mps3": 0.2, "dampening_ratio": 0.8}, "metrics", idm)
 
 
 def _event(jerk, damp, speed, n=100):
@@ -170,3 +171,20 @@ def test_killed_run_resumes_from_checkpoint(tmp_path):
     assert torch.load(ckpt, weights_only=True)["step"] == step + 100
     load_policy(out)
     assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_resuming_an_older_learning_curve_upgrades_its_header(tmp_path):
+    from carl_sumo.train import LOG_COLUMNS, _upgrade_log
+
+    log = tmp_path / "p.csv"
+    old = LOG_COLUMNS[:10]  # before the z columns
+    log.write_text(",".join(old) + "\n" + ",".join(["500"] + ["1"] * 9) + "\n")
+    _upgrade_log(log)
+    with open(log, "a") as f:  # what the resumed run appends
+        f.write(",".join(["1000"] + ["2"] * (len(LOG_COLUMNS) - 1)) + "\n")
+    curve = pd.read_csv(log)
+    assert list(curve.columns) == LOG_COLUMNS and list(curve["step"]) == [500, 1000]
+    assert curve["z_speed"].isna().iloc[0] and curve["z_speed"].iloc[1] == 2
+    before = log.read_text()
+    _upgrade_log(log)  # a current log is left as it is
+    assert log.read_text() == before
