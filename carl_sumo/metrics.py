@@ -30,7 +30,8 @@ METRIC_KEYS: tuple[str, ...] = (
 )
 COUNT_KEYS = ("ttc_lt_4s_count", "ttc_lt_1_5s_count", "collisions")
 RATIO_KEYS = ("dampening_ratio", "worst_successive_ratio")
-_POOLED = {"headway_s": "n_headway", "jerk_mps3": "n_jerk", "speed_mps": "n_speed"}
+POOLED_WEIGHTS = {"headway_s": "n_headway", "jerk_mps3": "n_jerk", "speed_mps": "n_speed"}
+"""The pooled means and the per-event sample count that weights each event in them."""
 
 
 @dataclass
@@ -110,7 +111,7 @@ def score_event(traj: PlatoonTrajectory) -> dict[str, float]:
 def aggregate(per_event: list[dict[str, float]]) -> dict[str, float]:
     """Metrics over several events: pooled means, event-mean ratios, summed counts."""
     out: dict[str, float] = {}
-    for key, weight_key in _POOLED.items():
+    for key, weight_key in POOLED_WEIGHTS.items():
         values = np.array([e[key] for e in per_event], float)
         weights = np.array([e[weight_key] for e in per_event], float)
         ok = np.isfinite(values) & (weights > 0)
@@ -134,8 +135,8 @@ def _resampled(per_event: list[dict[str, float]], key: str, counts: np.ndarray) 
     """``key`` aggregated as :func:`aggregate` does, once per resample (row of ``counts``)."""
     n = len(per_event)
     values = np.array([e[key] for e in per_event], float)
-    if key in _POOLED:
-        weights = np.array([e[_POOLED[key]] for e in per_event], float)
+    if key in POOLED_WEIGHTS:
+        weights = np.array([e[POOLED_WEIGHTS[key]] for e in per_event], float)
     elif key in RATIO_KEYS:
         weights = np.ones(n)
     else:

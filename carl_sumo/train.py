@@ -26,7 +26,7 @@ from carl_sumo.config import REWARD, RewardConfig
 from carl_sumo.data.events import Event
 from carl_sumo.env import PlatoonEnv
 from carl_sumo.errors import InputError
-from carl_sumo.metrics import PlatoonTrajectory, aggregate, score_event
+from carl_sumo.metrics import POOLED_WEIGHTS, PlatoonTrajectory, aggregate, score_event
 from carl_sumo.policy import load_torch, save_policy, save_torch_atomic
 from carl_sumo.sumo import DEFAULT_NET, check_fits, write_text_atomic
 
@@ -196,10 +196,8 @@ def improvement_z(per_event: Sequence[dict], baseline: Sequence[dict]) -> dict[s
     for key, (name, sign) in MARGIN_KEYS.items():
         x = np.array([e[key] for e in per_event], float)
         y = np.array([e[key] for e in baseline], float)
-        if key == "dampening_ratio":
-            w = np.ones(len(x))
-        else:
-            w = np.array([e["n_" + key.split("_")[0]] for e in per_event], float)
+        w = np.array([e[POOLED_WEIGHTS[key]] for e in per_event], float) \
+            if key in POOLED_WEIGHTS else np.ones(len(x))
         ok = np.isfinite(x) & np.isfinite(y) & (w > 0)
         if not ok.any():
             out[name] = 0.0
@@ -212,9 +210,6 @@ def improvement_z(per_event: Sequence[dict], baseline: Sequence[dict]) -> dict[s
         se = np.sqrt(np.sum((w * (d - mean)) ** 2) * len(d) / (len(d) - 1)) / np.sum(w)
         out[name] = mean / max(float(se), 1e-12)
     return out
-
-
-SELECTIONS = ("margin", "metrics", "reward")
 
 
 def selection_score(val: dict[str, float], select: str,
@@ -405,7 +400,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                                                       val_events))
                 if bar is not None:
                     bar.set_postfix(reward=f"{train_reward:.3f}", val=f"{val['val_reward']:.3f}",
-                                    jerk=f"{val['jerk_mps3']:.3f}", coll=val["collisions"])
+                                    jerk=f"{val['jerk_mps3']:.3f}", coll=val["collisions"],
+                                    min_z=f"{min(val[k] for k, _ in MARGIN_KEYS.values()):.2f}")
             if done_steps % cfg.checkpoint_every == 0 or done_steps == cfg.steps:
                 _save_checkpoint(ckpt_path, cfg, agent, buffer, rng, done_steps, best,
                                  wall_before + time.perf_counter() - t0)
