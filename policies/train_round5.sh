@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Fifth training round (the shipped policies): the fourth round's recipe (|a_adj| ≤ 1 m/s²,
+# Fifth training round (replaced by the sixth, `train_round6.sh`, which runs this script with
+# SELECT=margin): the fourth round's recipe (|a_adj| ≤ 1 m/s²,
 # w_gap 0.3, w_comfort 300) plus CAPS-style actor smoothness terms (--smooth-jerk 0.05
 # --smooth-accel 0.1), validated on 64 held-out training events that are the same for every run
 # (--val-seed 0) and come from the source most like the test set (zhu2020_pool_transfollower:
