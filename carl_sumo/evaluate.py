@@ -48,8 +48,8 @@ from carl_sumo.data import load_events
 from carl_sumo.data.events import Event
 from carl_sumo.data.synthetic import stop_and_go_event
 from carl_sumo.errors import InputError
-from carl_sumo.metrics import (METRIC_KEYS, acceleration_norms, aggregate, bootstrap_ci,
-                               metric_samples, paired_difference, score_event)
+from carl_sumo.metrics import (BETTER, METRIC_KEYS, acceleration_norms, aggregate,
+                               bootstrap_ci, metric_samples, paired_difference, score_event)
 from carl_sumo.sumo import REPO_ROOT, check_fits, lane_route, write_text_atomic
 
 DEFAULT_NGSIM = Path("../shared/data/ngsim/ngsim_cf_events.csv.gz")
@@ -456,8 +456,6 @@ def paired_rows(spec: TableSpec, suite: Suite, results: dict[tuple, JobResult]) 
     return rows
 
 
-BETTER = {"jerk_mps3": -1, "speed_mps": 1, "dampening_ratio": -1}
-"""The quality bar's criteria and their better direction."""
 PAIRED_COLUMNS = ["table", "model", "reference", "followers", "events", "seeds"] + [
     f"d_{m}{suffix}" for m in PAIRED_KEYS for suffix in ("", "_lo", "_hi")] + [
     f"{m}_seeds_better" for m in BETTER]

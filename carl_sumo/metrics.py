@@ -30,6 +30,9 @@ METRIC_KEYS: tuple[str, ...] = (
 )
 COUNT_KEYS = ("ttc_lt_4s_count", "ttc_lt_1_5s_count", "collisions")
 RATIO_KEYS = ("dampening_ratio", "worst_successive_ratio")
+BETTER = {"jerk_mps3": -1.0, "speed_mps": 1.0, "dampening_ratio": -1.0}
+"""The criteria the CA-RL quality bar compares with IDM, and the sign of a better difference:
+less jerk, a higher mean speed, a lower dampening ratio."""
 POOLED_WEIGHTS = {"headway_s": "n_headway", "jerk_mps3": "n_jerk", "speed_mps": "n_speed"}
 """The pooled means and the per-event sample count that weights each event in them."""
 

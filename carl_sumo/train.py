@@ -26,7 +26,8 @@ from carl_sumo.config import REWARD, RewardConfig
 from carl_sumo.data.events import Event
 from carl_sumo.env import PlatoonEnv
 from carl_sumo.errors import InputError
-from carl_sumo.metrics import POOLED_WEIGHTS, PlatoonTrajectory, aggregate, score_event
+from carl_sumo.metrics import (BETTER, POOLED_WEIGHTS, PlatoonTrajectory, aggregate,
+                               score_event)
 from carl_sumo.policy import load_torch, save_policy, save_torch_atomic
 from carl_sumo.sumo import DEFAULT_NET, check_fits, write_text_atomic
 
@@ -180,8 +181,9 @@ def validate(agent: Agent, env: PlatoonEnv, events: Sequence[Event]) -> dict[str
     return {"val_reward": reward, **aggregate(per_event)}
 
 
-MARGIN_KEYS = {"jerk_mps3": ("z_jerk", -1.0), "dampening_ratio": ("z_dampening", -1.0),
-               "speed_mps": ("z_speed", 1.0)}
+MARGIN_KEYS = {key: (name, BETTER[key]) for key, name in
+               (("jerk_mps3", "z_jerk"), ("dampening_ratio", "z_dampening"),
+                ("speed_mps", "z_speed"))}
 """The criteria the quality bar compares with IDM: their z key and the better direction."""
 
 
