@@ -331,9 +331,14 @@ def _table_cells(spec: TableSpec, suite: Suite):
         model = suite.models[key]
         for n in spec.followers:
             if model.runs_on(n):
-                spread = spec.seed_lengths is None or n in spec.seed_lengths
-                yield (key, model, n, 1 if key == "human" else n,
-                       model.controllers if spread else model.controllers[:1])
+                yield key, model, n, 1 if key == "human" else n, _controllers_run(spec, model, n)
+
+
+def _controllers_run(spec: TableSpec, model: Model, n: int) -> tuple[str, ...]:
+    """A model's controllers in a table at length n: all its seed files where
+    ``spec.seed_lengths`` allows, the shipped (seed-0) one elsewhere."""
+    spread = spec.seed_lengths is None or n in spec.seed_lengths
+    return model.controllers if spread else model.controllers[:1]
 
 
 def plan_tasks(suite: Suite, net: str) -> list[dict]:
@@ -438,12 +443,11 @@ def paired_rows(spec: TableSpec, suite: Suite, results: dict[tuple, JobResult]) 
         for n in spec.followers:
             if not (model.runs_on(n) and reference.runs_on(n)):
                 continue
-            spread = spec.seed_lengths is None or n in spec.seed_lengths
-            seeds = model.controllers if spread else model.controllers[:1]
-            runs = [results[(spec.events.key, c, n)].per_event for c in seeds]
+            runs = [results[(spec.events.key, c, n)].per_event
+                    for c in _controllers_run(spec, model, n)]
             base = results[(spec.events.key, reference.controllers[0], n)].per_event
             diff = paired_difference(runs[0], base, PAIRED_KEYS, n_boot=N_BOOT)
-            base_agg = aggregate(base)
+            base_agg, seed_aggs = aggregate(base), [aggregate(r) for r in runs]
             row: dict[str, Any] = {"table": spec.key, "model": model.name, "reference":
                                    reference.name, "followers": n, "events": len(base),
                                    "seeds": len(runs)}
@@ -451,7 +455,7 @@ def paired_rows(spec: TableSpec, suite: Suite, results: dict[tuple, JobResult]) 
                 row[f"d_{m}"], row[f"d_{m}_lo"], row[f"d_{m}_hi"] = diff[m]
                 if m in BETTER:
                     row[f"{m}_seeds_better"] = sum(
-                        BETTER[m] * (aggregate(r)[m] - base_agg[m]) > 0 for r in runs)
+                        BETTER[m] * (agg[m] - base_agg[m]) > 0 for agg in seed_aggs)
             rows.append(row)
     return rows
 
