@@ -125,6 +125,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("policy-info", help="print the Markdown card of policy files")
     p.add_argument("paths", nargs="+", type=Path)
 
+    p = sub.add_parser("rank", help="rank runs of one model (several seeds) by their stored "
+                       "validation score, best first")
+    p.add_argument("paths", nargs="+", type=Path, help="policy files of one algorithm")
+    p.add_argument("--select", default="margin", choices=("margin", "metrics", "reward"),
+                   help="the rule of `train --select` (default margin)")
+    p.add_argument("--best-only", action="store_true",
+                   help="print only the path of the best run (for scripts)")
+
     p = sub.add_parser("bench", help="env steps/s beside a bare libsumo loop")
     p.add_argument("--net", default="networks/i80.net.xml")
     p.add_argument("--sizes", default="10,20,100", help="platoon sizes, comma-separated")
@@ -318,6 +326,23 @@ def cmd_policy_info(args: argparse.Namespace) -> None:
     print("\n".join(cards))
 
 
+def cmd_rank(args: argparse.Namespace) -> None:
+    from carl_sumo.train import rank_runs
+
+    rows = rank_runs(args.paths, args.select)
+    if args.best_only:
+        print(rows[0]["path"])
+        return
+    inputs = [k for k in rows[0] if k not in ("path", "seed", "score", "unsafe")]
+    print("| rank | file | seed | score | unsafe | " + " | ".join(inputs) + " |")
+    print("|---" * (5 + len(inputs)) + "|")
+    for i, r in enumerate(rows, 1):
+        print(f"| {i} | `{Path(r['path']).name}` | {r['seed']} | {r['score']:.3f} | "
+              f"{'yes' if r['unsafe'] else 'no'} | " + " | ".join(f"{r[k]:.3f}" for k in inputs)
+              + " |")
+    print(f"best: {rows[0]['path']}")
+
+
 def cmd_bench(args: argparse.Namespace) -> None:
     from carl_sumo.bench import format_bench, format_training_bench, run_bench, run_training_bench
 
@@ -429,7 +454,7 @@ def cmd_data(args: argparse.Namespace) -> None:
 
 COMMANDS = {"simulate": cmd_simulate, "evaluate": cmd_evaluate, "train": cmd_train,
             "policy-info": cmd_policy_info, "export": cmd_export, "replay": cmd_replay,
-            "bench": cmd_bench, "net": cmd_net, "study": cmd_study,
+            "bench": cmd_bench, "rank": cmd_rank, "net": cmd_net, "study": cmd_study,
             "data": cmd_data}
 
 

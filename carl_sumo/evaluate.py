@@ -4,7 +4,7 @@
 seed) job on the shipped policies, in parallel worker processes (one libsumo each), and writes:
 
 - per table a Markdown and a CSV file: every metric of :mod:`carl_sumo.metrics` as the aggregate of
-  the seed-0 policy (the shipped file) with a 95 % percentile-bootstrap interval over events
+  the shipped policy file (``policies/<stem>.pt``) with a 95 % percentile-bootstrap interval over events
   (:func:`carl_sumo.metrics.bootstrap_ci`), and, for models with several seeds
   (``policies/<stem>_seed<K>.pt``), the mean ± standard deviation across seeds of the per-seed
   aggregate;
@@ -73,7 +73,7 @@ class Model:
 
     key: str                      # "idm", "human", or a policy stem such as "ca_td3_10"
     name: str                     # "IDM (SUMO)", "CA-TD3", ...
-    files: tuple[str, ...] = ()   # policy files, the shipped (seed-0) file first
+    files: tuple[str, ...] = ()   # policy files, the shipped file first
     seeds: tuple[int, ...] = ()   # their training seeds
     trained_on: int | None = None  # platoon length it was trained on
     fixed_length: int | None = None  # MADDPG: the only length it runs
@@ -112,7 +112,7 @@ class TableSpec:
     models: tuple[str, ...]        # model keys, in row order
     figures: bool = False          # collect samples and trajectories for the figures
     seed_lengths: tuple[int, ...] | None = None  # lengths whose rows run the seed files too
-    # (None: every length; the others run the shipped seed-0 file only)
+    # (None: every length; the others run the shipped file only)
     paired: tuple[tuple[str, str], ...] = ()  # (model, reference) pairs compared event by event
 
 
@@ -170,7 +170,7 @@ def policy_dir(path: Path | None) -> Path:
 
 
 def discover_model(stem: str, directory: Path) -> Model:
-    """A policy model: ``<stem>.pt`` (seed 0) and every ``<stem>_seed<K>.pt`` beside it.
+    """A policy model: ``<stem>.pt`` (the shipped run) and every ``<stem>_seed<K>.pt`` beside it.
 
     Files whose training seed repeats one already found are left out (the same run twice).
     """
@@ -336,7 +336,7 @@ def _table_cells(spec: TableSpec, suite: Suite):
 
 def _controllers_run(spec: TableSpec, model: Model, n: int) -> tuple[str, ...]:
     """A model's controllers in a table at length n: all its seed files where
-    ``spec.seed_lengths`` allows, the shipped (seed-0) one elsewhere."""
+    ``spec.seed_lengths`` allows, the shipped one elsewhere."""
     spread = spec.seed_lengths is None or n in spec.seed_lengths
     return model.controllers if spread else model.controllers[:1]
 
@@ -408,7 +408,8 @@ def run_tasks(tasks: list[dict], pool=None, progress: bool = False) -> dict[tupl
 
 # ------------------------------------------------------------------------------------- tables
 def table_rows(spec: TableSpec, suite: Suite, results: dict[tuple, JobResult]) -> list[dict]:
-    """One row per (model, platoon length): seed-0 aggregate, bootstrap CI, spread over seeds."""
+    """One row per (model, platoon length): shipped file's aggregate, bootstrap CI, spread over
+    seeds."""
     rows = []
     for key, model, _, n_run, controllers in _table_cells(spec, suite):
         runs = [results[(spec.events.key, c, n_run)] for c in controllers]
@@ -433,8 +434,8 @@ def table_rows(spec: TableSpec, suite: Suite, results: dict[tuple, JobResult]) -
 
 
 def paired_rows(spec: TableSpec, suite: Suite, results: dict[tuple, JobResult]) -> list[dict]:
-    """One row per (model, reference) pair of ``spec.paired`` and platoon length: the seed-0
-    difference of each of :data:`PAIRED_KEYS` with its paired bootstrap interval, and how many
+    """One row per (model, reference) pair of ``spec.paired`` and platoon length: the shipped
+    files' difference of each of :data:`PAIRED_KEYS` with its paired bootstrap interval, and how many
     of the model's seeds are better than the reference (lower jerk and dampening, higher
     speed)."""
     rows = []
@@ -468,7 +469,7 @@ PAIRED_COLUMNS = ["table", "model", "reference", "followers", "events", "seeds"]
 def paired_markdown(rows: list[dict]) -> str:
     """The paired comparisons as Markdown, under a table's own section."""
     labels = [f"Δ {METRIC_LABELS[m]}" for m in PAIRED_KEYS]
-    lines = ["Paired comparisons (model − reference on the same events, shipped seed-0 files; "
+    lines = ["Paired comparisons (model − reference on the same events, shipped files; "
              f"[95 % paired bootstrap interval, {N_BOOT} resamples of the events]; seeds better: "
              "how many of the model's seeds beat the reference on jerk / dampening / speed):", "",
              "| model | reference | " + " | ".join(labels) + " | seeds better |",
@@ -515,7 +516,7 @@ def markdown_table(spec: TableSpec, rows: list[dict], note: str = "") -> str:
         lines.append("| " + " | ".join([r["model"], f"`{r['policy']}`", str(r["trained_on"]) or "—",
                                         str(r["followers"]), str(r["events"]), seeds,
                                         *(_cell(r, m) for m in METRIC_KEYS)]) + " |")
-    lines += ["", "Cells: the shipped (seed-0) policy's value over all events [95 % bootstrap "
+    lines += ["", "Cells: the shipped policy's value over all events [95 % bootstrap "
               f"interval over events, {N_BOOT} resamples]; no interval with a single event."]
     multi = [r for r in rows if r["seeds"] != "" and r["seeds"] > 1]
     if multi:

@@ -28,7 +28,7 @@ from carl_sumo.env import PlatoonEnv
 from carl_sumo.errors import InputError
 from carl_sumo.metrics import (BETTER, POOLED_WEIGHTS, PlatoonTrajectory, aggregate,
                                score_event)
-from carl_sumo.policy import load_torch, save_policy, save_torch_atomic
+from carl_sumo.policy import load_torch, read_policy_payload, save_policy, save_torch_atomic
 from carl_sumo.sumo import DEFAULT_NET, check_fits, write_text_atomic
 
 CHECKPOINT_FORMAT = "carl-sumo-checkpoint"
@@ -242,6 +242,46 @@ def selection_score(val: dict[str, float], select: str,
         damp = damp / max(np.nan_to_num(baseline["dampening_ratio"]), 1e-6)
         jerk = jerk / max(np.nan_to_num(baseline["jerk_mps3"]), 1e-6)
     return -float(damp + jerk) - penalty
+
+
+def rank_runs(paths: Sequence[Path], select: str = "margin") -> list[dict[str, Any]]:
+    """Policy files of one model (runs of several seeds), best first by the validation
+    :func:`selection_score` of each file's kept checkpoint (ties: the lower seed first).
+
+    Reads the metadata only (the validation metrics stored at training time), so no test number
+    enters the choice. Each row: path, seed, score, unsafe and the ``select`` rule's inputs.
+    InputError for files of different algorithms or platoon lengths, or without the validation
+    metrics the rule needs.
+    """
+    if select not in ("margin", "metrics", "reward"):
+        raise InputError(f"unknown rule {select!r}; choose margin, metrics or reward")
+    rows, model = [], None
+    for path in paths:
+        payload = read_policy_payload(Path(path))
+        cfg, meta = payload["agent_config"], payload.get("metadata") or {}
+        this = (cfg["algo"], int(meta.get("trained_vehicles", cfg.get("n_vehicles", 1))))
+        if model is None:
+            model = this
+        elif this != model:
+            raise InputError(f"{path} is {this[0]} on {this[1]} vehicle(s), the first file is "
+                             f"{model[0]} on {model[1]}; rank the runs of one model at a time")
+        val, baseline = meta.get("validation") or {}, meta.get("validation_idm") or None
+        needed = {"margin": [name for name, _ in MARGIN_KEYS.values()],
+                  "metrics": ["jerk_mps3", "dampening_ratio", "speed_mps"],
+                  "reward": ["val_reward"]}[select]
+        safety = ["collisions"] if select == "reward" else \
+            ["collisions", "ttc_lt_1_5s_count", "headway_s"]
+        missing = [k for k in (*needed, *safety) if k not in val]
+        if missing:
+            raise InputError(f"{path} has no validation {', '.join(missing)} in its metadata "
+                             f"(trained by an older carl-sumo?); rank with another --select or "
+                             "retrain it")
+        unsafe = val["collisions"] > 0 or (select != "reward" and (
+            val["ttc_lt_1_5s_count"] > 0 or not 1.0 <= val["headway_s"] <= 2.5))
+        rows.append({"path": str(path), "seed": meta.get("seed"),
+                     "score": float(selection_score(val, select, baseline)),
+                     "unsafe": bool(unsafe), **{k: float(val[k]) for k in needed}})
+    return sorted(rows, key=lambda r: (-r["score"], r["seed"] is None, r["seed"] or 0))
 
 
 class _IDMOnly:

@@ -122,6 +122,24 @@ def test_simulate_with_policy_files_and_maddpg_length_check(capsys, tmp_path, sm
     assert code == 0 and "ca-td3" in out
 
 
+def test_rank_prints_the_seeds_best_first_and_the_best_path(capsys, tmp_path):
+    from carl_sumo.agents import Agent, AgentConfig
+    from carl_sumo.policy import save_policy
+
+    for seed, z in ((1, 0.5), (2, 3.0)):
+        val = {"collisions": 0.0, "ttc_lt_1_5s_count": 0.0, "headway_s": 1.8,
+               "z_jerk": z, "z_dampening": 5.0, "z_speed": 5.0}
+        save_policy(Agent(AgentConfig(algo="td3", n_vehicles=1)), tmp_path / f"s{seed}.pt",
+                    {"seed": seed, "validation": val})
+    code, out, _ = run(capsys, "rank", str(tmp_path / "s1.pt"), str(tmp_path / "s2.pt"))
+    assert code == 0 and out.index("`s2.pt`") < out.index("`s1.pt`")
+    code, out, _ = run(capsys, "rank", "--best-only", str(tmp_path / "s1.pt"),
+                       str(tmp_path / "s2.pt"))
+    assert code == 0 and out.strip() == str(tmp_path / "s2.pt")
+    code, _, err = run(capsys, "rank", str(tmp_path / "missing.pt"))
+    assert code == 2 and len(err.strip().splitlines()) == 1
+
+
 def test_train_rejects_unknown_algorithm(capsys):
     code, _, err = run(capsys, "train", "--algo", "ppo")
     assert code == 2 and "unknown algorithm" in err

@@ -47,7 +47,7 @@ def quick_suite(tmp_path_factory) -> Path:
     for stem in SHIPPED:
         shutil.copy(POLICIES / f"{stem}.pt", policies / f"{stem}.pt")
     extra_seed(POLICIES / "td3_1.pt", policies / "td3_1_seed1.pt", 1)
-    shutil.copy(POLICIES / "td3_1.pt", policies / "td3_1_seed7.pt")  # seed 0 again: left out
+    shutil.copy(POLICIES / "td3_1.pt", policies / "td3_1_seed7.pt")  # the shipped seed again: left out
     out = root / "results"
     code = main(["evaluate", "--suite", "paper", "--quick", "--out", str(out), "--policies",
                  str(policies), "--net", str(NET), "--workers", "2"])
@@ -206,14 +206,14 @@ def test_figure_event_is_the_largest_leader_speed_range():
 
 
 def test_seed_files_are_found_and_duplicates_left_out(tmp_path):
-    shutil.copy(POLICIES / "ca_td3_10.pt", tmp_path / "ca_td3_10.pt")
+    extra_seed(POLICIES / "ca_td3_10.pt", tmp_path / "ca_td3_10.pt", 7)  # shipped: seed 7
     extra_seed(POLICIES / "ca_td3_10.pt", tmp_path / "ca_td3_10_seed2.pt", 2)
-    extra_seed(POLICIES / "ca_td3_10.pt", tmp_path / "ca_td3_10_seed1.pt", 1)
-    shutil.copy(POLICIES / "ca_td3_10.pt", tmp_path / "ca_td3_10_seed3.pt")  # seed 0 again
+    extra_seed(POLICIES / "ca_td3_10.pt", tmp_path / "ca_td3_10_seed0.pt", 0)
+    shutil.copy(tmp_path / "ca_td3_10.pt", tmp_path / "ca_td3_10_seed3.pt")  # seed 7 again
     shutil.copy(POLICIES / "ca_td3_10.pt", tmp_path / "ca_td3_10_seedx.pt")  # not a seed name
     model = discover_model("ca_td3_10", tmp_path)
-    assert model.seeds == (0, 1, 2) and model.name == "CA-TD3" and model.trained_on == 10
-    assert [Path(f).name for f in model.files] == ["ca_td3_10.pt", "ca_td3_10_seed1.pt",
+    assert model.seeds == (7, 0, 2) and model.name == "CA-TD3" and model.trained_on == 10
+    assert [Path(f).name for f in model.files] == ["ca_td3_10.pt", "ca_td3_10_seed0.pt",
                                                    "ca_td3_10_seed2.pt"]
     maddpg = tmp_path / "m"
     maddpg.mkdir()

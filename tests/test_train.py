@@ -18,8 +18,9 @@ from carl_sumo.errors import InputError
 from carl_sumo.policy import load_policy
 from carl_sumo.agents import Agent, AgentConfig, idm_acceleration_torch
 from carl_sumo.controllers import idm_acceleration
+from carl_sumo.policy import save_policy
 from carl_sumo.train import (TrainConfig, export_policy, held_out_split, improvement_z,
-                             seed_everything, selection_score, train, validate)
+                             rank_runs, seed_everything, selection_score, train, validate)
 
 from conftest import NET, REPO_ROOT, event_table
 
@@ -108,6 +109,31 @@ def test_margin_selection_keeps_the_checkpoint_that_beats_idm_on_its_weakest_cri
     assert selection_score(balanced, "margin") > selection_score(lopsided, "margin")
     assert selection_score(lopsided, "margin") > selection_score(balanced | {"collisions": 1},
                                                                  "margin")
+
+
+def _run_file(path, seed, z, algo="ca-td3", n=4, **safety):
+    val = {"collisions": 0.0, "ttc_lt_1_5s_count": 0.0, "headway_s": 1.8, **safety,
+           "z_jerk": z[0], "z_dampening": z[1], "z_speed": z[2]}
+    save_policy(Agent(AgentConfig(algo=algo, n_vehicles=n)), path,
+                {"algo": algo, "trained_vehicles": n, "seed": seed, "validation": val})
+    return path
+
+
+def test_rank_runs_orders_seeds_by_their_stored_validation_score(tmp_path):
+    files = [_run_file(tmp_path / "s5.pt", 5, (4.0, 1.0, 3.0)),     # weakest z 1.0
+             _run_file(tmp_path / "s6.pt", 6, (2.0, 2.5, 2.0)),     # weakest z 2.0
+             _run_file(tmp_path / "s7.pt", 7, (9.0, 9.0, 9.0), collisions=1.0),  # unsafe
+             _run_file(tmp_path / "s8.pt", 8, (2.0, 2.0, 3.0))]     # ties seed 6
+    rows = rank_runs(files)
+    assert [r["seed"] for r in rows] == [6, 8, 5, 7]  # tie to the lower seed; unsafe last
+    assert rows[0]["score"] == 2.0 and rows[-1]["unsafe"]
+    other = _run_file(tmp_path / "td3.pt", 0, (1.0, 1.0, 1.0), algo="td3", n=1)
+    with pytest.raises(InputError, match="one model at a time"):
+        rank_runs([files[0], other])
+    save_policy(Agent(AgentConfig(algo="ca-td3", n_vehicles=4)), tmp_path / "old.pt",
+                {"seed": 1, "validation": {"collisions": 0.0}})
+    with pytest.raises(InputError, match="no validation z_jerk"):
+        rank_runs([tmp_path / "old.pt"])
 
 
 def test_idm_torch_matches_controllers():
