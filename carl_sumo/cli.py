@@ -70,6 +70,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--net", default="networks/i80.net.xml", help="SUMO network (.net.xml)")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="parallel SUMO processes (default: the number of cores)")
+    p.add_argument("--all-seeds", action="store_true",
+                   help="run every seed file in every table (default: Tables 1 and 3 and "
+                        "Table 2 at 10 followers; slower)")
 
     p = sub.add_parser("train", help="train a CA-RL (or baseline) agent inside SUMO")
     _add_common(p, split_default="train")
@@ -273,7 +276,7 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
     workers = _positive(args.workers, "--workers")
     result = evaluate(args.suite, args.out, args.data, args.quick, args.events, args.policies,
                       args.net, workers, progress=sys.stderr.isatty(),
-                      command="carl-sumo " + " ".join(sys.argv[1:]))
+                      command="carl-sumo " + " ".join(sys.argv[1:]), all_seeds=args.all_seeds)
     for key, rows in result["rows"].items():
         print(f"wrote {args.out / (key + '.md')} and .csv ({len(rows)} rows)")
     print(f"wrote {args.out / 'README.md'}, per_event.csv, timing.csv and "

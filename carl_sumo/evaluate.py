@@ -12,7 +12,9 @@ seed) job on the shipped policies, in parallel worker processes (one libsumo eac
   comparisons of :data:`PAIRED_COMPARISONS`, each model minus its reference on the same events
   with a paired bootstrap interval (:func:`carl_sumo.metrics.paired_difference`) and how many of
   the model's seeds beat the reference on jerk, dampening and speed;
-- ``per_event.csv`` (every job's per-event metrics), ``timing.csv`` (wall and CPU seconds per
+- per table with several seed files of a model, ``<table>_seeds.csv``: every seed's aggregate;
+- ``per_event.csv`` (every job's per-event metrics, with the sample counts that weight the pooled
+  means), ``timing.csv`` (wall and CPU seconds per
   job), the figures of :mod:`carl_sumo.figures` and ``README.md`` (all tables, figure links,
   command, machine, wall time, policy file hashes).
 
@@ -26,6 +28,9 @@ Table 2, a one-cycle stop-and-go leader, and the default set's train split stand
 2. generalization: every model on 10, 20 and 50 followers (MADDPG on its own length only);
 3. the stop-and-go leader, 10 followers;
 4. cross-site: the US-101 sample (no model was trained on it), 10 followers.
+
+Seed files run in Tables 1 and 3 and in Table 2 at 10 followers; ``all_seeds`` (``--all-seeds``)
+runs them in every row.
 """
 
 from __future__ import annotations
@@ -48,8 +53,9 @@ from carl_sumo.data import load_events
 from carl_sumo.data.events import Event
 from carl_sumo.data.synthetic import stop_and_go_event
 from carl_sumo.errors import InputError
-from carl_sumo.metrics import (BETTER, METRIC_KEYS, acceleration_norms, aggregate,
-                               bootstrap_ci, metric_samples, paired_difference, score_event)
+from carl_sumo.metrics import (BETTER, METRIC_KEYS, POOLED_WEIGHTS, acceleration_norms,
+                               aggregate, bootstrap_ci, metric_samples, paired_difference,
+                               score_event)
 from carl_sumo.sumo import REPO_ROOT, check_fits, lane_route, write_text_atomic
 
 DEFAULT_NGSIM = Path("../shared/data/ngsim/ngsim_cf_events.csv.gz")
@@ -222,8 +228,11 @@ def figure_event(events: Sequence[Event]) -> str:
 
 def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = False,
                events: int | None = None, policies: Path | None = None,
-               net: str | Path = "networks/i80.net.xml") -> Suite:
-    """Resolve data, events, policies and tables; InputError on anything missing or wrong."""
+               net: str | Path = "networks/i80.net.xml", all_seeds: bool = False) -> Suite:
+    """Resolve data, events, policies and tables; InputError on anything missing or wrong.
+
+    The seed files run in Table 1 and Table 3, in Table 2 at 10 followers (those are Table 1's
+    runs) and not in the cross-site table; ``all_seeds`` runs them in every row (slower)."""
     if suite not in SUITES:
         raise InputError(f"unknown suite {suite!r}; choose one of {', '.join(SUITES)}")
     if events is not None and events < 1:
@@ -250,11 +259,13 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
         TableSpec("table1_ngsim_test", "Table 1: NGSIM test split, 10 followers", test, (10,),
                   table1_models, figures=True, paired=PAIRED_COMPARISONS),
         TableSpec("table2_generalization", "Table 2: generalization to other platoon lengths",
-                  test, (10, 20) if quick else (10, 20, 50), table2_models, seed_lengths=(10,)),
+                  test, (10, 20) if quick else (10, 20, 50), table2_models,
+                  seed_lengths=None if all_seeds else (10,)),
         TableSpec("table3_stop_and_go", "Table 3: stop-and-go leader, 10 followers", sg, (10,),
                   table1_models[1:], figures=True),
         TableSpec("cross_site_us101", "Cross-site: US-101 (no model was trained on it), "
-                  "10 followers", cross, (10,), table1_models),
+                  "10 followers", cross, (10,), table1_models,
+                  seed_lengths=None if all_seeds else ()),
     ]
     models: dict[str, Model] = {}
     for spec in tables:
@@ -461,6 +472,26 @@ def paired_rows(spec: TableSpec, suite: Suite, results: dict[tuple, JobResult]) 
     return rows
 
 
+def seed_rows(spec: TableSpec, suite: Suite, results: dict[tuple, JobResult]) -> list[dict]:
+    """One row per (model with several seed files, platoon length, seed): that seed's aggregate
+    of every metric (the runs behind the "spread across seeds" rows)."""
+    rows = []
+    for _, model, _, n_run, controllers in _table_cells(spec, suite):
+        if len(controllers) < 2:
+            continue
+        for i, (path, seed) in enumerate(zip(controllers, model.seeds)):
+            agg = aggregate(results[(spec.events.key, path, n_run)].per_event)
+            rows.append({"table": spec.key, "model": model.name, "policy": Path(path).stem,
+                         "seed": seed, "shipped": i == 0, "followers": n_run,
+                         "events": len(results[(spec.events.key, path, n_run)].per_event),
+                         **{m: agg[m] for m in METRIC_KEYS}})
+    return rows
+
+
+SEED_COLUMNS = ["table", "model", "policy", "seed", "shipped", "followers", "events",
+                *METRIC_KEYS]
+
+
 PAIRED_COLUMNS = ["table", "model", "reference", "followers", "events", "seeds"] + [
     f"d_{m}{suffix}" for m in PAIRED_KEYS for suffix in ("", "_lo", "_hi")] + [
     f"{m}_seeds_better" for m in BETTER]
@@ -546,14 +577,19 @@ def csv_text(rows: list[dict], columns: list[str]) -> str:
     return buffer.getvalue()
 
 
+WEIGHT_KEYS = tuple(dict.fromkeys(POOLED_WEIGHTS.values()))  # samples behind pooled means
+
+
 def per_event_rows(suite: Suite, results: dict[tuple, JobResult]) -> list[dict]:
+    """Every job's per-event metrics, with the sample counts that weight the pooled means (so
+    :func:`carl_sumo.metrics.aggregate` of a subset of rows gives that subset's aggregate)."""
     seed_of = {c: (m.key, s) for m in suite.models.values() for c, s in zip(m.files, m.seeds)}
     rows = []
     for (set_key, controller, n), res in results.items():
         model, seed = seed_of.get(controller, (controller, ""))
         for e in res.per_event:
             rows.append({"event_set": set_key, "model": model, "seed": seed, "followers": n,
-                         **{k: e[k] for k in ("event_id", *METRIC_KEYS)}})
+                         **{k: e[k] for k in ("event_id", *METRIC_KEYS, *WEIGHT_KEYS)}})
     return rows
 
 
@@ -618,6 +654,10 @@ def _write_tables(suite: Suite, results: dict[tuple, JobResult],
             md += "\n" + paired_markdown(pairs)
             write_text_atomic(out_dir / f"{spec.key}_paired.csv", csv_text(pairs, PAIRED_COLUMNS))
             links += f", [`{spec.key}_paired.csv`]({spec.key}_paired.csv)"
+        seeds = seed_rows(spec, suite, results)
+        if seeds:
+            write_text_atomic(out_dir / f"{spec.key}_seeds.csv", csv_text(seeds, SEED_COLUMNS))
+            links += f", [`{spec.key}_seeds.csv`]({spec.key}_seeds.csv) (every seed)"
         write_text_atomic(out_dir / f"{spec.key}.md", md)
         write_text_atomic(out_dir / f"{spec.key}.csv", csv_text(rows, CSV_COLUMNS))
         sections.append(md + f"\n{links}\n")
@@ -629,7 +669,7 @@ def _write_tables(suite: Suite, results: dict[tuple, JobResult],
     per_event = per_event_rows(suite, results)
     write_text_atomic(out_dir / "per_event.csv",
                       csv_text(per_event, ["event_set", "model", "seed", "followers", "event_id",
-                                           *METRIC_KEYS]))
+                                           *METRIC_KEYS, *WEIGHT_KEYS]))
     return all_rows, sections
 
 
@@ -677,9 +717,9 @@ def suite_readme(suite: Suite, sections: list[str], figure_files: list[tuple[str
 def evaluate(suite: str = "paper", out: Path = Path("results"), data: str | None = None,
              quick: bool = False, events: int | None = None, policies: Path | None = None,
              net: str | Path = "networks/i80.net.xml", workers: int = 2,
-             progress: bool = False, command: str = "") -> dict:
+             progress: bool = False, command: str = "", all_seeds: bool = False) -> dict:
     """Plan and run a suite (see the module docstring); the table rows and timings."""
-    planned = plan_suite(suite, data, quick, events, policies, net)
+    planned = plan_suite(suite, data, quick, events, policies, net, all_seeds)
     return run_suite(planned, Path(out), workers, net, progress, command)
 
 

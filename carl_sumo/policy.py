@@ -125,6 +125,15 @@ def _held_out(meta: dict[str, Any]) -> str:
     return f"{len(ids)} held-out training events, listed in the metadata's validation_events"
 
 
+def _renamed(meta: dict[str, Any], path: Path) -> str:
+    """A note when the file no longer has the name its training command wrote it under."""
+    words = str(meta.get("command", "")).split()
+    trained_as = Path(words[words.index("--out") + 1]).name if "--out" in words[:-1] else None
+    if trained_as is None or trained_as == Path(path).name:
+        return ""
+    return f" (written as `{trained_as}`, since renamed `{Path(path).name}`)"
+
+
 def policy_card(path: Path) -> str:
     """A Markdown card of a policy file: algorithm, command, seed, wall time, validation metrics."""
     agent, meta = load_policy(path)
@@ -141,7 +150,7 @@ def policy_card(path: Path) -> str:
              f"{meta.get('trained_vehicles', agent.cfg.n_vehicles)} vehicle(s), seed {meta.get('seed')}",
              f"- data: {meta.get('data')} split {meta.get('split')}, {meta.get('steps')} steps, "
              f"wall time {meta.get('wall_time_s', float('nan')):.0f} s to the best checkpoint{total}",
-             f"- command: `{meta.get('command', '')}`",
+             f"- command: `{meta.get('command', '')}`" + _renamed(meta, path),
              f"- reward: {meta.get('reward')}",
              f"- versions: {meta.get('sumo_version')}, carl-sumo {meta.get('carl_sumo_version')}, "
              f"torch {meta.get('torch_version')}",

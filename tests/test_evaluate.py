@@ -125,15 +125,24 @@ def test_quick_suite_spread_across_seeds(quick_suite):
     per_event = pd.read_csv(quick_suite / "per_event.csv")
     td3 = per_event[(per_event["model"] == "td3_1") & (per_event["event_set"] == "ngsim_test")
                     & (per_event["followers"] == 10)]
+    shipped = int(torch.load(POLICIES / "td3_1.pt", weights_only=True)["metadata"]["seed"])
     by_seed = td3.groupby("seed")["jerk_mps3"].mean()
-    assert list(by_seed.index) == [0, 1] and by_seed[0] != by_seed[1]
+    assert sorted(by_seed.index) == sorted({shipped, 1}) and by_seed[shipped] != by_seed[1]
+    seeds = pd.read_csv(quick_suite / "table1_ngsim_test_seeds.csv")
+    assert list(seeds["policy"]) == ["td3_1", "td3_1_seed1"]  # only models with several seeds
+    assert list(seeds["seed"]) == [shipped, 1] and list(seeds["shipped"]) == [True, False]
+    for _, row in seeds.iterrows():  # each seed's aggregate, recomputable from per_event.csv
+        agg = aggregate(td3[td3["seed"] == row["seed"]].to_dict("records"))
+        assert all(abs(agg[m] - row[m]) < 1e-4 for m in ("jerk_mps3", "speed_mps",
+                                                          "dampening_ratio", "headway_s"))
+    assert abs(seeds.loc[0, "jerk_mps3"] - t1.loc["td3_1", "jerk_mps3"]) < 1e-9
     md = (quick_suite / "table1_ngsim_test.md").read_text()
     assert "Spread across seeds" in md and "n=2" in md and "n=1" in md
     t2 = pd.read_csv(quick_suite / "table2_generalization.csv")
     td3_t2 = t2[t2["policy"] == "td3_1"].set_index("followers")["seeds"]
     assert td3_t2[10] == 2 and td3_t2[20] == 1  # Table 2 runs the seed files at 10 only
     longer = per_event[(per_event["model"] == "td3_1") & (per_event["followers"] == 20)]
-    assert set(longer["seed"]) == {0}
+    assert set(longer["seed"]) == {shipped}
 
 
 def test_bootstrap_matches_a_direct_resampling_of_aggregate():
@@ -203,6 +212,23 @@ def test_figure_event_is_the_largest_leader_speed_range():
     short = braking_event(n=200, event_id="short", v0=20.0)  # 19.9 s: too short
     assert figure_event([calm, wild, short]) == "wild"
     assert figure_event([short]) == "short"
+
+
+def test_seed_files_run_in_tables_1_and_3_unless_all_seeds(tmp_path):
+    from carl_sumo.evaluate import _controllers_run, plan_suite
+
+    shutil.copytree(POLICIES, tmp_path / "p", ignore=shutil.ignore_patterns("*.ckpt", "logs"))
+    for all_seeds in (False, True):
+        suite = plan_suite(quick=True, policies=tmp_path / "p", net=NET, all_seeds=all_seeds)
+        model = suite.models["ca_td3_10"]
+        assert len(model.files) > 1
+        runs = {(spec.key, n): len(_controllers_run(spec, model, n))
+                for spec in suite.tables for n in spec.followers}
+        spread = len(model.files)
+        assert runs[("table1_ngsim_test", 10)] == runs[("table3_stop_and_go", 10)] == spread
+        assert runs[("table2_generalization", 10)] == spread
+        assert runs[("table2_generalization", 20)] == (spread if all_seeds else 1)
+        assert runs[("cross_site_us101", 10)] == (spread if all_seeds else 1)
 
 
 def test_seed_files_are_found_and_duplicates_left_out(tmp_path):

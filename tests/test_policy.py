@@ -74,3 +74,13 @@ def test_update_reduces_critic_loss_on_fixed_data():
         agent.update(buf.sample(64, rng))
     last = np.mean([agent.update(buf.sample(64, rng))["critic_loss"] for _ in range(5)])
     assert last < first
+
+
+def test_card_says_when_a_shipped_file_was_renamed(tmp_path):
+    from carl_sumo.policy import policy_card
+
+    meta = {"algo": "td3", "seed": 7, "command": "carl-sumo train --algo td3 --out p/td3_1_seed7.pt"}
+    save_policy(Agent(AgentConfig(algo="td3", n_vehicles=1)), tmp_path / "td3_1.pt", meta)
+    save_policy(Agent(AgentConfig(algo="td3", n_vehicles=1)), tmp_path / "td3_1_seed7.pt", meta)
+    assert "written as `td3_1_seed7.pt`, since renamed `td3_1.pt`" in policy_card(tmp_path / "td3_1.pt")
+    assert "renamed" not in policy_card(tmp_path / "td3_1_seed7.pt")
