@@ -471,6 +471,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("carl-sumo: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader went away (`carl-sumo rank ... | head`): not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     return 0
 
 

@@ -214,6 +214,15 @@ def improvement_z(per_event: Sequence[dict], baseline: Sequence[dict]) -> dict[s
     return out
 
 
+SAFETY_KEYS = ("collisions", "ttc_lt_1_5s_count", "headway_s")
+
+
+def is_unsafe(val: dict[str, float]) -> bool:
+    """Any collision, any TTC < 1.5 s sample, or a mean headway outside [1, 2.5] s."""
+    return bool(val["collisions"] > 0 or val["ttc_lt_1_5s_count"] > 0
+                or not 1.0 <= val["headway_s"] <= 2.5)
+
+
 def selection_score(val: dict[str, float], select: str,
                     baseline: dict[str, float] | None = None) -> float:
     """Higher is better. Every rule but ``reward`` ranks an unsafe checkpoint (any collision, any
@@ -230,9 +239,7 @@ def selection_score(val: dict[str, float], select: str,
     """
     if select == "reward":
         return val["val_reward"] - 10.0 * val["collisions"]
-    unsafe = val["collisions"] > 0 or val["ttc_lt_1_5s_count"] > 0 \
-        or not 1.0 <= val["headway_s"] <= 2.5
-    penalty = 1000.0 if unsafe else 0.0
+    penalty = 1000.0 if is_unsafe(val) else 0.0
     if select == "margin":
         return min(val[name] for name, _ in MARGIN_KEYS.values()) - penalty
     damp, jerk = np.nan_to_num(val["dampening_ratio"]), np.nan_to_num(val["jerk_mps3"])
@@ -269,18 +276,14 @@ def rank_runs(paths: Sequence[Path], select: str = "margin") -> list[dict[str, A
         needed = {"margin": [name for name, _ in MARGIN_KEYS.values()],
                   "metrics": ["jerk_mps3", "dampening_ratio", "speed_mps"],
                   "reward": ["val_reward"]}[select]
-        safety = ["collisions"] if select == "reward" else \
-            ["collisions", "ttc_lt_1_5s_count", "headway_s"]
-        missing = [k for k in (*needed, *safety) if k not in val]
+        missing = [k for k in (*needed, *SAFETY_KEYS) if k not in val]
         if missing:
             raise InputError(f"{path} has no validation {', '.join(missing)} in its metadata "
                              f"(trained by an older carl-sumo?); rank with another --select or "
                              "retrain it")
-        unsafe = val["collisions"] > 0 or (select != "reward" and (
-            val["ttc_lt_1_5s_count"] > 0 or not 1.0 <= val["headway_s"] <= 2.5))
         rows.append({"path": str(path), "seed": meta.get("seed"),
                      "score": float(selection_score(val, select, baseline)),
-                     "unsafe": bool(unsafe), **{k: float(val[k]) for k in needed}})
+                     "unsafe": is_unsafe(val), **{k: float(val[k]) for k in needed}})
     return sorted(rows, key=lambda r: (-r["score"], r["seed"] is None, r["seed"] or 0))
 
 
