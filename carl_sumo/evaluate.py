@@ -480,11 +480,10 @@ def seed_rows(spec: TableSpec, suite: Suite, results: dict[tuple, JobResult]) ->
         if len(controllers) < 2:
             continue
         for i, (path, seed) in enumerate(zip(controllers, model.seeds)):
-            agg = aggregate(results[(spec.events.key, path, n_run)].per_event)
+            per_event = results[(spec.events.key, path, n_run)].per_event
             rows.append({"table": spec.key, "model": model.name, "policy": Path(path).stem,
                          "seed": seed, "shipped": i == 0, "followers": n_run,
-                         "events": len(results[(spec.events.key, path, n_run)].per_event),
-                         **{m: agg[m] for m in METRIC_KEYS}})
+                         "events": len(per_event), **aggregate(per_event)})
     return rows
 
 

@@ -128,6 +128,14 @@ def aggregate(per_event: list[dict[str, float]]) -> dict[str, float]:
     return {key: out[key] for key in METRIC_KEYS}
 
 
+def event_weights(per_event: list[dict[str, float]], key: str) -> np.ndarray:
+    """How much each event counts in the aggregate of a mean metric: its sample count for a
+    pooled mean (headway, jerk, speed), 1 for an event-mean ratio."""
+    if key in POOLED_WEIGHTS:
+        return np.array([e[POOLED_WEIGHTS[key]] for e in per_event], float)
+    return np.ones(len(per_event))
+
+
 def _resample_counts(n: int, n_boot: int, seed: int) -> np.ndarray:
     """How often each of n events is drawn in each of n_boot resamples, shape (n_boot, n)."""
     rng = np.random.default_rng(seed)
@@ -136,14 +144,10 @@ def _resample_counts(n: int, n_boot: int, seed: int) -> np.ndarray:
 
 def _resampled(per_event: list[dict[str, float]], key: str, counts: np.ndarray) -> np.ndarray:
     """``key`` aggregated as :func:`aggregate` does, once per resample (row of ``counts``)."""
-    n = len(per_event)
     values = np.array([e[key] for e in per_event], float)
-    if key in POOLED_WEIGHTS:
-        weights = np.array([e[POOLED_WEIGHTS[key]] for e in per_event], float)
-    elif key in RATIO_KEYS:
-        weights = np.ones(n)
-    else:
+    if key in COUNT_KEYS:
         return counts @ values
+    weights = event_weights(per_event, key)
     ok = np.isfinite(values) & (weights > 0)
     w = np.where(ok, weights, 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -26,7 +26,7 @@ from carl_sumo.config import REWARD, RewardConfig
 from carl_sumo.data.events import Event
 from carl_sumo.env import PlatoonEnv
 from carl_sumo.errors import InputError
-from carl_sumo.metrics import (BETTER, POOLED_WEIGHTS, PlatoonTrajectory, aggregate,
+from carl_sumo.metrics import (BETTER, PlatoonTrajectory, aggregate, event_weights,
                                score_event)
 from carl_sumo.policy import load_torch, read_policy_payload, save_policy, save_torch_atomic
 from carl_sumo.sumo import DEFAULT_NET, check_fits, write_text_atomic
@@ -198,8 +198,7 @@ def improvement_z(per_event: Sequence[dict], baseline: Sequence[dict]) -> dict[s
     for key, (name, sign) in MARGIN_KEYS.items():
         x = np.array([e[key] for e in per_event], float)
         y = np.array([e[key] for e in baseline], float)
-        w = np.array([e[POOLED_WEIGHTS[key]] for e in per_event], float) \
-            if key in POOLED_WEIGHTS else np.ones(len(x))
+        w = event_weights(per_event, key)
         ok = np.isfinite(x) & np.isfinite(y) & (w > 0)
         if not ok.any():
             out[name] = 0.0
