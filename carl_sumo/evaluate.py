@@ -11,7 +11,9 @@ seed) job on the shipped policies, in parallel worker processes (one libsumo eac
 - for Table 1, ``table1_ngsim_test_paired.csv`` (and a section of its Markdown): the paired
   comparisons of :data:`PAIRED_COMPARISONS`, each model minus its reference on the same events
   with a paired bootstrap interval (:func:`carl_sumo.metrics.paired_difference`) and how many of
-  the model's seeds beat the reference on jerk, dampening and speed;
+  the model's seeds beat the reference on jerk, dampening and speed; where both have several seeds,
+  the comparison across seeds too (:func:`carl_sumo.metrics.seed_comparison`: difference of the
+  seed means, Welch's t, permutation p, and how many equally seeded pairs the model wins);
 - per table with several seed files of a model, ``<table>_seeds.csv``: every seed's aggregate;
 - ``per_event.csv`` (every job's per-event metrics, with the sample counts that weight the pooled
   means), ``timing.csv`` (wall and CPU seconds per
@@ -55,7 +57,7 @@ from carl_sumo.data.synthetic import stop_and_go_event
 from carl_sumo.errors import InputError
 from carl_sumo.metrics import (BETTER, METRIC_KEYS, POOLED_WEIGHTS, acceleration_norms,
                                aggregate, bootstrap_ci, metric_samples, paired_difference,
-                               score_event)
+                               score_event, seed_comparison)
 from carl_sumo.sumo import REPO_ROOT, check_fits, lane_route, write_text_atomic
 
 DEFAULT_NGSIM = Path("../shared/data/ngsim/ngsim_cf_events.csv.gz")
@@ -457,17 +459,28 @@ def paired_rows(spec: TableSpec, suite: Suite, results: dict[tuple, JobResult]) 
                 continue
             runs = [results[(spec.events.key, c, n)].per_event
                     for c in _controllers_run(spec, model, n)]
-            base = results[(spec.events.key, reference.controllers[0], n)].per_event
+            ref_runs = [results[(spec.events.key, c, n)].per_event
+                        for c in _controllers_run(spec, reference, n)]
+            base = ref_runs[0]
             diff = paired_difference(runs[0], base, PAIRED_KEYS, n_boot=N_BOOT)
             base_agg, seed_aggs = aggregate(base), [aggregate(r) for r in runs]
+            ref_aggs = [aggregate(r) for r in ref_runs]
             row: dict[str, Any] = {"table": spec.key, "model": model.name, "reference":
                                    reference.name, "followers": n, "events": len(base),
-                                   "seeds": len(runs)}
+                                   "seeds": len(runs), "reference_seeds": len(ref_runs)}
+            ref_by_seed = dict(zip(reference.seeds, ref_aggs))
+            matched = [(agg, ref_by_seed[s]) for s, agg in zip(model.seeds, seed_aggs)
+                       if s in ref_by_seed]
+            row["matched_seeds"] = len(matched)
             for m in PAIRED_KEYS:
                 row[f"d_{m}"], row[f"d_{m}_lo"], row[f"d_{m}_hi"] = diff[m]
                 if m in BETTER:
                     row[f"{m}_seeds_better"] = sum(
                         BETTER[m] * (agg[m] - base_agg[m]) > 0 for agg in seed_aggs)
+                    row[f"seed_d_{m}"], row[f"seed_t_{m}"], row[f"seed_p_{m}"] = \
+                        seed_comparison([a[m] for a in seed_aggs], [a[m] for a in ref_aggs])
+                    row[f"{m}_matched_better"] = sum(
+                        BETTER[m] * (a[m] - r[m]) > 0 for a, r in matched)
             rows.append(row)
     return rows
 
@@ -491,9 +504,12 @@ SEED_COLUMNS = ["table", "model", "policy", "seed", "shipped", "followers", "eve
                 *METRIC_KEYS]
 
 
-PAIRED_COLUMNS = ["table", "model", "reference", "followers", "events", "seeds"] + [
+PAIRED_COLUMNS = ["table", "model", "reference", "followers", "events", "seeds",
+                  "reference_seeds", "matched_seeds"] + [
     f"d_{m}{suffix}" for m in PAIRED_KEYS for suffix in ("", "_lo", "_hi")] + [
-    f"{m}_seeds_better" for m in BETTER]
+    f"{m}_seeds_better" for m in BETTER] + [
+    f"seed_{s}_{m}" for m in BETTER for s in ("d", "t", "p")] + [
+    f"{m}_matched_better" for m in BETTER]
 
 
 def paired_markdown(rows: list[dict]) -> str:
@@ -511,6 +527,22 @@ def paired_markdown(rows: list[dict]) -> str:
                             ("jerk_mps3", "dampening_ratio", "speed_mps"))
         lines.append(f"| {r['model']} | {r['reference']} | " + " | ".join(cells)
                      + f" | {better} of {r['seeds']} |")
+    across = [r for r in rows if r["seeds"] > 1 and r["reference_seeds"] > 1]
+    if across:
+        order = ("jerk_mps3", "dampening_ratio", "speed_mps")
+        lines += ["", "Across seeds (every seed file of both models on the same events: difference "
+                  "of the seed means, Welch's t, two-sided permutation p over the seed labels; "
+                  "matched: seeds trained with the same seed number where the model is better):",
+                  "", "| model | reference | seeds | " + " | ".join(
+                      f"{METRIC_LABELS[m]}: Δ mean, t, p" for m in order) + " | matched better |",
+                  "|" + "---|" * (4 + len(order))]
+        for r in across:
+            cells = [f"{r[f'seed_d_{m}']:+.3f}, {r[f'seed_t_{m}']:+.1f}, {r[f'seed_p_{m}']:.3f}"
+                     for m in order]
+            matched = " / ".join(str(r[f"{m}_matched_better"]) for m in order)
+            lines.append(f"| {r['model']} | {r['reference']} | {r['seeds']} vs "
+                         f"{r['reference_seeds']} | " + " | ".join(cells)
+                         + f" | {matched} of {r['matched_seeds']} |")
     return "\n".join(lines) + "\n"
 
 

@@ -202,3 +202,28 @@ def paired_difference(a: list[dict[str, float]], b: list[dict[str, float]],
         out[key] = (diff, *_interval(_resampled(a, key, counts) - _resampled(b, key, counts),
                                      level))
     return out
+
+
+def seed_comparison(a: np.ndarray, b: np.ndarray, n_perm: int = 10000, seed: int = 0
+                    ) -> tuple[float, float, float]:
+    """Compare two models by their per-seed values of one metric (one value per training seed).
+
+    Returns (mean(a) - mean(b), Welch's t, two-sided permutation p-value of the difference of
+    means: the seed labels are shuffled ``n_perm`` times, p = (1 + #{|Δ*| ≥ |Δ|}) / (1 + n_perm)).
+    This is the across-seeds question (is one algorithm better than the other, whichever seed is
+    drawn?), which the paired bootstrap over events of two single files cannot answer. NaNs with
+    fewer than 2 values on either side.
+    """
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    if len(a) < 2 or len(b) < 2:
+        return float("nan"), float("nan"), float("nan")
+    diff = float(a.mean() - b.mean())
+    se = float(np.sqrt(a.var(ddof=1) / len(a) + b.var(ddof=1) / len(b)))
+    t = diff / se if se > 0 else float("nan")
+    pooled = np.concatenate([a, b])
+    rng = np.random.default_rng(seed)
+    perms = np.argsort(rng.random((n_perm, len(pooled))), axis=1)
+    shuffled = pooled[perms]
+    diffs = shuffled[:, :len(a)].mean(axis=1) - shuffled[:, len(a):].mean(axis=1)
+    p = (1 + int(np.sum(np.abs(diffs) >= abs(diff) - 1e-12))) / (1 + n_perm)
+    return diff, float(t), float(p)

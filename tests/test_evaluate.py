@@ -40,13 +40,15 @@ def extra_seed(src: Path, dst: Path, seed: int) -> None:
 
 @pytest.fixture(scope="module")
 def quick_suite(tmp_path_factory) -> Path:
-    """The --quick suite, run once: policies copied, TD3 with a second seed (and a duplicate)."""
+    """The --quick suite, run once: policies copied, TD3 and CA-TD3 with a second seed (and a
+    duplicate of TD3's shipped one)."""
     root = tmp_path_factory.mktemp("suite")
     policies = root / "policies"
     policies.mkdir()
     for stem in SHIPPED:
         shutil.copy(POLICIES / f"{stem}.pt", policies / f"{stem}.pt")
     extra_seed(POLICIES / "td3_1.pt", policies / "td3_1_seed1.pt", 1)
+    extra_seed(POLICIES / "ca_td3_10.pt", policies / "ca_td3_10_seed1.pt", 1)
     shutil.copy(POLICIES / "td3_1.pt", policies / "td3_1_seed7.pt")  # the shipped seed again: left out
     out = root / "results"
     code = main(["evaluate", "--suite", "paper", "--quick", "--out", str(out), "--policies",
@@ -94,6 +96,26 @@ def test_quick_suite_paired_comparisons(quick_suite):
             assert 0 <= row[f"{m}_seeds_better"] <= row["seeds"]
 
 
+def test_quick_suite_compares_models_across_seeds(quick_suite):
+    paired = pd.read_csv(quick_suite / "table1_ngsim_test_paired.csv")
+    seeds = pd.read_csv(quick_suite / "table1_ngsim_test_seeds.csv")
+    row = paired[(paired["model"] == "CA-TD3") & (paired["reference"] == "TD3")].iloc[0]
+    assert row["seeds"] == 2 and row["reference_seeds"] == 2
+    ca_seed, td3_seed = (int(torch.load(POLICIES / f"{s}.pt", weights_only=True)["metadata"]
+                             ["seed"]) for s in ("ca_td3_10", "td3_1"))
+    assert row["matched_seeds"] == len({1, ca_seed} & {1, td3_seed})  # seeds trained alike
+    for m in ("jerk_mps3", "dampening_ratio", "speed_mps"):
+        ca = seeds.loc[seeds["model"] == "CA-TD3", m].to_numpy()
+        td3 = seeds.loc[seeds["model"] == "TD3", m].to_numpy()
+        assert abs(row[f"seed_d_{m}"] - (ca.mean() - td3.mean())) < 1e-4  # CSV rounding
+        assert np.isfinite(row[f"seed_t_{m}"]) and 0 < row[f"seed_p_{m}"] <= 1
+        assert 0 <= row[f"{m}_matched_better"] <= row["matched_seeds"]
+    ca_ddpg = paired[(paired["model"] == "CA-DDPG") & (paired["reference"] == "DDPG")].iloc[0]
+    assert np.isnan(ca_ddpg["seed_t_dampening_ratio"])  # one seed each: no comparison
+    readme = (quick_suite / "README.md").read_text()
+    assert "Across seeds" in readme and "| CA-TD3 | TD3 | 2 vs 2 |" in readme
+
+
 def test_quick_suite_csv_rows_columns_and_intervals(quick_suite):
     for stem, (n_rows, lengths) in TABLES.items():
         table = pd.read_csv(quick_suite / f"{stem}.csv")
@@ -119,17 +141,19 @@ def test_quick_suite_csv_rows_columns_and_intervals(quick_suite):
 
 def test_quick_suite_spread_across_seeds(quick_suite):
     t1 = pd.read_csv(quick_suite / "table1_ngsim_test.csv").set_index("policy")
-    assert t1.loc["td3_1", "seeds"] == 2 and t1.loc["ca_td3_10", "seeds"] == 1
+    assert t1.loc["td3_1", "seeds"] == 2 and t1.loc["ca_ddpg_10", "seeds"] == 1
     assert np.isfinite(t1.loc["td3_1", "jerk_mps3_seed_std"])
-    assert np.isnan(t1.loc["ca_td3_10", "jerk_mps3_seed_std"])
+    assert np.isnan(t1.loc["ca_ddpg_10", "jerk_mps3_seed_std"])
     per_event = pd.read_csv(quick_suite / "per_event.csv")
     td3 = per_event[(per_event["model"] == "td3_1") & (per_event["event_set"] == "ngsim_test")
                     & (per_event["followers"] == 10)]
     shipped = int(torch.load(POLICIES / "td3_1.pt", weights_only=True)["metadata"]["seed"])
     by_seed = td3.groupby("seed")["jerk_mps3"].mean()
     assert sorted(by_seed.index) == sorted({shipped, 1}) and by_seed[shipped] != by_seed[1]
-    seeds = pd.read_csv(quick_suite / "table1_ngsim_test_seeds.csv")
-    assert list(seeds["policy"]) == ["td3_1", "td3_1_seed1"]  # only models with several seeds
+    all_seeds = pd.read_csv(quick_suite / "table1_ngsim_test_seeds.csv")
+    assert set(all_seeds["model"]) == {"TD3", "CA-TD3"}  # only models with several seeds
+    seeds = all_seeds[all_seeds["model"] == "TD3"].reset_index(drop=True)
+    assert list(seeds["policy"]) == ["td3_1", "td3_1_seed1"]
     assert list(seeds["seed"]) == [shipped, 1] and list(seeds["shipped"]) == [True, False]
     for _, row in seeds.iterrows():  # each seed's aggregate, recomputable from per_event.csv
         agg = aggregate(td3[td3["seed"] == row["seed"]].to_dict("records"))

@@ -45,3 +45,18 @@ def test_aggregate_pools_means_and_sums_counts():
     assert math.isclose(out["headway_s"], 1.75) and math.isclose(out["speed_mps"], 17.5)
     assert out["ttc_lt_4s_count"] == 4 and out["collisions"] == 1
     assert math.isclose(out["dampening_ratio"], 0.75)
+
+
+def test_seed_comparison_welch_t_and_permutation_p():
+    from carl_sumo.metrics import seed_comparison
+
+    a, b = np.array([0.64, 0.66, 0.65, 0.67, 0.63]), np.array([0.70, 0.69, 0.72, 0.68, 0.71])
+    diff, t, p = seed_comparison(a, b, n_perm=4000)
+    se = math.sqrt(a.var(ddof=1) / 5 + b.var(ddof=1) / 5)
+    assert abs(diff - (a.mean() - b.mean())) < 1e-12 and abs(t - diff / se) < 1e-9
+    # fully separated groups of 5: the exact two-sided p is 2 / C(10, 5) = 0.0079
+    assert p < 0.02
+    same = seed_comparison(a, a[::-1], n_perm=4000)  # the same values: no difference at all
+    assert same[2] == 1.0 and abs(same[1]) < 1e-9
+    assert all(math.isnan(x) for x in seed_comparison(a[:1], b))
+    assert seed_comparison(a, b, n_perm=4000) == (diff, t, p)  # seeded: repeatable
