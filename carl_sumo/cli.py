@@ -71,8 +71,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="parallel SUMO processes (default: the number of cores)")
     p.add_argument("--all-seeds", action="store_true",
-                   help="run every seed file in every table (default: Tables 1 and 3 and "
-                        "Table 2 at 10 followers; slower)")
+                   help="run every model's seed files in every table (slower)")
+    p.add_argument("--seeds", action="store_true",
+                   help="run the seed files of CA-TD3, CA-DDPG, TD3 and DDPG too, in Table 1 "
+                        "(and its 10-follower rows of Table 2), and compare them across seeds "
+                        "(default: the shipped policy files only)")
 
     p = sub.add_parser("train", help="train a CA-RL (or baseline) agent inside SUMO")
     _add_common(p, split_default="train")
@@ -276,7 +279,8 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
     workers = _positive(args.workers, "--workers")
     result = evaluate(args.suite, args.out, args.data, args.quick, args.events, args.policies,
                       args.net, workers, progress=sys.stderr.isatty(),
-                      command="carl-sumo " + " ".join(sys.argv[1:]), all_seeds=args.all_seeds)
+                      command="carl-sumo " + " ".join(sys.argv[1:]), all_seeds=args.all_seeds,
+                      seeds=args.seeds)
     for key, rows in result["rows"].items():
         print(f"wrote {args.out / (key + '.md')} and .csv ({len(rows)} rows)")
     print(f"wrote {args.out / 'README.md'}, per_event.csv, timing.csv and "

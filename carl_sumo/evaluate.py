@@ -31,8 +31,9 @@ Table 2, a one-cycle stop-and-go leader, and the default set's train split stand
 3. the stop-and-go leader, 10 followers;
 4. cross-site: the US-101 sample (no model was trained on it), 10 followers.
 
-Seed files run in Tables 1 and 3 and in Table 2 at 10 followers; ``all_seeds`` (``--all-seeds``)
-runs them in every row.
+By default only the shipped policy files run. ``seeds`` (``--seeds``) adds the seed files of
+CA-TD3, CA-DDPG, TD3 and DDPG (:data:`SEED_MODELS`) in Table 1 and in Table 2 at 10 followers;
+``all_seeds`` (``--all-seeds``) runs every model's seed files in every row.
 """
 
 from __future__ import annotations
@@ -121,6 +122,7 @@ class TableSpec:
     figures: bool = False          # collect samples and trajectories for the figures
     seed_lengths: tuple[int, ...] | None = None  # lengths whose rows run the seed files too
     # (None: every length; the others run the shipped file only)
+    seed_models: tuple[str, ...] | None = None  # models whose seed files run (None: every model)
     paired: tuple[tuple[str, str], ...] = ()  # (model, reference) pairs compared event by event
 
 
@@ -153,6 +155,9 @@ PAIRED_COMPARISONS = (("ca_td3_10", "idm"), ("ca_ddpg_10", "idm"), ("ca_td3_10",
                       ("maddpg_10", "idm"))
 """Table 1's paired comparisons: the quality bar's (CA models against IDM and against their
 plain variants), and the other learned models against IDM."""
+SEED_MODELS = ("ca_td3_10", "ca_ddpg_10", "td3_1", "ddpg_1")
+"""Models whose seed files ``--seeds`` runs: the ones Table 1 compares across seeds (each CA
+model with its plain variant). ``--all-seeds`` runs every model's seed files in every row."""
 PAIRED_KEYS = ("headway_s", "jerk_mps3", "speed_mps", "dampening_ratio")
 
 
@@ -230,11 +235,16 @@ def figure_event(events: Sequence[Event]) -> str:
 
 def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = False,
                events: int | None = None, policies: Path | None = None,
-               net: str | Path = "networks/i80.net.xml", all_seeds: bool = False) -> Suite:
+               net: str | Path = "networks/i80.net.xml", all_seeds: bool = False,
+               seeds: bool = False) -> Suite:
     """Resolve data, events, policies and tables; InputError on anything missing or wrong.
 
-    The seed files run in Table 1 and Table 3, in Table 2 at 10 followers (those are Table 1's
-    runs) and not in the cross-site table; ``all_seeds`` runs them in every row (slower)."""
+    ``seeds``: the seed files of :data:`SEED_MODELS` run in Table 1 and in Table 2 at 10 followers
+    (those are Table 1's runs), not in Table 3 or the cross-site table; ``all_seeds`` runs every model's
+    seed files in every row (slower); with neither, no seed file runs (the shipped policies
+    alone)."""
+    if all_seeds and seeds:
+        raise InputError("--all-seeds and --seeds exclude each other; give one")
     if suite not in SUITES:
         raise InputError(f"unknown suite {suite!r}; choose one of {', '.join(SUITES)}")
     if events is not None and events < 1:
@@ -255,16 +265,18 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
                                                            "three brakings") + " at -5 m/s² to 1 m/s")
     table1_models = ("human", "idm", "krauss", "maddpg_10", "ddpg_1", "ca_ddpg_10", "td3_1",
                      "ca_td3_10")
+    seed_models = None if all_seeds else SEED_MODELS if seeds else ()
     table2_models = ("idm", "krauss", "maddpg_10", "maddpg_20", "ddpg_1", "td3_1", "ca_ddpg_10",
                      "ca_td3_10", "ca_ddpg_20", "ca_td3_20")
     tables = [
         TableSpec("table1_ngsim_test", "Table 1: NGSIM test split, 10 followers", test, (10,),
-                  table1_models, figures=True, paired=PAIRED_COMPARISONS),
+                  table1_models, figures=True, paired=PAIRED_COMPARISONS,
+                  seed_models=seed_models),
         TableSpec("table2_generalization", "Table 2: generalization to other platoon lengths",
                   test, (10, 20) if quick else (10, 20, 50), table2_models,
-                  seed_lengths=None if all_seeds else (10,)),
+                  seed_lengths=None if all_seeds else (10,), seed_models=seed_models),
         TableSpec("table3_stop_and_go", "Table 3: stop-and-go leader, 10 followers", sg, (10,),
-                  table1_models[1:], figures=True),
+                  table1_models[1:], figures=True, seed_lengths=None if all_seeds else ()),
         TableSpec("cross_site_us101", "Cross-site: US-101 (no model was trained on it), "
                   "10 followers", cross, (10,), table1_models,
                   seed_lengths=None if all_seeds else ()),
@@ -350,7 +362,8 @@ def _table_cells(spec: TableSpec, suite: Suite):
 def _controllers_run(spec: TableSpec, model: Model, n: int) -> tuple[str, ...]:
     """A model's controllers in a table at length n: all its seed files where
     ``spec.seed_lengths`` allows, the shipped one elsewhere."""
-    spread = spec.seed_lengths is None or n in spec.seed_lengths
+    spread = (spec.seed_lengths is None or n in spec.seed_lengths) and (
+        spec.seed_models is None or model.key in spec.seed_models)
     return model.controllers if spread else model.controllers[:1]
 
 
@@ -748,9 +761,10 @@ def suite_readme(suite: Suite, sections: list[str], figure_files: list[tuple[str
 def evaluate(suite: str = "paper", out: Path = Path("results"), data: str | None = None,
              quick: bool = False, events: int | None = None, policies: Path | None = None,
              net: str | Path = "networks/i80.net.xml", workers: int = 2,
-             progress: bool = False, command: str = "", all_seeds: bool = False) -> dict:
+             progress: bool = False, command: str = "", all_seeds: bool = False,
+             seeds: bool = False) -> dict:
     """Plan and run a suite (see the module docstring); the table rows and timings."""
-    planned = plan_suite(suite, data, quick, events, policies, net, all_seeds)
+    planned = plan_suite(suite, data, quick, events, policies, net, all_seeds, seeds)
     return run_suite(planned, Path(out), workers, net, progress, command)
 
 

@@ -13,6 +13,7 @@ import torch
 
 from carl_sumo.cli import main
 from carl_sumo.evaluate import CSV_COLUMNS, discover_model, figure_event
+from carl_sumo.errors import InputError
 from carl_sumo.metrics import METRIC_KEYS, aggregate, bootstrap_ci, paired_difference
 
 from conftest import NET, REPO_ROOT, braking_event
@@ -51,8 +52,8 @@ def quick_suite(tmp_path_factory) -> Path:
     extra_seed(POLICIES / "ca_td3_10.pt", policies / "ca_td3_10_seed1.pt", 1)
     shutil.copy(POLICIES / "td3_1.pt", policies / "td3_1_seed7.pt")  # the shipped seed again: left out
     out = root / "results"
-    code = main(["evaluate", "--suite", "paper", "--quick", "--out", str(out), "--policies",
-                 str(policies), "--net", str(NET), "--workers", "2"])
+    code = main(["evaluate", "--suite", "paper", "--quick", "--seeds", "--out", str(out),
+                 "--policies", str(policies), "--net", str(NET), "--workers", "2"])
     assert code == 0
     return out
 
@@ -238,21 +239,27 @@ def test_figure_event_is_the_largest_leader_speed_range():
     assert figure_event([short]) == "short"
 
 
-def test_seed_files_run_in_tables_1_and_3_unless_all_seeds(tmp_path):
+def test_seed_files_run_with_seeds_or_all_seeds_only(tmp_path):
     from carl_sumo.evaluate import _controllers_run, plan_suite
 
     shutil.copytree(POLICIES, tmp_path / "p", ignore=shutil.ignore_patterns("*.ckpt", "logs"))
-    for all_seeds in (False, True):
-        suite = plan_suite(quick=True, policies=tmp_path / "p", net=NET, all_seeds=all_seeds)
-        model = suite.models["ca_td3_10"]
-        assert len(model.files) > 1
-        runs = {(spec.key, n): len(_controllers_run(spec, model, n))
-                for spec in suite.tables for n in spec.followers}
-        spread = len(model.files)
-        assert runs[("table1_ngsim_test", 10)] == runs[("table3_stop_and_go", 10)] == spread
-        assert runs[("table2_generalization", 10)] == spread
-        assert runs[("table2_generalization", 20)] == (spread if all_seeds else 1)
-        assert runs[("cross_site_us101", 10)] == (spread if all_seeds else 1)
+    for mode in ("shipped", "seeds", "all"):
+        suite = plan_suite(quick=True, policies=tmp_path / "p", net=NET,
+                           seeds=mode == "seeds", all_seeds=mode == "all")
+        for key in ("ca_td3_10", "maddpg_10"):
+            model = suite.models[key]
+            assert len(model.files) > 1
+            runs = {(spec.key, n): len(_controllers_run(spec, model, n))
+                    for spec in suite.tables for n in spec.followers if model.runs_on(n)}
+            every = len(model.files) if mode == "all" else 1
+            compared = key == "ca_td3_10" and mode == "seeds"  # Table 1 compares it across seeds
+            assert runs[("table1_ngsim_test", 10)] == runs[("table2_generalization", 10)] == (
+                len(model.files) if compared else every)
+            assert runs[("table3_stop_and_go", 10)] == runs[("cross_site_us101", 10)] == every
+            if key == "ca_td3_10":
+                assert runs[("table2_generalization", 20)] == every
+    with pytest.raises(InputError, match="exclude each other"):
+        plan_suite(quick=True, policies=tmp_path / "p", net=NET, seeds=True, all_seeds=True)
 
 
 def test_seed_files_are_found_and_duplicates_left_out(tmp_path):
