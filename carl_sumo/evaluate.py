@@ -155,9 +155,10 @@ PAIRED_COMPARISONS = (("ca_td3_10", "idm"), ("ca_ddpg_10", "idm"), ("ca_td3_10",
                       ("maddpg_10", "idm"))
 """Table 1's paired comparisons: the quality bar's (CA models against IDM and against their
 plain variants), and the other learned models against IDM."""
-SEED_MODELS = ("ca_td3_10", "ca_ddpg_10", "td3_1", "ddpg_1")
-"""Models whose seed files ``--seeds`` runs: the ones Table 1 compares across seeds (each CA
-model with its plain variant). ``--all-seeds`` runs every model's seed files in every row."""
+SEED_MODELS = tuple(dict.fromkeys(key for pair in PAIRED_COMPARISONS
+                                  if pair[1] not in BUILTIN_MODELS for key in pair))
+"""Models whose seed files ``--seeds`` runs: the policy pairs of :data:`PAIRED_COMPARISONS`,
+which Table 1 compares across seeds (each CA model with its plain variant). ``--all-seeds`` runs every model's seed files in every row."""
 PAIRED_KEYS = ("headway_s", "jerk_mps3", "speed_mps", "dampening_ratio")
 
 
