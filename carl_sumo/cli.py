@@ -41,7 +41,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("simulate", help="run controllers on the events of a split; print metrics")
     _add_common(p)
     p.add_argument("--controller", default="idm",
-                   help="idm | krauss | idm-external | human | POLICY.pt; several with commas")
+                   help="idm | krauss | sumo-cacc | idm-external | ploeg[:h=H:kp=KP:kd=KD] | "
+                        "ploeg-tuned:h=H | human | POLICY.pt; several with commas")
     p.add_argument("--events", type=int, default=None, metavar="K", help="only the first K events")
     p.add_argument("--json", type=Path, default=None, metavar="OUT", help="write metrics as JSON")
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),

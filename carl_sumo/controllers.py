@@ -80,6 +80,27 @@ class Controller(Protocol):
         """a_adj (m/s², shape (n,)) from the observations (shape (n, 4), head first)."""
 
 
+class AccelerationController(Protocol):
+    """A controller that sets the whole acceleration (a classical CACC), not an IDM adjustment."""
+
+    name: str
+
+    def reset(self, n_followers: int) -> None:
+        """Called at the start of each episode with the platoon length."""
+
+    def acceleration(self, obs: np.ndarray) -> np.ndarray:
+        """a (m/s², shape (n,), within the bounds) from the observations (shape (n, 4))."""
+
+
+def applied_acceleration(controller: Controller | AccelerationController,
+                         obs: np.ndarray) -> np.ndarray:
+    """The acceleration (m/s², shape (n,)) a controller makes the followers apply this step:
+    its own for an :class:`AccelerationController`, a_IDM + a_adj for a :class:`Controller`."""
+    if hasattr(controller, "acceleration"):
+        return controller.acceleration(obs)
+    return total_acceleration(obs, controller.adjustment(obs))
+
+
 class ZeroAdjustment:
     """Plain IDM: no adjustment (the ``idm-external`` controller)."""
 

@@ -4,6 +4,9 @@ Controllers by name:
 
 - ``idm`` / ``krauss``: SUMO's native car-following models drive the followers;
 - ``idm-external``: IDM computed in Python and applied through libsumo (a_adj = 0);
+- ``sumo-cacc``: SUMO's native CACC model (Milanés & Shladover) drives the followers;
+- ``ploeg``, ``ploeg:h=0.8:kp=0.1:kd=1.5``, ``ploeg-tuned:h=0.8``: the classical CACC of
+  :mod:`carl_sumo.cacc`, applied through libsumo;
 - ``human``: the recorded NGSIM follower of each event (one follower), scored the same way;
 - a path to a policy file (``.pt``): a learned a_adj on top of IDM (:mod:`carl_sumo.policy`).
 """
@@ -16,22 +19,27 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
-from carl_sumo.controllers import Controller, ZeroAdjustment, total_acceleration
+from carl_sumo.cacc import is_ploeg_name, ploeg_controller
+from carl_sumo.controllers import AccelerationController, Controller, ZeroAdjustment, \
+    applied_acceleration
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
 from carl_sumo.metrics import PlatoonTrajectory, aggregate, score_event
 from carl_sumo.sumo import DEFAULT_NET, PlatoonSim, atomic_output, close_sumo, use_gui
 
-NATIVE_CONTROLLERS = {"idm": "idm", "krauss": "krauss"}
-BUILTIN_CONTROLLERS = ("idm", "krauss", "idm-external", "human")
+NATIVE_CONTROLLERS = {"idm": "idm", "krauss": "krauss", "sumo-cacc": "sumo-cacc"}
+BUILTIN_CONTROLLERS = ("idm", "krauss", "sumo-cacc", "idm-external", "ploeg[:h=H:kp=KP:kd=KD]",
+                       "ploeg-tuned:h=H", "human")
 
 
-def resolve_controller(name: str) -> tuple[str, Controller | None]:
+def resolve_controller(name: str) -> tuple[str, Controller | AccelerationController | None]:
     """(follower model, controller) of a controller name or policy path; InputError if unknown."""
     if name in NATIVE_CONTROLLERS:
         return NATIVE_CONTROLLERS[name], None
     if name == "idm-external":
         return "external", ZeroAdjustment()
+    if is_ploeg_name(name):
+        return "external", ploeg_controller(name)
     if name == "human":
         return "human", None
     if name.endswith(".pt") or Path(name).suffix == ".pt":
@@ -52,7 +60,8 @@ def human_trajectory(event: Event) -> PlatoonTrajectory:
                              collisions=int(np.any(event.gap_m <= 0)), dt=event.dt)
 
 
-def run_event(sim: PlatoonSim, event: Event, n_followers: int, controller: Controller | None,
+def run_event(sim: PlatoonSim, event: Event, n_followers: int,
+              controller: Controller | AccelerationController | None,
               fcd_path: Path | None = None) -> PlatoonTrajectory:
     """Run one event in SUMO to its end or to the first collision; the trajectory."""
     if controller is not None:
@@ -63,7 +72,7 @@ def run_event(sim: PlatoonSim, event: Event, n_followers: int, controller: Contr
     collisions = 0
     while not sim.done:
         if controller is not None:
-            sim.step(total_acceleration(obs, controller.adjustment(obs)))
+            sim.step(applied_acceleration(controller, obs))
         else:
             sim.step()
         obs = sim.observation()
@@ -158,7 +167,7 @@ def replay(controller_name: str, event: Event, n_followers: int, fcd_path: Path,
     follower_model, controller = resolve_controller(controller_name)
     if follower_model == "human":
         raise InputError("the recorded human follower is not simulated, so it has no FCD output; "
-                         "choose idm, krauss, idm-external or a policy file")
+                         "choose idm, krauss, sumo-cacc, idm-external, ploeg or a policy file")
     if controller is not None:
         controller.reset(n_followers)  # a MADDPG policy refuses another length before SUMO starts
     fcd_path = Path(fcd_path)

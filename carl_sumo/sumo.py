@@ -9,8 +9,9 @@ network (about 5 ms), inserts the leader and the followers at their initial stat
 - ``follower_model="external"``: followers are of type ``cacc``, speedMode 0 and lane changes off;
   the acceleration a given to :meth:`PlatoonSim.step` is applied exactly by
   ``setSpeed(v + a·dt)``: v' = max(v + a·dt, 0), x' = x + v'·dt.
-- ``follower_model="idm"`` / ``"krauss"``: followers are driven by SUMO's own car-following model
-  (types ``human_idm`` / ``human_krauss``), lane changes off, no external control.
+- ``follower_model="idm"`` / ``"krauss"`` / ``"sumo-cacc"``: followers are driven by SUMO's own
+  car-following model (types ``human_idm`` / ``human_krauss`` / ``cacc_sumo``, SUMO's CACC),
+  lane changes off, no external control.
 
 Positions are route coordinates (m): distance of the front bumper from the start of the platoon's
 lane route (:class:`LaneRoute`).
@@ -34,7 +35,8 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 VTYPES_FILE = REPO_ROOT / "routes" / "vtypes.add.xml"
 DEFAULT_NET = REPO_ROOT / "networks" / "i80.net.xml"
 
-FOLLOWER_TYPES = {"external": "cacc", "idm": "human_idm", "krauss": "human_krauss"}
+FOLLOWER_TYPES = {"external": "cacc", "idm": "human_idm", "krauss": "human_krauss",
+                  "sumo-cacc": "cacc_sumo"}
 """SUMO vehicle type of the followers for each follower model."""
 
 FCD_ATTRIBUTES = "id,type,x,y,speed,acceleration,pos,lane,odometer,leaderID,leaderSpeed,leaderGap"

@@ -1,0 +1,167 @@
+"""Classical CACC: Ploeg et al. (2011)'s controller, its names, and its tuned gains.
+
+Ploeg, Scheepers, van Nunen, van de Wouw & Nijmeijer (2011), *Design and experimental evaluation
+of cooperative adaptive cruise control*, IEEE ITSC. Each follower i keeps a controller state u_i
+(m/s², the desired acceleration it also sends to its follower over V2V) and, every step k of
+dt = 0.1 s, from its own sensors and its predecessor's message:
+
+- spacing error      e_i  = d_i - s0 - h·v_i                (m; d_i bumper gap, v_i speed)
+- its rate           ė_i  = (v_{i-1} - v_i) - h·a_i          (m/s; a_i acceleration of the last step)
+- controller state   u_i(k+1) = u_i(k) + (dt/h)·(-u_i(k) + kp·e_i + kd·ė_i + u_{i-1}(k))
+- applied            a_i  = clip(u_i(k+1), -9, 3)           (m/s², the CACC vehicle's bounds)
+
+u_{i-1}(k) is the predecessor's last state, as its V2V message carries it; the first follower
+receives the leader's acceleration over the last step instead (0 at the first step). u starts at 0.
+h is the time gap (s), s0 = 2 m the standstill gap, kp (1/s²) and kd (1/s) the feedback gains.
+The textbook gains are kp = 0.2, kd = 0.7 (Ploeg et al. 2011).
+
+Names (accepted wherever a controller name is): ``ploeg`` (h = 1.0 s, textbook gains),
+``ploeg:h=0.8``, ``ploeg:h=0.8:kp=0.1:kd=1.5``, and ``ploeg-tuned:h=0.8`` (the gains
+``carl-sumo tune ploeg`` chose for that h, read from :data:`TUNED_FILE`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+
+from carl_sumo.config import BOUNDS, DT_S, ControlBounds
+from carl_sumo.errors import InputError
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+TUNED_FILE = REPO_ROOT / "policies" / "ploeg_tuned.json"
+"""The tuned gains per time gap, written by ``carl-sumo tune ploeg``."""
+
+
+@dataclass(frozen=True)
+class PloegParams:
+    """Gains of the Ploeg CACC (units in the names)."""
+
+    time_gap_s: float = 1.0     # h: desired time gap (s)
+    kp: float = 0.2             # spacing-error gain (1/s²)
+    kd: float = 0.7             # spacing-error-rate gain (1/s)
+    standstill_gap_m: float = 2.0  # s0 (m)
+
+    def name(self, tuned: bool = False) -> str:
+        """The controller name that runs these gains."""
+        if tuned:
+            return f"ploeg-tuned:h={self.time_gap_s:g}"
+        return f"ploeg:h={self.time_gap_s:g}:kp={self.kp:g}:kd={self.kd:g}"
+
+
+TEXTBOOK = PloegParams()
+
+
+@njit(cache=True)
+def _ploeg_step(obs, u, u_lead, h, kp, kd, s0, dt, acc_min, acc_max):
+    """One step of every follower (head first): updates ``u`` in place, returns a (m/s²)."""
+    n = obs.shape[0]
+    out = np.empty(n)
+    u_pred = u_lead
+    for i in range(n):
+        e = obs[i, 2] - s0 - h * obs[i, 0]
+        e_dot = obs[i, 3] - h * obs[i, 1]
+        u_old = u[i]
+        u[i] = u_old + (dt / h) * (-u_old + kp * e + kd * e_dot + u_pred)
+        u_pred = u_old  # the message of vehicle i is its state at step k
+        out[i] = min(max(u[i], acc_min), acc_max)
+    return out
+
+
+class PloegController:
+    """The Ploeg CACC of a platoon: a full acceleration per follower, not an adjustment of IDM."""
+
+    def __init__(self, params: PloegParams = TEXTBOOK, name: str | None = None,
+                 bounds: ControlBounds = BOUNDS):
+        if not (params.time_gap_s > 0 and math.isfinite(params.time_gap_s)):
+            raise InputError(f"the Ploeg time gap h must be a positive number of seconds, "
+                             f"got {params.time_gap_s}")
+        self.params = params
+        self.name = name or params.name()
+        self.bounds = bounds
+        self.u = np.zeros(0)
+        self._leader_speed: float | None = None
+
+    def reset(self, n_followers: int) -> None:
+        self.u = np.zeros(n_followers)
+        self._leader_speed = None
+
+    def acceleration(self, obs: np.ndarray) -> np.ndarray:
+        """a (m/s², shape (n,)) from the observations [v, a, d, Δv] (shape (n, 4), head first)."""
+        leader_speed = float(obs[0, 0] + obs[0, 3])
+        a_lead = 0.0 if self._leader_speed is None else (leader_speed - self._leader_speed) / DT_S
+        self._leader_speed = leader_speed
+        p = self.params
+        return _ploeg_step(obs, self.u, a_lead, p.time_gap_s, p.kp, p.kd, p.standstill_gap_m,
+                           DT_S, self.bounds.acc_min_mps2, self.bounds.acc_max_mps2)
+
+
+# ------------------------------------------------------------------------------------ names
+def _parse_options(name: str, allowed: tuple[str, ...]) -> dict[str, float]:
+    """``{key: value}`` of ``kind:key=value:...``; InputError naming what is wrong."""
+    options: dict[str, float] = {}
+    for part in name.split(":")[1:]:
+        key, sep, text = part.partition("=")
+        if not sep or key not in allowed:
+            raise InputError(f"controller {name!r}: {part!r} is not an option; write "
+                             f"{name.split(':')[0]}:" + ":".join(f"{k}=VALUE" for k in allowed))
+        if key in options:
+            raise InputError(f"controller {name!r}: {key} is given twice")
+        try:
+            value = float(text)
+        except ValueError:
+            raise InputError(f"controller {name!r}: {key}={text!r} is not a number") from None
+        if not (math.isfinite(value) and value > 0):
+            raise InputError(f"controller {name!r}: {key} must be a positive number, got {text}")
+        options[key] = value
+    return options
+
+
+def is_ploeg_name(name: str) -> bool:
+    return name.split(":")[0] in ("ploeg", "ploeg-tuned")
+
+
+def read_tuned(path: Path = TUNED_FILE) -> dict[str, dict]:
+    """The tuned entries of ``path``, keyed by the time gap as written (``"0.8"``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"no tuned Ploeg gains at {path}; run `carl-sumo tune ploeg` first")
+    try:
+        payload = json.loads(path.read_text())
+        return {f"{float(e['h']):g}": e for e in payload["entries"]}
+    except (ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"{path} is not a tuned-gains file of `carl-sumo tune ploeg` "
+                         f"({type(exc).__name__}); run the tuning again") from None
+
+
+def parse_ploeg(name: str, tuned_file: Path = TUNED_FILE) -> PloegParams:
+    """The gains a Ploeg controller name stands for; InputError on a bad name or value."""
+    kind = name.split(":")[0]
+    if kind == "ploeg":
+        opts = _parse_options(name, ("h", "kp", "kd"))
+        return PloegParams(opts.get("h", TEXTBOOK.time_gap_s), opts.get("kp", TEXTBOOK.kp),
+                           opts.get("kd", TEXTBOOK.kd))
+    if kind == "ploeg-tuned":
+        opts = _parse_options(name, ("h",))
+        if "h" not in opts:
+            raise InputError(f"controller {name!r}: name the time gap, e.g. ploeg-tuned:h=1")
+        entries = read_tuned(tuned_file)
+        entry = entries.get(f"{opts['h']:g}")
+        if entry is None:
+            raise InputError(f"controller {name!r}: {tuned_file} has tuned gains for h = "
+                             f"{', '.join(sorted(entries, key=float))} s only")
+        if entry.get("kp") is None:
+            raise InputError(f"controller {name!r}: the tuning found no safe gains for h = "
+                             f"{opts['h']:g} s (see {tuned_file})")
+        return PloegParams(float(entry["h"]), float(entry["kp"]), float(entry["kd"]))
+    raise InputError(f"{name!r} is not a Ploeg controller name")
+
+
+def ploeg_controller(name: str, tuned_file: Path = TUNED_FILE) -> PloegController:
+    """A :class:`PloegController` from a name such as ``ploeg:h=0.8`` or ``ploeg-tuned:h=1``."""
+    return PloegController(parse_ploeg(name, tuned_file), name=name)

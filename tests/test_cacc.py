@@ -1,0 +1,113 @@
+"""The classical CACC baselines: Ploeg's controller (hand-built cases, names) and SUMO's CACC."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from carl_sumo.cacc import PloegController, PloegParams, parse_ploeg, ploeg_controller
+from carl_sumo.config import DT_S
+from carl_sumo.data.events import Event
+from carl_sumo.data.synthetic import stop_and_go_event
+from carl_sumo.errors import InputError
+from carl_sumo.metrics import score_event
+from carl_sumo.simulate import cached_sim, resolve_controller, run_event
+
+from conftest import NET
+
+
+def _cruise(n: int, v: float, gap: float) -> Event:
+    speed = np.full(n, v)
+    pos = np.arange(n) * v * DT_S
+    return Event("cruise", "zhu2020_testset", "i-80", pos, speed, 5.0, speed.copy(),
+                 np.full(n, gap))
+
+
+def test_ploeg_at_equilibrium_stays_put_in_sumo():
+    # h = 1 s, s0 = 2 m: at 15 m/s the equilibrium gap is 17 m; nothing may move
+    v, gap = 15.0, 2.0 + 1.0 * 15.0
+    sim = cached_sim(NET, "external")
+    traj = run_event(sim, _cruise(300, v, gap), 4, ploeg_controller("ploeg"))
+    assert traj.collisions == 0
+    assert np.abs(traj.speed - v).max() < 1e-9
+    assert np.abs(traj.gap - gap).max() < 1e-6
+
+
+def test_ploeg_hand_computed_step():
+    c = PloegController(PloegParams(time_gap_s=0.8, kp=0.2, kd=0.7))
+    c.reset(2)
+    # follower 0: v 10, a 0.5, gap 12, Δv -1; follower 1 at its equilibrium, u = 0
+    obs = np.array([[10.0, 0.5, 12.0, -1.0], [10.0, 0.0, 10.0, 0.0]])
+    a = c.acceleration(obs)
+    e0, e0_dot = 12.0 - 2.0 - 0.8 * 10.0, -1.0 - 0.8 * 0.5
+    u0 = (DT_S / 0.8) * (0.2 * e0 + 0.7 * e0_dot + 0.0)  # first step: leader acceleration 0
+    assert math.isclose(a[0], u0, rel_tol=1e-12) and a[1] == 0.0
+    assert math.isclose(c.u[0], u0, rel_tol=1e-12)
+
+
+def test_leader_acceleration_step_reaches_followers_through_messages():
+    # every follower at equilibrium; the leader starts accelerating at 1 m/s² after step 0
+    h, v = 1.0, 10.0
+    c = PloegController(PloegParams(time_gap_s=h))
+    c.reset(3)
+    eq = [v, 0.0, 2.0 + h * v, 0.0]
+    first = c.acceleration(np.array([eq, eq, eq]))
+    assert np.all(first == 0.0)
+    # next step the leader is 0.1 m/s faster (a_lead = 1 m/s²), gaps unchanged so far
+    obs = np.array([[v, 0.0, 2.0 + h * v, 0.1], eq, eq])
+    a1 = c.acceleration(obs)
+    # follower 0 gets the leader's acceleration as feed-forward plus the Δv term
+    assert math.isclose(a1[0], (DT_S / h) * (0.7 * 0.1 + 1.0), rel_tol=1e-12)
+    assert a1[1] == 0.0 and a1[2] == 0.0  # messages carry the last state: one step per vehicle
+    a2 = c.acceleration(np.array([[v, a1[0], 2.0 + h * v, 0.1 + (1.0 - a1[0]) * DT_S], eq, eq]))
+    assert a2[1] > 0.0 and a2[2] == 0.0  # follower 1 hears follower 0's u of the last step
+    assert math.isclose(a2[1], (DT_S / h) * a1[0], rel_tol=1e-12)
+
+
+def test_ploeg_follows_a_braking_leader_in_sumo_without_collision():
+    sim = cached_sim(NET, "external")
+    _, controller = resolve_controller("ploeg:h=0.6")
+    m = score_event(run_event(sim, stop_and_go_event(cycles=1, cruise_s=5.0), 5, controller))
+    assert m["collisions"] == 0
+
+
+def test_sumo_cacc_platoon_on_stop_and_go_has_no_collision():
+    model, controller = resolve_controller("sumo-cacc")
+    assert model == "sumo-cacc" and controller is None
+    traj = run_event(cached_sim(NET, model), stop_and_go_event(), 10, None)
+    m = score_event(traj)
+    assert m["collisions"] == 0 and (traj.gap > 0).all()
+    assert traj.speed.shape[0] == stop_and_go_event().n_samples  # ran to the end
+    assert m["headway_s"] < 1.5  # SUMO's CACC follows closer than IDM (1.5 s time gap)
+
+
+@pytest.mark.parametrize("name, params", [
+    ("ploeg", PloegParams(1.0, 0.2, 0.7)),
+    ("ploeg:h=0.8", PloegParams(0.8, 0.2, 0.7)),
+    ("ploeg:h=0.8:kp=0.1:kd=1.5", PloegParams(0.8, 0.1, 1.5)),
+    ("ploeg:kd=1:h=1.2", PloegParams(1.2, 0.2, 1.0)),
+])
+def test_ploeg_names(name, params):
+    assert parse_ploeg(name) == params
+
+
+@pytest.mark.parametrize("name, words", [
+    ("ploeg:h=abc", "not a number"), ("ploeg:h=-1", "positive"), ("ploeg:x=1", "not an option"),
+    ("ploeg:h", "not an option"), ("ploeg:h=1:h=2", "twice"), ("ploeg:h=nan", "positive"),
+    ("ploeg-tuned", "name the time gap"), ("ploeg-tuned:kp=1", "not an option"),
+])
+def test_bad_ploeg_names_are_input_errors(name, words):
+    with pytest.raises(InputError, match=words):
+        resolve_controller(name)
+
+
+def test_ploeg_tuned_reads_the_file_and_names_the_existing_gaps(tmp_path):
+    path = tmp_path / "tuned.json"
+    path.write_text(json.dumps({"entries": [{"h": 0.8, "kp": 0.15, "kd": 1.1},
+                                            {"h": 1.0, "kp": 0.1, "kd": 0.9}]}))
+    assert parse_ploeg("ploeg-tuned:h=0.8", path) == PloegParams(0.8, 0.15, 1.1)
+    with pytest.raises(InputError, match=r"h = 0.8, 1 s only"):
+        parse_ploeg("ploeg-tuned:h=0.6", path)
+    with pytest.raises(InputError, match="tune ploeg"):
+        parse_ploeg("ploeg-tuned:h=0.8", tmp_path / "missing.json")
