@@ -125,6 +125,26 @@ def build_parser() -> argparse.ArgumentParser:
                    help="hold the validation events out of this event source only (the data "
                         "file's `source` column), e.g. the one most like the test set")
 
+    p = sub.add_parser("tune", help="tune a classical CACC's gains on the training events")
+    p.add_argument("controller", choices=("ploeg",), help="which controller (ploeg)")
+    _add_common(p, split_default="train")
+    p.add_argument("--gaps", default="0.6,0.8,1.0,1.2", help="time gaps h to tune (s), commas")
+    p.add_argument("--kp", default="0.05,0.075,0.1,0.15,0.2,0.3",
+                   help="starting grid of kp (1/s²)")
+    p.add_argument("--kd", default="0.3,0.5,0.7,1.0,1.4", help="starting grid of kd (1/s)")
+    p.add_argument("--max-ttc15-per-event", type=int, default=10,
+                   help="safe: at most this many TTC < 1.5 s samples on any event (default 10)")
+    p.add_argument("--headway-tolerance", type=float, default=0.05,
+                   help="safe: mean headway at most this fraction above the textbook gains' "
+                        "(default 0.05)")
+    p.add_argument("--max-extensions", type=int, default=3,
+                   help="times the grid may grow beyond an edge where the best point lies")
+    p.add_argument("--events", type=int, default=None, metavar="K", help="only the first K events")
+    p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                   help="parallel SUMO processes")
+    p.add_argument("--out", type=Path, default=None,
+                   help="result file (default policies/ploeg_tuned.json)")
+
     p = sub.add_parser("export", help="write the current actor of a training checkpoint as a policy")
     p.add_argument("checkpoint", type=Path)
     p.add_argument("--out", type=Path, required=True)
@@ -320,6 +340,52 @@ def cmd_train(args: argparse.Namespace) -> None:
           + ", ".join(f"{k}={_fmt(v)}" for k, v in val.items()))
 
 
+def _check_writable(path: Path) -> None:
+    """InputError now, before any long run, when ``path`` cannot be written."""
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        probe = path.with_name(f".{path.name}.{os.getpid()}.probe")
+        probe.write_text("")
+        probe.unlink()
+    except OSError as exc:
+        raise InputError(f"cannot write {path} ({exc.strerror or type(exc).__name__}); give an "
+                         "output path in a writable directory") from None
+    if path.is_dir():
+        raise InputError(f"{path} is a directory; give a file path for the result")
+
+
+def cmd_tune(args: argparse.Namespace) -> None:
+    from carl_sumo.cacc import TUNED_FILE
+    from carl_sumo.tune import TuneConfig, format_result, parse_values, tune_ploeg
+
+    _positive(args.vehicles, "--vehicles")
+    _positive(args.workers, "--workers")
+    if args.events is not None:
+        _positive(args.events, "--events")
+    if args.max_ttc15_per_event < 0 or args.max_extensions < 0:
+        raise InputError("--max-ttc15-per-event and --max-extensions must not be negative")
+    if not (math.isfinite(args.headway_tolerance) and args.headway_tolerance >= 0):
+        raise InputError(f"--headway-tolerance must be a non-negative fraction, got "
+                         f"{args.headway_tolerance}")
+    out = args.out or TUNED_FILE
+    _check_writable(out)
+    cfg = TuneConfig(gaps_s=parse_values(args.gaps, "--gaps"), kp=parse_values(args.kp, "--kp"),
+                     kd=parse_values(args.kd, "--kd"), n_followers=args.vehicles,
+                     max_ttc15_per_event=args.max_ttc15_per_event,
+                     headway_tolerance=args.headway_tolerance,
+                     max_extensions=args.max_extensions, data=args.data, split=args.split,
+                     net=str(args.net), workers=args.workers,
+                     command="carl-sumo " + " ".join(sys.argv[1:]))
+    from carl_sumo.sumo import lane_route
+
+    lane_route(args.net)  # a missing or broken network fails before any worker starts
+    payload = tune_ploeg(cfg, Path(out), args.events, progress=sys.stderr.isatty())
+    print(format_result(payload))
+    print(f"wrote {out}: {len(payload['grid'])} gains on {payload['events']} events of split "
+          f"{cfg.split}, {payload['wall_time_s']:.0f} s")
+
+
 def cmd_export(args: argparse.Namespace) -> None:
     from carl_sumo.train import export_policy
 
@@ -461,7 +527,7 @@ def cmd_data(args: argparse.Namespace) -> None:
 
 
 COMMANDS = {"simulate": cmd_simulate, "evaluate": cmd_evaluate, "train": cmd_train,
-            "policy-info": cmd_policy_info, "export": cmd_export, "replay": cmd_replay,
+            "policy-info": cmd_policy_info, "export": cmd_export, "tune": cmd_tune, "replay": cmd_replay,
             "bench": cmd_bench, "rank": cmd_rank, "net": cmd_net, "study": cmd_study,
             "data": cmd_data}
 

@@ -111,3 +111,46 @@ def test_ploeg_tuned_reads_the_file_and_names_the_existing_gaps(tmp_path):
         parse_ploeg("ploeg-tuned:h=0.6", path)
     with pytest.raises(InputError, match="tune ploeg"):
         parse_ploeg("ploeg-tuned:h=0.8", tmp_path / "missing.json")
+
+
+def test_tune_on_a_tiny_grid_writes_gains_that_ploeg_tuned_reads(capsys, tmp_path,
+                                                                  small_table_path):
+    from carl_sumo.cli import main
+
+    out = tmp_path / "tuned.json"
+    code = main(["tune", "ploeg", "--data", str(small_table_path), "--split", "train",
+                 "--vehicles", "3", "--gaps", "1.0,0.8", "--kp", "0.1,0.2", "--kd", "0.7,1.0",
+                 "--max-extensions", "1", "--workers", "1", "--out", str(out)])
+    printed = capsys.readouterr().out
+    assert code == 0 and "| 1 |" in printed
+    payload = json.loads(out.read_text())
+    assert payload["split"] == "train" and payload["events"] == 1 and payload["objective"]
+    by_h = {e["h"]: e for e in payload["entries"]}
+    assert set(by_h) == {1.0, 0.8}
+    for h, entry in by_h.items():
+        points = [g for g in payload["grid"] if g["h"] == h]
+        assert len(points) >= 4 and any(g["kp"] == 0.2 and g["kd"] == 0.7 for g in points)
+        if entry["kp"] is not None:  # the chosen point is the safe one with the least objective
+            safe = [g for g in points if g["safe"]]
+            assert entry["objective"] == min(g["objective"] for g in safe)
+            assert parse_ploeg(f"ploeg-tuned:h={h:g}", out) == PloegParams(h, entry["kp"],
+                                                                           entry["kd"])
+    textbook = next(g for g in payload["grid"] if g["h"] == 1.0 and g["kp"] == 0.2
+                    and g["kd"] == 0.7)
+    assert math.isclose(textbook["objective"], 2.0)
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--split", "test"], "not allowed"),
+    (["--kp", "0.1,x"], "--kp must be positive"),
+    (["--gaps", "-1"], "--gaps must be positive"),
+    (["--out", "/proc/nope/t.json"], "cannot write"),
+])
+def test_tune_bad_input_exits_2_before_running(capsys, tmp_path, small_table_path, argv, words):
+    from carl_sumo.cli import main
+
+    base = ["tune", "ploeg", "--data", str(small_table_path), "--out", str(tmp_path / "t.json")]
+    assert main(base + argv) == 2
+    err = capsys.readouterr().err
+    assert words in err and err.count("\n") == 1
+    assert not (tmp_path / "t.json").exists()
