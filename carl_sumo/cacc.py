@@ -10,6 +10,12 @@ dt = 0.1 s, from its own sensors and its predecessor's message:
 - controller state   u_i(k+1) = u_i(k) + (dt/h)·(-u_i(k) + kp·e_i + kd·ė_i + u_{i-1}(k))
 - applied            a_i  = clip(u_i(k+1), -9, 3)           (m/s², the CACC vehicle's bounds)
 
+Cruise control caps it, as CACC systems switch to CC when the road ahead is free (this matters
+only in the mixed-traffic study, where a vehicle may have no predecessor within sensing range;
+NGSIM I-80 leaders stay below 25 m/s, where the cap is above 3 m/s² and never binds):
+u_i(k+1) ≤ k_cc·(v0 - v_i) with v0 = 120 km/h (the IDM desired speed) and k_cc = 0.4 1/s (the
+magnitude of SUMO's CACC speed-control gain); the capped value is the state (no wind-up).
+
 u_{i-1}(k) is the predecessor's last state, as its V2V message carries it; the first follower
 receives the leader's acceleration over the last step instead (0 at the first step). u starts at 0.
 h is the time gap (s), s0 = 2 m the standstill gap, kp (1/s²) and kd (1/s) the feedback gains.
@@ -30,7 +36,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from carl_sumo.config import BOUNDS, DT_S, ControlBounds
+from carl_sumo.config import BOUNDS, DT_S, IDM, ControlBounds
 from carl_sumo.errors import InputError
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -55,10 +61,12 @@ class PloegParams:
 
 
 TEXTBOOK = PloegParams()
+CRUISE_GAIN_PER_S = 0.4
+"""k_cc: cruise-control gain of the speed cap a ≤ k_cc·(v0 - v) (1/s)."""
 
 
 @njit(cache=True)
-def _ploeg_step(obs, u, u_lead, h, kp, kd, s0, dt, acc_min, acc_max):
+def _ploeg_step(obs, u, u_lead, h, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc):
     """One step of every follower (head first): updates ``u`` in place, returns a (m/s²)."""
     n = obs.shape[0]
     out = np.empty(n)
@@ -67,7 +75,8 @@ def _ploeg_step(obs, u, u_lead, h, kp, kd, s0, dt, acc_min, acc_max):
         e = obs[i, 2] - s0 - h * obs[i, 0]
         e_dot = obs[i, 3] - h * obs[i, 1]
         u_old = u[i]
-        u[i] = u_old + (dt / h) * (-u_old + kp * e + kd * e_dot + u_pred)
+        u[i] = min(u_old + (dt / h) * (-u_old + kp * e + kd * e_dot + u_pred),
+                   k_cc * (v0 - obs[i, 0]))
         u_pred = u_old  # the message of vehicle i is its state at step k
         out[i] = min(max(u[i], acc_min), acc_max)
     return out
@@ -98,7 +107,8 @@ class PloegController:
         self._leader_speed = leader_speed
         p = self.params
         return _ploeg_step(obs, self.u, a_lead, p.time_gap_s, p.kp, p.kd, p.standstill_gap_m,
-                           DT_S, self.bounds.acc_min_mps2, self.bounds.acc_max_mps2)
+                           DT_S, self.bounds.acc_min_mps2, self.bounds.acc_max_mps2,
+                           IDM.desired_speed_mps, CRUISE_GAIN_PER_S)
 
 
 # ------------------------------------------------------------------------------------ names
@@ -165,3 +175,35 @@ def parse_ploeg(name: str, tuned_file: Path = TUNED_FILE) -> PloegParams:
 def ploeg_controller(name: str, tuned_file: Path = TUNED_FILE) -> PloegController:
     """A :class:`PloegController` from a name such as ``ploeg:h=0.8`` or ``ploeg-tuned:h=1``."""
     return PloegController(parse_ploeg(name, tuned_file), name=name)
+
+
+class PloegChains:
+    """The Ploeg CACC on chains of CACC vehicles that form and break in traffic (the study).
+
+    The state u of each vehicle is kept by vehicle ID (a vehicle new to the CACC starts at 0).
+    Inside a chain each vehicle hears its predecessor's state of the last step; a chain's head
+    has no CACC predecessor and takes, like a platoon's first follower, the acceleration of the
+    vehicle ahead over the last step (0 with no vehicle ahead).
+    """
+
+    def __init__(self, params: PloegParams = TEXTBOOK, name: str | None = None,
+                 bounds: ControlBounds = BOUNDS):
+        self.controller = PloegController(params, name, bounds)
+        self.name = self.controller.name
+        self.u: dict[str, float] = {}
+
+    def acceleration(self, obs: np.ndarray, chains: list[list[int]], ids: list[str],
+                     head_pred_acc: list[float]) -> np.ndarray:
+        """a (m/s², shape (m,)) of the CACC vehicles ``ids`` with observations ``obs`` (m, 4);
+        ``chains`` index rows head first, ``head_pred_acc`` is per chain (m/s²)."""
+        p, b = self.controller.params, self.controller.bounds
+        out = np.empty(obs.shape[0])
+        u_new: dict[str, float] = {}
+        for chain, a_pred in zip(chains, head_pred_acc):
+            u = np.array([self.u.get(ids[i], 0.0) for i in chain])
+            out[chain] = _ploeg_step(np.ascontiguousarray(obs[chain]), u, a_pred, p.time_gap_s,
+                                     p.kp, p.kd, p.standstill_gap_m, DT_S, b.acc_min_mps2,
+                                     b.acc_max_mps2, IDM.desired_speed_mps, CRUISE_GAIN_PER_S)
+            u_new.update(zip((ids[i] for i in chain), u.tolist()))
+        self.u = u_new
+        return out

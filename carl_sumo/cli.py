@@ -50,7 +50,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("replay", help="run one event and write SUMO FCD output")
     _add_common(p, split_default="all")
-    p.add_argument("--controller", default="idm")
+    p.add_argument("--controller", default="idm",
+                   help="idm | krauss | sumo-cacc | idm-external | ploeg[:h=H:kp=KP:kd=KD] | "
+                        "ploeg-tuned:h=H | POLICY.pt")
     p.add_argument("--event", required=True, help="event ID (stop_and_go with --data stop-and-go)")
     p.add_argument("--fcd", type=Path, required=True, help="FCD output file (.xml)")
     p.add_argument("--gui", action="store_true",
@@ -179,7 +181,8 @@ def build_parser() -> argparse.ArgumentParser:
                        "CACC penetration rate: tables and figures")
     p.add_argument("--net", default="networks/i80.net.xml", help="SUMO network (.net.xml)")
     p.add_argument("--controller", default="idm-external",
-                   help="CACC controller: idm-external | sumo-cacc | POLICY.pt (not MADDPG)")
+                   help="CACC controller: idm-external | sumo-cacc | ploeg[:h=H:kp=KP:kd=KD] | "
+                        "ploeg-tuned:h=H | POLICY.pt (not MADDPG)")
     p.add_argument("--penetration", default="0,0.25,0.5,0.75,1",
                    help="CACC penetration rates in [0, 1], comma-separated")
     p.add_argument("--duration", type=float, default=900.0, help="measured simulated time (s)")

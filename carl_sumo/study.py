@@ -18,6 +18,11 @@ CACC vehicles (controller ``idm-external`` or a policy file) are driven by carl-
 - a = clip(a_IDM + a_adj) (:func:`carl_sumo.controllers.total_acceleration`), applied exactly with
   ``setSpeed(max(v + a·dt, 0))`` (speedMode 0); lane changes off (laneChangeMode 0).
 
+Controllers ``ploeg``, ``ploeg:h=..`` and ``ploeg-tuned:h=..``: Ploeg's CACC
+(:class:`carl_sumo.cacc.PloegChains`) on the same chains, applied the same way; a chain's head
+takes the acceleration of the vehicle ahead over the last step where a platoon's first follower
+takes the leader's.
+
 Controller ``sumo-cacc``: CACC vehicles are of type ``cacc_sumo`` (SUMO's CACC car-following
 model) and SUMO drives them; only their lane changes are switched off.
 
@@ -50,6 +55,7 @@ from typing import Sequence
 import numpy as np
 
 from carl_sumo.config import DT_S, HEADWAY_MIN_SPEED_MPS
+from carl_sumo.cacc import PloegChains, is_ploeg_name, parse_ploeg
 from carl_sumo.controllers import total_acceleration
 from carl_sumo.errors import InputError
 from carl_sumo.sumo import (DEFAULT_NET, VTYPES_FILE, close_sumo, lane_route,
@@ -71,7 +77,7 @@ HEATMAP_BIN_S = 10.0
 HEATMAP_BIN_M = 100.0
 """Space bin of the time-space speed map (m)."""
 
-STUDY_CONTROLLERS = ("idm-external", "sumo-cacc")
+STUDY_CONTROLLERS = ("idm-external", "sumo-cacc", "ploeg[:h=H:kp=KP:kd=KD]", "ploeg-tuned:h=H")
 """Built-in CACC controllers of a study; a policy file (.pt) is the third kind."""
 
 METRICS = ("throughput_vph", "speed_mps", "headway_s", "ttc_lt_4s_per_vh", "ttc_lt_1_5s_per_vh",
@@ -229,6 +235,13 @@ class ChainController:
             self.agent = agent
             self.compiled = CompiledActor(agent)
 
+    def acceleration(self, obs: np.ndarray, chains: list[list[int]], ids: list[str],
+                     head_pred_acc: list[float]) -> np.ndarray:
+        """a = clip(a_IDM + a_adj) (m/s², shape (m,)) of the CACC vehicles (the interface of
+        :class:`carl_sumo.cacc.PloegChains`; ids and the heads' predecessor accelerations are not
+        needed here)."""
+        return total_acceleration(obs, self.adjustment(obs, chains))
+
     def adjustment(self, obs: np.ndarray, chains: list[list[int]]) -> np.ndarray:
         """a_adj (m/s², shape (m,)) for observations (m, 4) of the CACC vehicles and their chains."""
         m = obs.shape[0]
@@ -240,10 +253,12 @@ class ChainController:
         return out
 
 
-def resolve_study_controller(name: str) -> tuple[str, ChainController | None]:
+def resolve_study_controller(name: str) -> tuple[str, ChainController | PloegChains | None]:
     """(CACC kind of :data:`carl_sumo.traffic.CACC_TYPES`, controller); InputError if unknown."""
     if name == "sumo-cacc":
         return "sumo", None
+    if is_ploeg_name(name):
+        return "external", PloegChains(parse_ploeg(name), name)
     if name == "idm-external" or name.endswith(".pt"):
         return "external", ChainController(name)
     raise InputError(f"unknown study controller {name!r}; choose {', '.join(STUDY_CONTROLLERS)} "
@@ -344,8 +359,8 @@ def _main_lanes(net: str) -> int:
     return sumolib.net.readNet(str(net)).getEdge(MAIN_EDGE).getLaneNumber()
 
 
-def _simulate(ls, cfg: StudyConfig, kind: str, controller: ChainController | None,
-              cacc_ids: set[str], lane_chain) -> tuple[_Accumulator, tuple, dict]:
+def _simulate(ls, cfg: StudyConfig, kind: str,
+              controller: ChainController | PloegChains | None, cacc_ids: set[str], lane_chain) -> tuple[_Accumulator, tuple, dict]:
     """The 0.1 s loop of one run: control, metrics, time-space map. Returns sums and timings."""
     vehicle = ls.vehicle
     get_speed, get_leader, set_speed = vehicle.getSpeed, vehicle.getLeader, vehicle.setSpeed
@@ -415,7 +430,9 @@ def _simulate(ls, cfg: StudyConfig, kind: str, controller: ChainController | Non
                                                  [accel[i] for i in cidx], cahead, speed_of,
                                                  min_gap, lookahead)
             chains = form_chains(cids, chain_ahead, cfg.v2v_range_m)
-            accel_cmd = total_acceleration(obs, controller.adjustment(obs, chains))
+            heads = [chain_ahead[chain[0]] for chain in chains]
+            accel_cmd = controller.acceleration(obs, chains, cids, [
+                prev_acc.get(head[0], 0.0) if head is not None else 0.0 for head in heads])
             for vid, v, a in zip(cids, obs[:, 0].tolist(), accel_cmd.tolist()):
                 v += a * DT_S
                 set_speed(vid, v if v > 0.0 else 0.0)

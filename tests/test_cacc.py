@@ -154,3 +154,25 @@ def test_tune_bad_input_exits_2_before_running(capsys, tmp_path, small_table_pat
     err = capsys.readouterr().err
     assert words in err and err.count("\n") == 1
     assert not (tmp_path / "t.json").exists()
+
+
+def test_ploeg_chains_keep_state_by_vehicle_and_take_the_heads_predecessor_acceleration():
+    from carl_sumo.cacc import PloegChains
+
+    chains = PloegChains(PloegParams(time_gap_s=1.0))
+    eq = [10.0, 0.0, 12.0, 0.0]  # at its equilibrium gap 2 + 1.0·10
+    obs = np.array([eq, eq, eq])
+    a = chains.acceleration(obs, [[0, 1], [2]], ["a", "b", "c"], [0.0, 2.0])
+    assert a[0] == 0.0 and a[1] == 0.0  # chain head: predecessor's acceleration 0
+    assert math.isclose(a[2], DT_S * 2.0)  # head of the second chain hears 2 m/s² ahead
+    a = chains.acceleration(obs[:2], [[1, 0]], ["c", "d"], [0.0])  # c now leads new vehicle d
+    assert math.isclose(a[0], 0.2 - DT_S * 0.2) and a[1] == 0.0  # d hears c's state of last step
+    assert set(chains.u) == {"c", "d"}  # vehicles that left are forgotten
+
+
+def test_ploeg_cruise_cap_on_a_free_road():
+    c = PloegController(PloegParams(time_gap_s=1.0))
+    c.reset(1)
+    for _ in range(50):  # 300 m to the vehicle ahead at the desired speed: no acceleration
+        a = c.acceleration(np.array([[120 / 3.6, 0.0, 300.0, 0.0]]))
+    assert abs(a[0]) < 1e-12 and abs(c.u[0]) < 1e-12
