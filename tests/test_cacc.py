@@ -176,3 +176,25 @@ def test_ploeg_cruise_cap_on_a_free_road():
     for _ in range(50):  # 300 m to the vehicle ahead at the desired speed: no acceleration
         a = c.acceleration(np.array([[120 / 3.6, 0.0, 300.0, 0.0]]))
     assert abs(a[0]) < 1e-12 and abs(c.u[0]) < 1e-12
+
+
+def test_cli_runs_classical_controllers_and_refuses_bad_names(capsys, tmp_path, small_table_path):
+    from carl_sumo.cli import main
+
+    code = main(["simulate", "--controller", "sumo-cacc,ploeg:h=0.8,ploeg:h=1:kp=0.1:kd=1.5",
+                 "--data", str(small_table_path), "--vehicles", "3"])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert [line.split()[0] for line in out.splitlines()[2:5]] == [
+        "sumo-cacc", "ploeg:h=0.8", "ploeg:h=1:kp=0.1:kd=1.5"]
+    fcd = tmp_path / "p.xml"
+    assert main(["replay", "--controller", "ploeg:h=0.8", "--event", "ev_test_0", "--data",
+                 str(small_table_path), "--vehicles", "2", "--fcd", str(fcd)]) == 0
+    assert fcd.stat().st_size > 1000
+    capsys.readouterr()
+    json_out = tmp_path / "x.json"
+    assert main(["simulate", "--controller", "idm,ploeg:kp=zero", "--data",
+                 str(small_table_path), "--json", str(json_out)]) == 2
+    err = capsys.readouterr().err
+    assert "kp='zero' is not a number" in err and err.count("\n") == 1
+    assert not json_out.exists()
