@@ -360,7 +360,7 @@ def _check_writable(path: Path) -> None:
 
 def cmd_tune(args: argparse.Namespace) -> None:
     from carl_sumo.cacc import TUNED_FILE
-    from carl_sumo.tune import TuneConfig, format_result, parse_values, tune_ploeg
+    from carl_sumo.tune import TuneConfig, format_result, grid_figure, parse_values, tune_ploeg
 
     _positive(args.vehicles, "--vehicles")
     _positive(args.workers, "--workers")
@@ -384,9 +384,10 @@ def cmd_tune(args: argparse.Namespace) -> None:
 
     lane_route(args.net)  # a missing or broken network fails before any worker starts
     payload = tune_ploeg(cfg, Path(out), args.events, progress=sys.stderr.isatty())
+    figure = grid_figure(payload, Path(out).with_suffix(".png"))
     print(format_result(payload))
-    print(f"wrote {out}: {len(payload['grid'])} gains on {payload['events']} events of split "
-          f"{cfg.split}, {payload['wall_time_s']:.0f} s")
+    print(f"wrote {out} and {figure}: {len(payload['grid'])} gains on {payload['events']} events "
+          f"of split {cfg.split}, {payload['wall_time_s']:.0f} s")
 
 
 def cmd_export(args: argparse.Namespace) -> None:

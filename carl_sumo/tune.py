@@ -262,6 +262,40 @@ def format_result(payload: dict) -> str:
     return "\n".join(lines)
 
 
+def grid_figure(payload: dict, path: Path) -> Path:
+    """One panel per time gap: the objective J over (kp, kd) on log axes; colliding gains as
+    red crosses, other unsafe gains as orange rings, the chosen gains as a star, the textbook
+    gains as a square. Written through a temporary file."""
+    from carl_sumo.figures import pyplot, save_png
+
+    plt = pyplot()
+    gaps = [e["h"] for e in payload["entries"]]
+    fig, axes = plt.subplots(1, len(gaps), figsize=(4.2 * len(gaps), 4), squeeze=False,
+                             layout="constrained")
+    for ax, entry in zip(axes[0], payload["entries"]):
+        grid = [g for g in payload["grid"] if g["h"] == entry["h"]]
+        sc = ax.scatter([g["kp"] for g in grid], [g["kd"] for g in grid],
+                        c=[g["objective"] for g in grid], cmap="viridis_r", s=120,
+                        vmin=1.0, vmax=2.6)
+        for g in grid:
+            if g["collisions"] > 0:
+                ax.plot(g["kp"], g["kd"], "x", color="red", ms=12, mew=2)
+            elif not g["safe"]:
+                ax.plot(g["kp"], g["kd"], "o", mfc="none", mec="orange", ms=14, mew=2)
+        ax.plot(TEXTBOOK.kp, TEXTBOOK.kd, "s", mfc="none", mec="black", ms=15, mew=1.5)
+        if entry["kp"] is not None:
+            ax.plot(entry["kp"], entry["kd"], "*", color="white", mec="black", ms=16)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("kp (1/s²)")
+        ax.set_ylabel("kd (1/s)")
+        ax.set_title(f"h = {entry['h']:g} s")
+    fig.colorbar(sc, ax=axes[0].tolist(), label="J = jerk/jerk_tb + damp./damp._tb")
+    fig.suptitle("Ploeg gains on the training events: red x collides, orange o unsafe "
+                 "(TTC<1.5 s or headway), square textbook, star chosen")
+    return save_png(fig, path)
+
+
 def parse_values(text: str, option: str) -> tuple[float, ...]:
     """Positive numbers separated by commas; InputError otherwise."""
     try:

@@ -123,6 +123,7 @@ def test_tune_on_a_tiny_grid_writes_gains_that_ploeg_tuned_reads(capsys, tmp_pat
                  "--max-extensions", "1", "--workers", "1", "--out", str(out)])
     printed = capsys.readouterr().out
     assert code == 0 and "| 1 |" in printed
+    assert out.with_suffix(".png").read_bytes()[:4] == b"\x89PNG"
     payload = json.loads(out.read_text())
     assert payload["split"] == "train" and payload["events"] == 1 and payload["objective"]
     by_h = {e["h"]: e for e in payload["entries"]}
