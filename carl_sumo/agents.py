@@ -22,6 +22,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from carl_sumo.ca_scan import ca_forward
 from carl_sumo.config import BOUNDS, DT_S, IDM
 from carl_sumo.errors import InputError
 from carl_sumo.models import CentralCritic, CommunicationAware, PerAgentActors, PerVehicle
@@ -117,8 +118,9 @@ class Agent(nn.Module):
         critic_params = list(self.critic1.parameters())
         if self.critic2 is not None:
             critic_params += list(self.critic2.parameters())
-        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr)
-        self.critic_opt = torch.optim.Adam(critic_params, lr=cfg.critic_lr)
+        # fused: one kernel for all tensors (the same Adam; ~0.1 ms a step instead of ~0.45)
+        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr, fused=True)
+        self.critic_opt = torch.optim.Adam(critic_params, lr=cfg.critic_lr, fused=True)
         self.updates = 0
 
     def check_length(self, n: int) -> None:
@@ -130,14 +132,23 @@ class Agent(nn.Module):
     # ------------------------------------------------------------------------------ acting
     def _act(self, actor: nn.Module, obs: torch.Tensor, mask: torch.Tensor | None,
              with_preactivation: bool = False):
-        pre = actor(normalise(obs), mask).squeeze(-1)
+        return self._act_normalised(actor, normalise(obs), mask, with_preactivation)
+
+    def _act_normalised(self, actor: nn.Module, x: torch.Tensor, mask: torch.Tensor | None,
+                        with_preactivation: bool = False):
+        """a_adj (m/s², (batch, n)) from normalised observations x (batch, n, 4)."""
+        pre = actor(x, mask).squeeze(-1)
         action = self.cfg.adj_max * torch.tanh(pre)
         return (action, pre) if with_preactivation else action
 
-    def _q(self, critic: nn.Module, obs: torch.Tensor, action: torch.Tensor,
-           mask: torch.Tensor | None) -> torch.Tensor:
-        x = torch.cat([normalise(obs), (action / self.cfg.adj_max).unsqueeze(-1)], dim=-1)
-        return critic(x, mask).squeeze(-1)
+    def _q(self, critics: list[nn.Module], x: torch.Tensor, action: torch.Tensor,
+           mask: torch.Tensor | None, detach_params: bool = False) -> torch.Tensor:
+        """Q (G, batch, n) of G critics on normalised observations x and actions (m/s²); the CA
+        critics run as one fused pass (``detach_params``: no gradient to their weights)."""
+        inp = torch.cat([x, (action / self.cfg.adj_max).unsqueeze(-1)], dim=-1)
+        if self.cfg.communication_aware:
+            return ca_forward(critics, inp, mask, detach_params).squeeze(-1)
+        return torch.stack([critic(inp, mask).squeeze(-1) for critic in critics])
 
     @staticmethod
     def total_acceleration(obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
@@ -164,20 +175,22 @@ class Agent(nn.Module):
         obs, action, reward = batch["obs"], batch["action"], batch["reward"]
         next_obs, done, mask = batch["next_obs"], batch["done"], batch["mask"]
         maskf = mask.float()
+        x, next_x = normalise(obs), normalise(next_obs)
+        critics = [self.critic1, self.critic2] if cfg.twin else [self.critic1]
         with torch.no_grad():
-            next_action = self._act(self.actor_target, next_obs, mask)
+            next_action = self._act_normalised(self.actor_target, next_x, mask)
             if cfg.twin:
                 noise = (torch.randn_like(next_action) * cfg.target_noise * cfg.adj_max).clamp(
                     -cfg.target_noise_clip * cfg.adj_max, cfg.target_noise_clip * cfg.adj_max)
                 next_action = (next_action + noise).clamp(-cfg.adj_max, cfg.adj_max)
-            target_q = self._q(self.critic1_target, next_obs, next_action, mask)
-            if cfg.twin:
-                target_q = torch.min(target_q, self._q(self.critic2_target, next_obs, next_action,
-                                                       mask))
+            targets = [self.critic1_target, self.critic2_target] if cfg.twin else \
+                [self.critic1_target]
+            target_q = self._q(targets, next_x, next_action, mask).amin(0)
             y = reward + cfg.gamma * (1.0 - done).unsqueeze(-1) * target_q
-        loss = _masked_mse(self._q(self.critic1, obs, action, mask), y, maskf)
+        q = self._q(critics, x, action, mask)
+        loss = _masked_mse(q[0], y, maskf)
         if cfg.twin:
-            loss = loss + _masked_mse(self._q(self.critic2, obs, action, mask), y, maskf)
+            loss = loss + _masked_mse(q[1], y, maskf)
         self.critic_opt.zero_grad()
         loss.backward()
         nn.utils.clip_grad_norm_(self.critic_opt.param_groups[0]["params"], cfg.max_grad_norm)
@@ -185,30 +198,49 @@ class Agent(nn.Module):
         stats = {"critic_loss": float(loss.detach())}
         self.updates += 1
         if not cfg.twin or self.updates % cfg.policy_delay == 0:
-            action_now, pre = self._act(self.actor, obs, mask, with_preactivation=True)
-            q = self._q(self.critic1, obs, action_now, mask)
-            per_vehicle = cfg.preactivation_l2 * pre ** 2 - q
-            if cfg.smooth_jerk > 0 or cfg.smooth_accel > 0:
-                per_vehicle = per_vehicle + self._smoothness(obs, next_obs, action_now, mask)
-            actor_loss = (per_vehicle * maskf).sum() / maskf.sum()
-            self.actor_opt.zero_grad()
-            actor_loss.backward()
-            nn.utils.clip_grad_norm_(self.actor.parameters(), cfg.max_grad_norm)
-            self.actor_opt.step()
-            stats["actor_loss"] = float(actor_loss.detach())
+            stats["actor_loss"] = self._update_actor(x, next_x, obs, next_obs, mask, maskf)
             self._soft_update()
         return stats
 
+    def _update_actor(self, x: torch.Tensor, next_x: torch.Tensor, obs: torch.Tensor,
+                      next_obs: torch.Tensor, mask: torch.Tensor, maskf: torch.Tensor) -> float:
+        """One actor step on -Q1 (+ penalties); the critic's weights get no gradient."""
+        cfg = self.cfg
+        jerk = cfg.smooth_jerk > 0
+        if jerk:  # the actor on o and o' in one pass (rows are independent)
+            both, pre_both = self._act_normalised(self.actor, torch.cat([x, next_x]),
+                                                  torch.cat([mask, mask]), True)
+            action_now, action_next = both.chunk(2)
+            pre = pre_both.chunk(2)[0]
+        else:
+            action_now, pre = self._act_normalised(self.actor, x, mask, True)
+            action_next = None
+        q = self._q([self.critic1], x, action_now, mask, detach_params=True)[0]
+        per_vehicle = cfg.preactivation_l2 * pre ** 2 - q
+        if jerk or cfg.smooth_accel > 0:
+            per_vehicle = per_vehicle + self._smoothness(obs, next_obs, action_now, mask,
+                                                          action_next)
+        actor_loss = (per_vehicle * maskf).sum() / maskf.sum()
+        self.actor_opt.zero_grad()
+        actor_loss.backward()
+        nn.utils.clip_grad_norm_(self.actor.parameters(), cfg.max_grad_norm)
+        self.actor_opt.step()
+        return float(actor_loss.detach())
+
     def _smoothness(self, obs: torch.Tensor, next_obs: torch.Tensor, action_now: torch.Tensor,
-                    mask: torch.Tensor) -> torch.Tensor:
+                    mask: torch.Tensor | None,
+                    action_next: torch.Tensor | None = None) -> torch.Tensor:
         """Per-vehicle smoothness penalty of the total acceleration a = a_IDM + a_adj (unclipped):
         ``smooth_jerk``·((a(o') - a(o))/dt)² + ``smooth_accel``·a(o)², o → o' a stored transition.
         It regularises the actor directly, as CAPS (Mysore et al. 2021) does, instead of waiting for
-        the critic to learn the jerk the reward punishes."""
+        the critic to learn the jerk the reward punishes. ``action_next``: the actor's a_adj on o'
+        when already computed."""
         acc_now = self.total_acceleration(obs, action_now)
         penalty = self.cfg.smooth_accel * acc_now ** 2
         if self.cfg.smooth_jerk > 0:
-            acc_next = self.total_acceleration(next_obs, self._act(self.actor, next_obs, mask))
+            if action_next is None:
+                action_next = self._act(self.actor, next_obs, mask)
+            acc_next = self.total_acceleration(next_obs, action_next)
             penalty = penalty + self.cfg.smooth_jerk * ((acc_next - acc_now) / DT_S) ** 2
         return penalty
 
@@ -217,9 +249,9 @@ class Agent(nn.Module):
         pairs = [(self.actor, self.actor_target), (self.critic1, self.critic1_target)]
         if self.cfg.twin:
             pairs.append((self.critic2, self.critic2_target))
-        for net, target in pairs:
-            for p, tp in zip(net.parameters(), target.parameters()):
-                tp.lerp_(p, self.cfg.tau)
+        sources = [p for net, _ in pairs for p in net.parameters()]
+        targets = [p for _, target in pairs for p in target.parameters()]
+        torch._foreach_lerp_(targets, sources, self.cfg.tau)  # one op for all tensors
 
 
 class ColoredNoise:

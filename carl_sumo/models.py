@@ -11,13 +11,16 @@ all vehicles, so one set of weights runs any platoon length:
 - backward network, head → tail: ``(B_i, y_i) = f_B(F_i, B_{i-1})``, the first vehicle receives
   ``B_bound``. ``y_i`` is the output (an action, or a Q-value for a critic).
 
-Both boundary messages are learned vectors.
+Both boundary messages are learned vectors. The passes run fused (:mod:`carl_sumo.ca_scan`): a
+few batched tensor ops per vehicle and a hand-written backward pass.
 """
 
 from __future__ import annotations
 
 import torch
 from torch import nn
+
+from carl_sumo.ca_scan import ca_forward
 
 
 def mlp(sizes: list[int], activation: type[nn.Module] = nn.ReLU) -> nn.Sequential:
@@ -43,23 +46,9 @@ class CommunicationAware(nn.Module):
         self.backward_boundary = nn.Parameter(torch.zeros(message_dim))
 
     def forward(self, x: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
-        batch, n, _ = x.shape
-        if mask is None:
-            mask = torch.ones(batch, n, dtype=torch.bool, device=x.device)
-        m = mask.unsqueeze(-1)
-        message = self.forward_boundary.expand(batch, -1)
-        forward_messages: list[torch.Tensor] = [message] * n
-        for i in range(n - 1, -1, -1):  # tail -> head
-            new = self.forward_net(torch.cat([x[:, i], message], dim=-1))
-            message = torch.where(m[:, i], new, self.forward_boundary.expand(batch, -1))
-            forward_messages[i] = message
-        message = self.backward_boundary.expand(batch, -1)
-        outputs: list[torch.Tensor] = []
-        for i in range(n):  # head -> tail
-            out = self.backward_net(torch.cat([forward_messages[i], message], dim=-1))
-            message = torch.tanh(out[:, : self.message_dim])
-            outputs.append(out[:, self.message_dim:])
-        return torch.stack(outputs, dim=1)
+        """Outputs (batch, n, out) for inputs x (batch, n, in) and a mask (batch, n) of real
+        vehicles (padding at the tail)."""
+        return ca_forward([self], x, mask)[0]
 
 
 class PerVehicle(nn.Module):
