@@ -88,51 +88,65 @@ def format_bench(rows: list[dict[str, float]]) -> str:
     return "\n".join(lines)
 
 
-def run_training_bench(algo: str = "ca-td3", n: int = 10, num_envs: int = 2, steps: int = 500,
-                       net_path=DEFAULT_NET, smooth_jerk: float = 0.0,
+def run_training_bench(algo: str = "ca-td3", sizes: tuple[int, ...] = (10, 20), num_envs: int = 2,
+                       steps: int = 500, net_path=DEFAULT_NET, smooth_jerk: float = 0.0,
                        smooth_accel: float = 0.0) -> list[dict[str, float]]:
-    """Training throughput: env steps/s and vehicle transitions/s in the parallel SUMO workers,
-    with batched policy inference, without and with one gradient update per vector step (with
-    the actor smoothness terms of training when given)."""
+    """Training throughput per platoon size: env steps/s in the parallel SUMO workers with
+    batched policy inference, without and with one gradient update per vector step (with the
+    actor smoothness terms of training when given), and the mean time of one update (sampling
+    the batch included, ms)."""
+    return [_training_rates(algo, n, num_envs, steps, net_path, smooth_jerk, smooth_accel)
+            for n in sizes]
+
+
+def _training_rates(algo: str, n: int, num_envs: int, steps: int, net_path, smooth_jerk: float,
+                    smooth_accel: float) -> dict[str, float]:
     import torch
 
     from carl_sumo.agents import Agent, AgentConfig, ColoredNoise
     from carl_sumo.train import ReplayBuffer
     from carl_sumo.vec_env import VecPlatoon
 
-    torch.set_num_threads(1)
+    torch.set_num_threads(1)  # as in training: the SUMO workers have the other core
     agent = Agent(AgentConfig(algo=algo, n_vehicles=n, smooth_jerk=smooth_jerk,
                               smooth_accel=smooth_accel))
     buffer = ReplayBuffer(50_000, n)
     rng = np.random.default_rng(0)
     vec = VecPlatoon([cruise_event(400)], n, net_path, num_envs, seed=0)
     noise = ColoredNoise((num_envs, n), 0.45, 0.98, rng)
-    rows = []
+    row: dict[str, float] = {"algo": algo, "followers": n, "envs": num_envs}
     try:
         obs = vec.reset(0)
-        for updates in (False, True):
-            start = time.perf_counter()
-            for _ in range(steps):
+        for phase in ("warm-up", "none", "updates"):
+            updates = phase != "none"
+            update_s, start = 0.0, time.perf_counter()
+            for _ in range(min(steps, 20) if phase == "warm-up" else steps):
                 action = agent.act(obs, noise.sample())
                 next_obs, reward, term, _, final = vec.step(action)
                 buffer.add(obs, action, reward, final, term.astype(np.float32))
                 obs = next_obs
                 if updates:
+                    t0 = time.perf_counter()
                     agent.update(buffer.sample(agent.cfg.batch_size, rng))
+                    update_s += time.perf_counter() - t0
             wall = time.perf_counter() - start
-            rows.append({"algo": algo, "followers": n, "envs": num_envs, "updates": updates,
-                         "env_steps_per_s": steps * num_envs / wall,
-                         "vehicle_transitions_per_s": steps * num_envs * n / wall})
+            if phase == "none":
+                row["env_steps_per_s"] = steps * num_envs / wall
+            elif phase == "updates":
+                row["env_steps_per_s_updates"] = steps * num_envs / wall
+                row["update_ms"] = 1000.0 * update_s / steps
     finally:
         vec.close()
-    return rows
+    return row
 
 
 def format_training_bench(rows: list[dict[str, float]]) -> str:
-    lines = ["algo    followers  envs  gradient updates  env steps/s  vehicle transitions/s",
-             "------  ---------  ----  ----------------  -----------  ---------------------"]
+    lines = ["algo    followers  envs  env steps/s, no updates  env steps/s, 1 update/step"
+             "  update (ms)",
+             "------  ---------  ----  -----------------------  ---------------------------"
+             "  -----------"]
     for r in rows:
         lines.append(f"{r['algo']:<6}  {r['followers']:>9}  {r['envs']:>4}  "
-                     f"{'1 per step' if r['updates'] else 'none':>16}  "
-                     f"{r['env_steps_per_s']:>11.0f}  {r['vehicle_transitions_per_s']:>21.0f}")
+                     f"{r['env_steps_per_s']:>23.0f}  {r['env_steps_per_s_updates']:>27.0f}"
+                     f"  {r['update_ms']:>11.2f}")
     return "\n".join(lines)

@@ -170,7 +170,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--training", action="store_true",
                    help="measure training throughput (parallel workers, updates) instead")
     p.add_argument("--algo", default="ca-td3", help="with --training: the algorithm")
-    p.add_argument("--vehicles", type=int, default=10, help="with --training: platoon length")
+    p.add_argument("--vehicles", default="10,20",
+                   help="with --training: platoon lengths, comma-separated (default 10,20)")
     p.add_argument("--envs", type=int, default=2, help="with --training: worker processes")
     p.add_argument("--smooth-jerk", type=float, default=0.0,
                    help="with --training: the actor smoothness terms of `train` (default 0), "
@@ -429,9 +430,14 @@ def cmd_bench(args: argparse.Namespace) -> None:
 
         if args.algo not in ALGOS:
             raise InputError(f"unknown algorithm {args.algo!r}; choose one of {', '.join(ALGOS)}")
-        rows = run_training_bench(args.algo, _positive(args.vehicles, "--vehicles"),
-                                  _positive(args.envs, "--envs"), _positive(args.steps, "--steps"),
-                                  args.net, args.smooth_jerk, args.smooth_accel)
+        try:
+            sizes = tuple(_positive(int(s), "--vehicles") for s in args.vehicles.split(","))
+        except ValueError:
+            raise InputError(f"--vehicles must be integers separated by commas, got "
+                             f"{args.vehicles!r}")
+        rows = run_training_bench(args.algo, sizes, _positive(args.envs, "--envs"),
+                                  _positive(args.steps, "--steps"), args.net, args.smooth_jerk,
+                                  args.smooth_accel)
         print(format_training_bench(rows))
         return
 

@@ -29,6 +29,7 @@ from carl_sumo.errors import InputError
 from carl_sumo.metrics import (BETTER, PlatoonTrajectory, aggregate, event_weights,
                                score_event)
 from carl_sumo.policy import load_torch, read_policy_payload, save_policy, save_torch_atomic
+from carl_sumo.replay import ReplayBuffer
 from carl_sumo.sumo import DEFAULT_NET, check_fits, write_text_atomic
 
 CHECKPOINT_FORMAT = "carl-sumo-checkpoint"
@@ -78,48 +79,6 @@ class TrainConfig:
         return replace(REWARD, w_gap=self.w_gap, w_safe=self.w_safe, w_comfort=self.w_comfort,
                        w_accel=self.w_accel,
                        jerk_scale_mps3=self.jerk_scale)
-
-
-class ReplayBuffer:
-    """Joint platoon transitions: obs (n, 4), action (n,), reward (n,), next_obs, done."""
-
-    def __init__(self, capacity: int, n: int):
-        self.capacity, self.n, self.size, self.pos = capacity, n, 0, 0
-        self.obs = np.zeros((capacity, n, 4), np.float32)
-        self.next_obs = np.zeros((capacity, n, 4), np.float32)
-        self.action = np.zeros((capacity, n), np.float32)
-        self.reward = np.zeros((capacity, n), np.float32)
-        self.done = np.zeros(capacity, np.float32)
-
-    def add(self, obs, action, reward, next_obs, done) -> None:
-        for i in range(len(obs)):
-            p = self.pos
-            self.obs[p], self.action[p], self.reward[p] = obs[i], action[i], reward[i]
-            self.next_obs[p], self.done[p] = next_obs[i], done[i]
-            self.pos = (p + 1) % self.capacity
-            self.size = min(self.size + 1, self.capacity)
-
-    def sample(self, batch_size: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
-        idx = rng.integers(0, self.size, size=batch_size)
-        batch = {k: torch.from_numpy(getattr(self, k)[idx])
-                 for k in ("obs", "action", "reward", "next_obs", "done")}
-        batch["mask"] = torch.ones(batch_size, self.n, dtype=torch.bool)
-        return batch
-
-    def state(self) -> dict[str, Any]:
-        s = self.size
-        return {"capacity": self.capacity, "n": self.n, "size": s, "pos": self.pos,
-                **{k: torch.from_numpy(getattr(self, k)[:s].copy())
-                   for k in ("obs", "action", "reward", "next_obs", "done")}}
-
-    @classmethod
-    def from_state(cls, state: dict[str, Any]) -> "ReplayBuffer":
-        buf = cls(int(state["capacity"]), int(state["n"]))
-        s = int(state["size"])
-        for k in ("obs", "action", "reward", "next_obs", "done"):
-            getattr(buf, k)[:s] = state[k].numpy()
-        buf.size, buf.pos = s, int(state["pos"])
-        return buf
 
 
 def split_validation(events: Sequence[Event], k: int, seed: int, source: str | None = None
