@@ -384,7 +384,8 @@ def cmd_tune(args: argparse.Namespace) -> None:
     from carl_sumo.sumo import lane_route
 
     lane_route(args.net)  # a missing or broken network fails before any worker starts
-    payload = tune_ploeg(cfg, Path(out), args.events, progress=sys.stderr.isatty())
+    payload = tune_ploeg(cfg, Path(out), args.events, progress=sys.stderr.isatty(),
+                         log=lambda line: print(line, file=sys.stderr, flush=True))
     figure = grid_figure(payload, Path(out).with_suffix(".png"))
     print(format_result(payload))
     print(f"wrote {out} and {figure}: {len(payload['grid'])} gains on {payload['events']} events "

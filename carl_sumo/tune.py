@@ -196,8 +196,9 @@ def _point_row(p: GridPoint) -> dict:
 
 
 def tune_ploeg(cfg: TuneConfig, out: Path = TUNED_FILE, events_limit: int | None = None,
-               progress: bool = False) -> dict:
-    """Tune every time gap of ``cfg`` and write the result file ``out`` (atomically)."""
+               progress: bool = False, log: Callable[[str], None] | None = None) -> dict:
+    """Tune every time gap of ``cfg`` and write the result file ``out`` (atomically); ``log``
+    receives one line per time gap as it is done."""
     from carl_sumo.data import load_events
 
     if cfg.split in ("test", "us101", "all"):
@@ -226,6 +227,11 @@ def tune_ploeg(cfg: TuneConfig, out: Path = TUNED_FILE, events_limit: int | None
                                   "safe": reference.safe, "metrics": reference.metrics,
                                   "max_ttc15_per_event": reference.max_ttc15_event}}
             entries.append(entry)
+            if log is not None:
+                chosen = f"kp = {best.kp:g}, kd = {best.kd:g}, J = {best.objective:.3f}" if best \
+                    else "no safe gains"
+                log(f"h = {h:g} s: {chosen} ({len(points)} gains, interior: {interior}; "
+                    f"{time.perf_counter() - start:.0f} s)")
     finally:
         runner.close()
         if bar is not None:
