@@ -141,12 +141,12 @@ def _training_rates(algo: str, n: int, num_envs: int, steps: int, net_path, smoo
 
 
 def format_training_bench(rows: list[dict[str, float]]) -> str:
-    lines = ["algo    followers  envs  env steps/s, no updates  env steps/s, 1 update/step"
+    lines = ["algo     followers  envs  env steps/s, no updates  env steps/s, 1 update/step"
              "  update (ms)",
-             "------  ---------  ----  -----------------------  ---------------------------"
+             "-------  ---------  ----  -----------------------  ---------------------------"
              "  -----------"]
     for r in rows:
-        lines.append(f"{r['algo']:<6}  {r['followers']:>9}  {r['envs']:>4}  "
+        lines.append(f"{r['algo']:<7}  {r['followers']:>9}  {r['envs']:>4}  "
                      f"{r['env_steps_per_s']:>23.0f}  {r['env_steps_per_s_updates']:>27.0f}"
                      f"  {r['update_ms']:>11.2f}")
     return "\n".join(lines)

@@ -29,11 +29,14 @@ class ReplayBuffer:
 
     def add(self, obs, action, reward, next_obs, done) -> None:
         """Append one transition per environment (arrays stacked over environments)."""
-        k = len(obs)
-        rows = torch.from_numpy((self.pos + np.arange(k)) % self.capacity)
+        k, p = len(obs), self.pos
         for name, value in zip(FIELDS, (obs, action, reward, next_obs, done)):
-            getattr(self, name).index_copy_(
-                0, rows, torch.as_tensor(np.asarray(value), dtype=torch.float32))
+            value = torch.from_numpy(np.asarray(value))
+            if p + k <= self.capacity:
+                getattr(self, name)[p:p + k] = value  # cast to float32 on the copy
+            else:  # wraps around
+                rows = torch.from_numpy((p + np.arange(k)) % self.capacity)
+                getattr(self, name).index_copy_(0, rows, value.to(torch.float32))
         self.pos = (self.pos + k) % self.capacity
         self.size = min(self.size + k, self.capacity)
 
