@@ -108,6 +108,11 @@ def _training_rates(algo: str, n: int, num_envs: int, steps: int, net_path, smoo
     from carl_sumo.vec_env import VecPlatoon
 
     torch.set_num_threads(1)  # as in training: the SUMO workers have the other core
+    try:  # as in training (older code, measured by benchmarks/training_bench_against.py, lacks it)
+        from carl_sumo.ca_scan import keep_heap_memory
+        keep_heap_memory()
+    except ImportError:
+        pass
     agent = Agent(AgentConfig(algo=algo, n_vehicles=n, smooth_jerk=smooth_jerk,
                               smooth_accel=smooth_accel))
     buffer = ReplayBuffer(50_000, n)

@@ -22,6 +22,7 @@ import torch
 
 from carl_sumo import __version__
 from carl_sumo.agents import Agent, AgentConfig, ColoredNoise
+from carl_sumo.ca_scan import keep_heap_memory
 from carl_sumo.config import REWARD, RewardConfig
 from carl_sumo.data.events import Event
 from carl_sumo.env import PlatoonEnv
@@ -308,6 +309,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     log_path = out.with_suffix(".csv")
     n = cfg.n_vehicles
     torch.set_num_threads(1)  # the SUMO workers have the other cores; small nets gain nothing
+    keep_heap_memory()  # no page faults on the update's temporaries
     seed_everything(cfg.seed)
     agent = Agent(AgentConfig(algo=cfg.algo, n_vehicles=n, message_dim=cfg.message_dim,
                               hidden=cfg.hidden, actor_lr=cfg.actor_lr, critic_lr=cfg.critic_lr,
