@@ -131,11 +131,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("controller", choices=("ploeg",), help="which controller (ploeg)")
     _add_common(p, split_default="train")
     p.add_argument("--gaps", default="0.6,0.8,1.0,1.2", help="time gaps h to tune (s), commas")
-    p.add_argument("--kp", default="0.05,0.075,0.1,0.15,0.2,0.3",
+    p.add_argument("--kp", default="0.1,0.15,0.2,0.3,0.45,0.675,1.0125",
                    help="starting grid of kp (1/s²)")
-    p.add_argument("--kd", default="0.3,0.5,0.7,1.0,1.4", help="starting grid of kd (1/s)")
-    p.add_argument("--max-ttc15-per-event", type=int, default=10,
-                   help="safe: at most this many TTC < 1.5 s samples on any event (default 10)")
+    p.add_argument("--kd", default="0.5,0.7,1.0,1.4,2.1,3.15,4.725",
+                   help="starting grid of kd (1/s)")
+    p.add_argument("--reuse", type=Path, default=None,
+                   help="an earlier result file on the same events: its gains are not run again")
     p.add_argument("--headway-tolerance", type=float, default=0.05,
                    help="safe: mean headway at most this fraction above the textbook gains' "
                         "(default 0.05)")
@@ -367,8 +368,8 @@ def cmd_tune(args: argparse.Namespace) -> None:
     _positive(args.workers, "--workers")
     if args.events is not None:
         _positive(args.events, "--events")
-    if args.max_ttc15_per_event < 0 or args.max_extensions < 0:
-        raise InputError("--max-ttc15-per-event and --max-extensions must not be negative")
+    if args.max_extensions < 0:
+        raise InputError("--max-extensions must not be negative")
     if not (math.isfinite(args.headway_tolerance) and args.headway_tolerance >= 0):
         raise InputError(f"--headway-tolerance must be a non-negative fraction, got "
                          f"{args.headway_tolerance}")
@@ -376,7 +377,6 @@ def cmd_tune(args: argparse.Namespace) -> None:
     _check_writable(out)
     cfg = TuneConfig(gaps_s=parse_values(args.gaps, "--gaps"), kp=parse_values(args.kp, "--kp"),
                      kd=parse_values(args.kd, "--kd"), n_followers=args.vehicles,
-                     max_ttc15_per_event=args.max_ttc15_per_event,
                      headway_tolerance=args.headway_tolerance,
                      max_extensions=args.max_extensions, data=args.data, split=args.split,
                      net=str(args.net), workers=args.workers,
@@ -385,7 +385,8 @@ def cmd_tune(args: argparse.Namespace) -> None:
 
     lane_route(args.net)  # a missing or broken network fails before any worker starts
     payload = tune_ploeg(cfg, Path(out), args.events, progress=sys.stderr.isatty(),
-                         log=lambda line: print(line, file=sys.stderr, flush=True))
+                         log=lambda line: print(line, file=sys.stderr, flush=True),
+                         reuse=args.reuse)
     figure = grid_figure(payload, Path(out).with_suffix(".png"))
     print(format_result(payload))
     print(f"wrote {out} and {figure}: {len(payload['grid'])} gains on {payload['events']} events "

@@ -1,12 +1,13 @@
 """``carl-sumo tune ploeg``: the Ploeg CACC's gains tuned on the training events, in SUMO.
 
 For each time gap h, a grid of (kp, kd) runs on every training event (10 followers by default)
-through the same SUMO loop as ``simulate``. A point is **safe** when it has
+through the same SUMO loop as ``simulate``. A point is **safe** when it is at least as safe as
+the textbook gains at the same h on the same events:
 
 - no collision on any event, and
-- on no event more than ``max_ttc15_per_event`` samples (all followers) with TTC < 1.5 s, and
-- a mean time headway at most ``headway_tolerance`` above the textbook gains' at the same h
-  (a tuned controller must still follow at its time gap, not buy comfort with distance).
+- no more samples with TTC < 1.5 s (all followers, all events) than the textbook gains, and
+- a mean time headway at most ``headway_tolerance`` above the textbook gains' (a tuned controller
+  must still follow at its time gap, not buy comfort with distance).
 
 Among safe points the chosen one minimises the objective
 
@@ -34,7 +35,7 @@ from typing import Callable
 
 from carl_sumo.cacc import TEXTBOOK, TUNED_FILE, PloegParams
 from carl_sumo.errors import InputError
-from carl_sumo.metrics import aggregate
+from carl_sumo.metrics import METRIC_KEYS, aggregate
 from carl_sumo.sumo import DEFAULT_NET, write_text_atomic
 
 GROWTH = 1.5
@@ -49,10 +50,9 @@ class TuneConfig:
     """What ``carl-sumo tune ploeg`` searches and on which events (units in the names)."""
 
     gaps_s: tuple[float, ...] = (0.6, 0.8, 1.0, 1.2)
-    kp: tuple[float, ...] = (0.05, 0.075, 0.1, 0.15, 0.2, 0.3)
-    kd: tuple[float, ...] = (0.3, 0.5, 0.7, 1.0, 1.4)
+    kp: tuple[float, ...] = (0.1, 0.15, 0.2, 0.3, 0.45, 0.675, 1.0125)  # x1.5 steps
+    kd: tuple[float, ...] = (0.5, 0.7, 1.0, 1.4, 2.1, 3.15, 4.725)
     n_followers: int = 10
-    max_ttc15_per_event: int = 10       # samples (0.1 s, all followers) per event
     headway_tolerance: float = 0.05     # allowed rise of the mean headway over the textbook's (-)
     max_extensions: int = 3
     data: str = ""
@@ -146,7 +146,7 @@ def _judge(point: GridPoint, reference: GridPoint, cfg: TuneConfig) -> None:
     m, ref = point.metrics, reference.metrics
     point.objective = m["jerk_mps3"] / ref["jerk_mps3"] + \
         m["dampening_ratio"] / ref["dampening_ratio"]
-    point.safe = (m["collisions"] == 0 and point.max_ttc15_event <= cfg.max_ttc15_per_event
+    point.safe = (m["collisions"] == 0 and m["ttc_lt_1_5s_count"] <= ref["ttc_lt_1_5s_count"]
                   and m["headway_s"] <= ref["headway_s"] * (1.0 + cfg.headway_tolerance))
 
 
@@ -159,11 +159,13 @@ def _grown(values: list[float], at_low: bool, at_high: bool) -> list[float]:
     return values
 
 
-def tune_gap(h: float, cfg: TuneConfig, runner: _Runner) -> tuple[GridPoint | None, list[GridPoint],
-                                                                   bool, GridPoint]:
-    """Search one time gap: (best safe point or None, every point, interior?, textbook point)."""
+def tune_gap(h: float, cfg: TuneConfig, runner: _Runner,
+             known: dict[tuple[float, float], GridPoint] | None = None
+             ) -> tuple[GridPoint | None, list[GridPoint], bool, GridPoint]:
+    """Search one time gap: (best safe point or None, every point, interior?, textbook point).
+    ``known``: points of this h already measured (by an earlier run on the same events)."""
     kp, kd = sorted(set(cfg.kp)), sorted(set(cfg.kd))
-    points: dict[tuple[float, float], GridPoint] = {}
+    points: dict[tuple[float, float], GridPoint] = dict(known or {})
     reference = GridPoint(h, TEXTBOOK.kp, TEXTBOOK.kd)
     for extension in range(cfg.max_extensions + 1):
         todo = [GridPoint(h, p, d) for p in kp for d in kd if (p, d) not in points]
@@ -195,10 +197,37 @@ def _point_row(p: GridPoint) -> dict:
             **p.metrics}
 
 
+def reusable_points(path: Path, cfg: TuneConfig, n_events: int) -> list[GridPoint]:
+    """The grid points of an earlier result file measured on the same events and platoon
+    (``--reuse``): simulations are deterministic, so they need not run again. InputError when
+    the file was made on other data."""
+    try:
+        payload = json.loads(Path(path).read_text())
+        same = (payload["data"], payload["split"], payload["events"], payload["followers"]) == \
+            (cfg.data, cfg.split, n_events, cfg.n_followers)
+        rows = payload["grid"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"--reuse {path}: not a result file of `carl-sumo tune ploeg` "
+                         f"({type(exc).__name__})") from None
+    if not same:
+        raise InputError(f"--reuse {path} was measured on other events or another platoon "
+                         f"({payload['data']}, split {payload['split']}, {payload['events']} "
+                         f"events, {payload['followers']} followers); run without --reuse")
+    points = []
+    for row in rows:
+        point = GridPoint(row["h"], row["kp"], row["kd"], max_ttc15_event=row["max_ttc15_per_event"],
+                          colliding_events=row["colliding_events"])
+        point.metrics = {k: row[k] for k in METRIC_KEYS}
+        points.append(point)
+    return points
+
+
 def tune_ploeg(cfg: TuneConfig, out: Path = TUNED_FILE, events_limit: int | None = None,
-               progress: bool = False, log: Callable[[str], None] | None = None) -> dict:
+               progress: bool = False, log: Callable[[str], None] | None = None,
+               reuse: Path | None = None) -> dict:
     """Tune every time gap of ``cfg`` and write the result file ``out`` (atomically); ``log``
-    receives one line per time gap as it is done."""
+    receives one line per time gap as it is done; ``reuse`` an earlier result file whose points
+    are not simulated again."""
     from carl_sumo.data import load_events
 
     if cfg.split in ("test", "us101", "all"):
@@ -207,6 +236,7 @@ def tune_ploeg(cfg: TuneConfig, out: Path = TUNED_FILE, events_limit: int | None
     events = load_events(cfg.data, cfg.split, limit=events_limit)
     if not events:
         raise InputError(f"{cfg.data} has no {cfg.split} events to tune on")
+    reuse = reusable_points(reuse, cfg, len(events)) if reuse is not None else None
     bar = None
     if progress:
         from tqdm import tqdm
@@ -217,7 +247,8 @@ def tune_ploeg(cfg: TuneConfig, out: Path = TUNED_FILE, events_limit: int | None
     entries, grid = [], []
     try:
         for h in cfg.gaps_s:
-            best, points, interior, reference = tune_gap(h, cfg, runner)
+            known = {(p.kp, p.kd): p for p in (reuse or []) if p.h == h}
+            best, points, interior, reference = tune_gap(h, cfg, runner, known)
             grid += [_point_row(p) for p in points]
             entry = {"h": h, "kp": best.kp if best else None, "kd": best.kd if best else None,
                      "interior": interior, "points": len(points),
@@ -240,7 +271,7 @@ def tune_ploeg(cfg: TuneConfig, out: Path = TUNED_FILE, events_limit: int | None
                "data": cfg.data, "split": cfg.split, "events": len(events),
                "followers": cfg.n_followers, "objective": OBJECTIVE,
                "constraints": {"collisions": 0,
-                               "max_ttc15_samples_per_event": cfg.max_ttc15_per_event,
+                               "ttc_lt_1_5s_count": "at most the textbook gains' at the same h",
                                "headway_at_most_textbook_times": 1.0 + cfg.headway_tolerance},
                "grid_growth": GROWTH, "config": asdict(cfg),
                "wall_time_s": round(time.perf_counter() - start, 1),

@@ -139,6 +139,22 @@ def test_tune_on_a_tiny_grid_writes_gains_that_ploeg_tuned_reads(capsys, tmp_pat
     textbook = next(g for g in payload["grid"] if g["h"] == 1.0 and g["kp"] == 0.2
                     and g["kd"] == 0.7)
     assert math.isclose(textbook["objective"], 2.0)
+    for g in payload["grid"]:  # safe: as safe as the textbook gains at the same h
+        ref = next(t for t in payload["grid"]
+                   if t["h"] == g["h"] and (t["kp"], t["kd"]) == (0.2, 0.7))
+        assert g["safe"] == (g["collisions"] == 0 and g["ttc_lt_1_5s_count"] <= ref[
+            "ttc_lt_1_5s_count"] and g["headway_s"] <= 1.05 * ref["headway_s"])
+    # a second run that reuses the first one's points simulates nothing and chooses the same
+    again = tmp_path / "again.json"
+    assert main(["tune", "ploeg", "--data", str(small_table_path), "--split", "train",
+                 "--vehicles", "3", "--gaps", "1.0,0.8", "--kp", "0.1,0.2", "--kd", "0.7,1.0",
+                 "--max-extensions", "1", "--workers", "1", "--reuse", str(out),
+                 "--out", str(again)]) == 0
+    second = json.loads(again.read_text())
+    assert second["entries"] == payload["entries"]
+    assert main(["tune", "ploeg", "--data", str(small_table_path), "--split", "train",
+                 "--vehicles", "2", "--reuse", str(out), "--out", str(again)]) == 2
+    assert "other events or another platoon" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("argv, words", [
