@@ -6,7 +6,7 @@ of cooperative adaptive cruise control*, IEEE ITSC. Each follower i keeps a cont
 dt = 0.1 s, from its own sensors and its predecessor's message:
 
 - spacing error      e_i  = d_i - s0 - h·v_i                (m; d_i bumper gap, v_i speed)
-- its rate           ė_i  = (v_{i-1} - v_i) - h·a_i          (m/s; a_i acceleration of the last step)
+- its rate           ė_i  = (v_{i-1} - v_i) - h·a_i          (m/s; a_i: last step's acceleration)
 - controller state   u_i(k+1) = u_i(k) + (dt/h)·(-u_i(k) + kp·e_i + kd·ė_i + u_{i-1}(k))
 - applied            a_i  = clip(u_i(k+1), -9, 3)           (m/s², the CACC vehicle's bounds)
 

@@ -539,7 +539,8 @@ def cmd_data(args: argparse.Namespace) -> None:
 
 
 COMMANDS = {"simulate": cmd_simulate, "evaluate": cmd_evaluate, "train": cmd_train,
-            "policy-info": cmd_policy_info, "export": cmd_export, "tune": cmd_tune, "replay": cmd_replay,
+            "policy-info": cmd_policy_info, "export": cmd_export, "tune": cmd_tune,
+            "replay": cmd_replay,
             "bench": cmd_bench, "rank": cmd_rank, "net": cmd_net, "study": cmd_study,
             "data": cmd_data}
 

@@ -360,7 +360,8 @@ def _main_lanes(net: str) -> int:
 
 
 def _simulate(ls, cfg: StudyConfig, kind: str,
-              controller: ChainController | PloegChains | None, cacc_ids: set[str], lane_chain) -> tuple[_Accumulator, tuple, dict]:
+              controller: ChainController | PloegChains | None, cacc_ids: set[str],
+              lane_chain) -> tuple[_Accumulator, tuple, dict]:
     """The 0.1 s loop of one run: control, metrics, time-space map. Returns sums and timings."""
     vehicle = ls.vehicle
     get_speed, get_leader, set_speed = vehicle.getSpeed, vehicle.getLeader, vehicle.setSpeed

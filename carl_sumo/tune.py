@@ -215,7 +215,8 @@ def reusable_points(path: Path, cfg: TuneConfig, n_events: int) -> list[GridPoin
                          f"events, {payload['followers']} followers); run without --reuse")
     points = []
     for row in rows:
-        point = GridPoint(row["h"], row["kp"], row["kd"], max_ttc15_event=row["max_ttc15_per_event"],
+        point = GridPoint(row["h"], row["kp"], row["kd"],
+                          max_ttc15_event=row["max_ttc15_per_event"],
                           colliding_events=row["colliding_events"])
         point.metrics = {k: row[k] for k in METRIC_KEYS}
         points.append(point)
