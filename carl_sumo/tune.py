@@ -228,7 +228,8 @@ def tune_ploeg(cfg: TuneConfig, out: Path = TUNED_FILE, events_limit: int | None
                reuse: Path | None = None) -> dict:
     """Tune every time gap of ``cfg`` and write the result file ``out`` (atomically); ``log``
     receives one line per time gap as it is done; ``reuse`` an earlier result file whose points
-    are not simulated again."""
+    are not simulated again. After each time gap the result so far is written to
+    ``<out>.partial.json`` (removed at the end), which ``--reuse`` accepts after an interruption."""
     from carl_sumo.data import load_events
 
     if cfg.split in ("test", "us101", "all"):
@@ -246,6 +247,19 @@ def tune_ploeg(cfg: TuneConfig, out: Path = TUNED_FILE, events_limit: int | None
     start = time.perf_counter()
     runner = _Runner(cfg, len(events), events_limit, bar.update if bar is not None else None)
     entries, grid = [], []
+    partial = Path(out).with_suffix(".partial.json")
+
+    def result() -> dict:
+        return {"controller": "ploeg", "command": cfg.command, "date": date.today().isoformat(),
+                "data": cfg.data, "split": cfg.split, "events": len(events),
+                "followers": cfg.n_followers, "objective": OBJECTIVE,
+                "constraints": {"collisions": 0,
+                                "ttc_lt_1_5s_count": "at most the textbook gains' at the same h",
+                                "headway_at_most_textbook_times": 1.0 + cfg.headway_tolerance},
+                "grid_growth": GROWTH, "config": asdict(cfg),
+                "wall_time_s": round(time.perf_counter() - start, 1),
+                "entries": entries, "grid": grid}
+
     try:
         for h in cfg.gaps_s:
             known = {(p.kp, p.kd): p for p in (reuse or []) if p.h == h}
@@ -259,6 +273,7 @@ def tune_ploeg(cfg: TuneConfig, out: Path = TUNED_FILE, events_limit: int | None
                                   "safe": reference.safe, "metrics": reference.metrics,
                                   "max_ttc15_per_event": reference.max_ttc15_event}}
             entries.append(entry)
+            write_text_atomic(partial, json.dumps(result(), indent=1, allow_nan=True) + "\n")
             if log is not None:
                 chosen = f"kp = {best.kp:g}, kd = {best.kd:g}, J = {best.objective:.3f}" if best \
                     else "no safe gains"
@@ -268,16 +283,9 @@ def tune_ploeg(cfg: TuneConfig, out: Path = TUNED_FILE, events_limit: int | None
         runner.close()
         if bar is not None:
             bar.close()
-    payload = {"controller": "ploeg", "command": cfg.command, "date": date.today().isoformat(),
-               "data": cfg.data, "split": cfg.split, "events": len(events),
-               "followers": cfg.n_followers, "objective": OBJECTIVE,
-               "constraints": {"collisions": 0,
-                               "ttc_lt_1_5s_count": "at most the textbook gains' at the same h",
-                               "headway_at_most_textbook_times": 1.0 + cfg.headway_tolerance},
-               "grid_growth": GROWTH, "config": asdict(cfg),
-               "wall_time_s": round(time.perf_counter() - start, 1),
-               "entries": entries, "grid": grid}
+    payload = result()
     write_text_atomic(Path(out), json.dumps(payload, indent=1, allow_nan=True) + "\n")
+    partial.unlink(missing_ok=True)
     return payload
 
 
