@@ -26,7 +26,9 @@ that both cores stay busy to the end; Table 2's 10-follower rows reuse Table 1's
 Tables (``--quick``: the shipped default leader set, 2 events per table, 10 and 20 followers in
 Table 2, a one-cycle stop-and-go leader, and the default set's train split standing in for US-101):
 
-1. NGSIM test split, 10 followers: human, IDM, Krauss, MADDPG, DDPG, CA-DDPG, TD3, CA-TD3;
+1. NGSIM test split, 10 followers: human, IDM, Krauss, the classical CACCs (SUMO's CACC, the
+   textbook Ploeg curve over :data:`TEXTBOOK_GAPS` and the tuned Ploeg frontier of
+   ``policies/ploeg_tuned.json``), MADDPG, DDPG, CA-DDPG, TD3, CA-TD3;
 2. generalization: every model on 10, 20 and 50 followers (MADDPG on its own length only);
 3. the stop-and-go leader, 10 followers;
 4. cross-site: the US-101 sample (no model was trained on it), 10 followers.
@@ -96,7 +98,17 @@ class Model:
         return self.fixed_length is None or self.fixed_length == n
 
 
-BUILTIN_MODELS = {"human": "human (recorded)", "idm": "IDM (SUMO)", "krauss": "Krauss (SUMO)"}
+BUILTIN_MODELS = {"human": "human (recorded)", "idm": "IDM (SUMO)", "krauss": "Krauss (SUMO)",
+                  "sumo-cacc": "CACC (SUMO)"}
+TEXTBOOK_GAPS = (0.6, 0.8, 1.0, 1.2, 1.5)
+"""Time gaps h (s) of the textbook Ploeg curve (kp = 0.2, kd = 0.7) in every table."""
+
+
+def is_classical(key: str) -> bool:
+    """Whether a model key is a built-in (not learned) controller."""
+    return key in BUILTIN_MODELS or key.startswith(("ploeg:", "ploeg-tuned:"))
+
+
 ALGO_NAMES = {"ca-td3": "CA-TD3", "ca-ddpg": "CA-DDPG", "td3": "TD3", "ddpg": "DDPG",
               "maddpg": "MADDPG"}
 
@@ -152,17 +164,34 @@ class JobResult:
 
 PAIRED_COMPARISONS = (("ca_td3_10", "idm"), ("ca_ddpg_10", "idm"), ("ca_td3_10", "td3_1"),
                       ("ca_ddpg_10", "ddpg_1"), ("td3_1", "idm"), ("ddpg_1", "idm"),
-                      ("maddpg_10", "idm"))
+                      ("maddpg_10", "idm"), ("ca_td3_10", "ploeg:h=1.5"),
+                      ("ca_ddpg_10", "ploeg:h=1.5"))
 """Table 1's paired comparisons: the quality bar's (CA models against IDM and against their
-plain variants), and the other learned models against IDM."""
+plain variants), the other learned models against IDM, and the CA models against the textbook
+Ploeg CACC at h = 1.5 s, which follows at the same mean headway (1.75 s)."""
 SEED_MODELS = tuple(dict.fromkeys(key for pair in PAIRED_COMPARISONS
-                                  if pair[1] not in BUILTIN_MODELS for key in pair))
+                                  if not is_classical(pair[1]) for key in pair))
 """Models whose seed files ``--seeds`` runs: the policy pairs of :data:`PAIRED_COMPARISONS`,
 which Table 1 compares across seeds (each CA model with its plain variant). ``--all-seeds`` runs every model's seed files in every row."""
 PAIRED_KEYS = ("headway_s", "jerk_mps3", "speed_mps", "dampening_ratio")
 
 
 # ------------------------------------------------------------------------------------ planning
+def classical_models(tuned_file: Path | None = None) -> dict[str, str]:
+    """Key (controller name) -> row name of the classical CACCs: SUMO's CACC, the textbook
+    Ploeg curve and the tuned Ploeg frontier (every h with safe tuned gains)."""
+    from carl_sumo.cacc import TUNED_FILE, read_tuned
+
+    models = {"sumo-cacc": BUILTIN_MODELS["sumo-cacc"]}
+    models.update({f"ploeg:h={h:g}": f"Ploeg h={h:g} s" for h in TEXTBOOK_GAPS})
+    entries = read_tuned(tuned_file or TUNED_FILE)
+    models.update({f"ploeg-tuned:h={h}": f"Ploeg tuned h={h} s"
+                   for h, e in sorted(entries.items(), key=lambda kv: float(kv[0]))
+                   if e.get("kp") is not None})
+    return models
+
+
+
 def default_data(quick: bool) -> str:
     """``--data`` when not given: the NGSIM table if it is where it belongs; ``default`` (quick)."""
     if quick:
@@ -264,11 +293,12 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
     sg = EventSet("stop_and_go", "stop-and-go", "test", None,
                   note="one synthetic leader: 25 m/s, " + ("one braking (--quick)" if quick else
                                                            "three brakings") + " at -5 m/s² to 1 m/s")
-    table1_models = ("human", "idm", "krauss", "maddpg_10", "ddpg_1", "ca_ddpg_10", "td3_1",
-                     "ca_td3_10")
+    classical = classical_models()
+    table1_models = ("human", "idm", "krauss", *classical, "maddpg_10", "ddpg_1", "ca_ddpg_10",
+                     "td3_1", "ca_td3_10")
     seed_models = None if all_seeds else SEED_MODELS if seeds else ()
-    table2_models = ("idm", "krauss", "maddpg_10", "maddpg_20", "ddpg_1", "td3_1", "ca_ddpg_10",
-                     "ca_td3_10", "ca_ddpg_20", "ca_td3_20")
+    table2_models = ("idm", "krauss", *classical, "maddpg_10", "maddpg_20", "ddpg_1", "td3_1",
+                     "ca_ddpg_10", "ca_td3_10", "ca_ddpg_20", "ca_td3_20")
     tables = [
         TableSpec("table1_ngsim_test", "Table 1: NGSIM test split, 10 followers", test, (10,),
                   table1_models, figures=True, paired=PAIRED_COMPARISONS,
@@ -286,8 +316,8 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
     for spec in tables:
         for key in spec.models:
             if key not in models:
-                models[key] = Model(key, BUILTIN_MODELS[key]) if key in BUILTIN_MODELS \
-                    else discover_model(key, directory)
+                models[key] = Model(key, {**BUILTIN_MODELS, **classical}[key]) \
+                    if is_classical(key) else discover_model(key, directory)
     event_sets = {spec.events.key: spec.events for spec in tables}
     loaded = {key: _events(es, quick) for key, es in event_sets.items()}
     if not loaded["cross_site"]:

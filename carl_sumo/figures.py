@@ -6,11 +6,15 @@
   acceleration against time of the leader and every follower, one column per model;
 - ``fig_time_space_ngsim.png`` / ``fig_time_space_stop_and_go.png``: time-space diagrams of the
   platoon (front-bumper position against time, coloured by speed), one panel per model;
+- ``fig_frontier_ngsim_test.png``: mean |jerk| and dampening ratio against mean time headway on
+  the Table 1 runs: the textbook and tuned Ploeg CACCs as curves over their time gaps, every other
+  model as a point (who follows closer for the same comfort and string stability);
 - ``fig_accel_norm_profile.png``: per-vehicle acceleration norm ‖a_i‖₂ / ‖a_0‖₂ along the
   platoon (vehicle 0 = the leader), mean over events, for each platoon length of Table 2 and for
   the stop-and-go leader: a string-stable platoon stays at or below 1 and decreases along it.
 
-Every file is written to a temporary name and renamed into place.
+The per-model figures draw the classical CACCs of :data:`CLASSICAL_SHOWN` only (the frontier
+figure draws them all). Every file is written to a temporary name and renamed into place.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from carl_sumo.metrics import aggregate
 from carl_sumo.sumo import atomic_output
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -28,6 +33,12 @@ if TYPE_CHECKING:  # pragma: no cover
 
 ECDF_POINTS = 2000
 """Sample ranks at which an ECDF is drawn."""
+
+CLASSICAL_SHOWN = ("sumo-cacc", "ploeg:h=1", "ploeg-tuned:h=1")
+"""The classical CACCs drawn in the per-model figures: SUMO's, and Ploeg's at h = 1 s."""
+
+CURVES = {"ploeg:": "Ploeg textbook (kp 0.2, kd 0.7)", "ploeg-tuned:": "Ploeg tuned"}
+"""Model-key prefixes drawn as curves over the time gap in the frontier figure."""
 
 SAMPLE_LABELS = {"headway_s": "time headway (s)", "speed_mps": "speed (m/s)",
                  "jerk_mps3": "|jerk| (m/s³)"}
@@ -57,9 +68,10 @@ def save_png(fig, path: Path, dpi: int = 90, **savefig_kw) -> Path:
 
 
 def _colors(n: int) -> list:
-    """n distinct colours: matplotlib's tab10, then black and greys."""
+    """n distinct colours: matplotlib's tab10, then black, greys and tab20's light shades."""
     plt = pyplot()
-    base = [plt.get_cmap("tab10")(i) for i in range(10)] + ["black", "dimgray", "darkgray"]
+    base = [plt.get_cmap("tab10")(i) for i in range(10)] + ["black", "dimgray", "darkgray"] + [
+        plt.get_cmap("tab20")(i) for i in range(1, 20, 2)]
     return [base[i % len(base)] for i in range(n)]
 
 
@@ -201,6 +213,37 @@ def norm_profile_figure(panels: list[tuple[str, dict[str, np.ndarray]]], path: P
     save_png(fig, path)
 
 
+def _shown(key: str) -> bool:
+    return not key.startswith(tuple(CURVES)) or key in CLASSICAL_SHOWN
+
+
+def frontier_figure(points: list[dict[str, Any]], path: Path, title: str) -> None:
+    """Jerk and dampening against headway: ``points`` with label, curve (or None), headway_s,
+    jerk_mps3, dampening_ratio; points of one curve are joined in order of headway."""
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.2), layout="constrained")
+    for ax, key, ylabel in ((axes[0], "jerk_mps3", "mean |jerk| (m/s³)"),
+                            (axes[1], "dampening_ratio", "dampening ratio ‖a_i‖/‖a_0‖")):
+        for curve, style in zip(CURVES.values(), ("o--", "s-")):
+            pts = sorted((p for p in points if p["curve"] == curve), key=lambda p: p["headway_s"])
+            if pts:
+                ax.plot([p["headway_s"] for p in pts], [p[key] for p in pts], style, label=curve,
+                        color="0.35" if style == "o--" else "black", ms=5)
+                for p in pts:
+                    ax.annotate(p["label"].rsplit(" ", 2)[-2], (p["headway_s"], p[key]),
+                                textcoords="offset points", xytext=(4, 4), fontsize=7)
+        singles = [p for p in points if p["curve"] is None]
+        for p, color, marker in zip(singles, _colors(len(singles)), "DovP^<>sXh*dp"):
+            ax.plot(p["headway_s"], p[key], marker, color=color, ms=7, label=p["label"])
+        ax.set_xlabel("mean time headway (s)")
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=8, loc="outside right center")
+    fig.suptitle(title)
+    save_png(fig, path)
+
+
 def mean_profile(norms: list[np.ndarray]) -> np.ndarray:
     """Mean over events of ‖a_i‖/‖a_0‖ (events whose leader never accelerates are left out)."""
     ratios = [n / n[0] for n in norms if n[0] > 0]
@@ -211,7 +254,8 @@ def mean_profile(norms: list[np.ndarray]) -> np.ndarray:
 
 
 FIGURE_FUNCTIONS = {"ecdf": ecdf_figure, "timeseries": timeseries_figure,
-                    "time_space": time_space_figure, "norm_profile": norm_profile_figure}
+                    "time_space": time_space_figure, "norm_profile": norm_profile_figure,
+                    "frontier": frontier_figure}
 
 
 def figure_jobs(suite: "Suite", results: dict[tuple, "JobResult"],
@@ -222,7 +266,8 @@ def figure_jobs(suite: "Suite", results: dict[tuple, "JobResult"],
     t1, t2, t3 = (by_key["table1_ngsim_test"], by_key["table2_generalization"],
                   by_key["table3_stop_and_go"])
     label = {key: model_label(m) for key, m in suite.models.items()}
-    colors = dict(zip(label.values(), _colors(len(label))))
+    shown = [label[key] for key in suite.models if _shown(key)]
+    colors = dict(zip(shown, _colors(len(shown))))
 
     def first_run(spec, key, n):
         model = suite.models[key]
@@ -233,7 +278,7 @@ def figure_jobs(suite: "Suite", results: dict[tuple, "JobResult"],
                      "args": args})
 
     curves = {}
-    for key in t1.models:
+    for key in filter(_shown, t1.models):
         res = first_run(t1, key, t1.followers[0])
         curves[label[key]] = ecdf_curves({k: np.concatenate(v) if v else np.empty(0)
                                           for k, v in res.samples.items()})
@@ -245,7 +290,7 @@ def figure_jobs(suite: "Suite", results: dict[tuple, "JobResult"],
     for spec, tag in ((t1, "ngsim"), (t3, "stop_and_go")):
         event_id = suite.figure_events[spec.events.key]
         series = {}
-        for key in spec.models:
+        for key in filter(_shown, spec.models):
             res = first_run(spec, key, spec.followers[0])
             if res is not None and event_id in res.series:
                 series[label[key]] = res.series[event_id]
@@ -259,15 +304,25 @@ def figure_jobs(suite: "Suite", results: dict[tuple, "JobResult"],
 
     panels = []
     for n in t2.followers:
-        profiles = {label[key]: mean_profile(first_run(t2, key, n).norms) for key in t2.models
-                    if suite.models[key].runs_on(n)}
+        profiles = {label[key]: mean_profile(first_run(t2, key, n).norms)
+                    for key in filter(_shown, t2.models) if suite.models[key].runs_on(n)}
         panels.append((f"NGSIM test, {n} followers", profiles))
     panels.append((f"stop-and-go, {t3.followers[0]} followers",
                    {label[key]: mean_profile(first_run(t3, key, t3.followers[0]).norms)
-                    for key in t3.models}))
+                    for key in filter(_shown, t3.models)}))
     add("norm_profile", "fig_accel_norm_profile.png",
         "Acceleration norm along the platoon, ‖a_i‖₂/‖a_0‖₂, mean over events (string stability "
         "at a glance; model (length trained on))", panels, colors)
+
+    points = []
+    for key in (k for k in t1.models if k != "human"):  # one recorded vehicle, not a platoon
+        agg = aggregate(first_run(t1, key, t1.followers[0]).per_event)
+        curve = next((name for prefix, name in CURVES.items() if key.startswith(prefix)), None)
+        points.append({"label": label[key], "curve": curve, **agg})
+    add("frontier", "fig_frontier_ngsim_test.png",
+        "Mean |jerk| and dampening ratio against mean time headway (Table 1 runs): the Ploeg "
+        "CACC's textbook and tuned curves over their time gap h, every other model a point",
+        points, f"Following closer for the same comfort, {t1.title}")
     return jobs
 
 

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from carl_sumo.cli import main
-from carl_sumo.evaluate import CSV_COLUMNS, discover_model, figure_event
+from carl_sumo.evaluate import CSV_COLUMNS, classical_models, discover_model, figure_event
 from carl_sumo.errors import InputError
 from carl_sumo.metrics import METRIC_KEYS, aggregate, bootstrap_ci, paired_difference
 
@@ -58,11 +58,12 @@ def quick_suite(tmp_path_factory) -> Path:
     return out
 
 
+CLASSICAL = classical_models()  # SUMO's CACC, the textbook and the tuned Ploeg curves
 TABLES = {  # file stem -> (rows, platoon lengths)
-    "table1_ngsim_test": (8, {1, 10}),
-    "table2_generalization": (18, {10, 20}),
-    "table3_stop_and_go": (7, {10}),
-    "cross_site_us101": (8, {1, 10}),
+    "table1_ngsim_test": (8 + len(CLASSICAL), {1, 10}),
+    "table2_generalization": (18 + 2 * len(CLASSICAL), {10, 20}),
+    "table3_stop_and_go": (7 + len(CLASSICAL), {10}),
+    "cross_site_us101": (8 + len(CLASSICAL), {1, 10}),
 }
 
 
@@ -72,7 +73,7 @@ def test_quick_suite_writes_every_table_figure_and_readme(quick_suite):
         assert {f"{stem}.md", f"{stem}.csv"} <= names
     figures = sorted(n for n in names if n.endswith(".png"))
     assert figures == ["fig_accel_norm_profile.png", "fig_ecdf_ngsim_test.png",
-                       "fig_time_space_ngsim.png", "fig_time_space_stop_and_go.png",
+                       "fig_frontier_ngsim_test.png", "fig_time_space_ngsim.png", "fig_time_space_stop_and_go.png",
                        "fig_timeseries_ngsim.png", "fig_timeseries_stop_and_go.png"]
     for name in figures:
         data = (quick_suite / name).read_bytes()
@@ -132,8 +133,11 @@ def test_quick_suite_csv_rows_columns_and_intervals(quick_suite):
         else:
             assert table["headway_s_lo"].notna().all() and (table["events"] == 2).all()
     t1 = pd.read_csv(quick_suite / "table1_ngsim_test.csv")
-    assert list(t1["model"]) == ["human (recorded)", "IDM (SUMO)", "Krauss (SUMO)", "MADDPG",
-                                 "DDPG", "CA-DDPG", "TD3", "CA-TD3"]
+    assert list(t1["model"]) == ["human (recorded)", "IDM (SUMO)", "Krauss (SUMO)",
+                                 *CLASSICAL.values(), "MADDPG", "DDPG", "CA-DDPG", "TD3",
+                                 "CA-TD3"]
+    assert {"CACC (SUMO)", "Ploeg h=1 s", "Ploeg h=0.6 s"} <= set(CLASSICAL.values())
+    assert (t1[t1["model"].str.startswith(("Ploeg", "CACC"))]["collisions"] == 0).all()
     t2 = pd.read_csv(quick_suite / "table2_generalization.csv")
     maddpg = t2[t2["model"] == "MADDPG"]
     assert sorted(zip(maddpg["policy"], maddpg["followers"])) == [("maddpg_10", 10),
