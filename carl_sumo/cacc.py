@@ -38,8 +38,8 @@ from numba import njit
 
 from carl_sumo.config import BOUNDS, DT_S, IDM, ControlBounds
 from carl_sumo.errors import InputError
+from carl_sumo.sumo import REPO_ROOT
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
 TUNED_FILE = REPO_ROOT / "policies" / "ploeg_tuned.json"
 """The tuned gains per time gap, written by ``carl-sumo tune ploeg``."""
 
@@ -53,10 +53,8 @@ class PloegParams:
     kd: float = 0.7             # spacing-error-rate gain (1/s)
     standstill_gap_m: float = 2.0  # s0 (m)
 
-    def name(self, tuned: bool = False) -> str:
+    def name(self) -> str:
         """The controller name that runs these gains."""
-        if tuned:
-            return f"ploeg-tuned:h={self.time_gap_s:g}"
         return f"ploeg:h={self.time_gap_s:g}:kp={self.kp:g}:kd={self.kd:g}"
 
 
@@ -105,10 +103,15 @@ class PloegController:
         leader_speed = float(obs[0, 0] + obs[0, 3])
         a_lead = 0.0 if self._leader_speed is None else (leader_speed - self._leader_speed) / DT_S
         self._leader_speed = leader_speed
-        p = self.params
-        return _ploeg_step(obs, self.u, a_lead, p.time_gap_s, p.kp, p.kd, p.standstill_gap_m,
-                           DT_S, self.bounds.acc_min_mps2, self.bounds.acc_max_mps2,
-                           IDM.desired_speed_mps, CRUISE_GAIN_PER_S)
+        return self.step(obs, self.u, a_lead)
+
+    def step(self, obs: np.ndarray, u: np.ndarray, u_lead: float) -> np.ndarray:
+        """One step of the law on a chain (head first): updates the states ``u`` in place; the
+        head hears ``u_lead`` (m/s²). Returns a (m/s²)."""
+        p, b = self.params, self.bounds
+        return _ploeg_step(obs, u, u_lead, p.time_gap_s, p.kp, p.kd, p.standstill_gap_m, DT_S,
+                           b.acc_min_mps2, b.acc_max_mps2, IDM.desired_speed_mps,
+                           CRUISE_GAIN_PER_S)
 
 
 # ------------------------------------------------------------------------------------ names
@@ -193,17 +196,18 @@ class PloegChains:
         self.u: dict[str, float] = {}
 
     def acceleration(self, obs: np.ndarray, chains: list[list[int]], ids: list[str],
-                     head_pred_acc: list[float]) -> np.ndarray:
+                     ahead: list[tuple[str, float] | None],
+                     last_acc: dict[str, float]) -> np.ndarray:
         """a (m/s², shape (m,)) of the CACC vehicles ``ids`` with observations ``obs`` (m, 4);
-        ``chains`` index rows head first, ``head_pred_acc`` is per chain (m/s²)."""
-        p, b = self.controller.params, self.controller.bounds
+        ``chains`` index rows head first, ``ahead`` is each row's (vehicle ahead, gap) or None
+        and ``last_acc`` every vehicle's acceleration over the last step (m/s²)."""
         out = np.empty(obs.shape[0])
         u_new: dict[str, float] = {}
-        for chain, a_pred in zip(chains, head_pred_acc):
+        for chain in chains:
+            head = ahead[chain[0]]
+            a_pred = last_acc.get(head[0], 0.0) if head is not None else 0.0
             u = np.array([self.u.get(ids[i], 0.0) for i in chain])
-            out[chain] = _ploeg_step(np.ascontiguousarray(obs[chain]), u, a_pred, p.time_gap_s,
-                                     p.kp, p.kd, p.standstill_gap_m, DT_S, b.acc_min_mps2,
-                                     b.acc_max_mps2, IDM.desired_speed_mps, CRUISE_GAIN_PER_S)
+            out[chain] = self.controller.step(np.ascontiguousarray(obs[chain]), u, a_pred)
             u_new.update(zip((ids[i] for i in chain), u.tolist()))
         self.u = u_new
         return out

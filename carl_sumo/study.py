@@ -236,10 +236,10 @@ class ChainController:
             self.compiled = CompiledActor(agent)
 
     def acceleration(self, obs: np.ndarray, chains: list[list[int]], ids: list[str],
-                     head_pred_acc: list[float]) -> np.ndarray:
+                     ahead: list[tuple[str, float] | None],
+                     last_acc: dict[str, float]) -> np.ndarray:
         """a = clip(a_IDM + a_adj) (m/s², shape (m,)) of the CACC vehicles (the interface of
-        :class:`carl_sumo.cacc.PloegChains`; ids and the heads' predecessor accelerations are not
-        needed here)."""
+        :class:`carl_sumo.cacc.PloegChains`; ids, ahead and last_acc are not needed here)."""
         return total_acceleration(obs, self.adjustment(obs, chains))
 
     def adjustment(self, obs: np.ndarray, chains: list[list[int]]) -> np.ndarray:
@@ -431,9 +431,7 @@ def _simulate(ls, cfg: StudyConfig, kind: str,
                                                  [accel[i] for i in cidx], cahead, speed_of,
                                                  min_gap, lookahead)
             chains = form_chains(cids, chain_ahead, cfg.v2v_range_m)
-            heads = [chain_ahead[chain[0]] for chain in chains]
-            accel_cmd = controller.acceleration(obs, chains, cids, [
-                prev_acc.get(head[0], 0.0) if head is not None else 0.0 for head in heads])
+            accel_cmd = controller.acceleration(obs, chains, cids, chain_ahead, prev_acc)
             for vid, v, a in zip(cids, obs[:, 0].tolist(), accel_cmd.tolist()):
                 v += a * DT_S
                 set_speed(vid, v if v > 0.0 else 0.0)

@@ -179,11 +179,13 @@ def test_ploeg_chains_keep_state_by_vehicle_and_take_the_heads_predecessor_accel
     chains = PloegChains(PloegParams(time_gap_s=1.0))
     eq = [10.0, 0.0, 12.0, 0.0]  # at its equilibrium gap 2 + 1.0·10
     obs = np.array([eq, eq, eq])
-    a = chains.acceleration(obs, [[0, 1], [2]], ["a", "b", "c"], [0.0, 2.0])
+    ahead = [("x", 12.0), ("a", 12.0), ("y", 12.0)]  # x and y are humans
+    a = chains.acceleration(obs, [[0, 1], [2]], ["a", "b", "c"], ahead, {"x": 0.0, "y": 2.0})
     assert a[0] == 0.0 and a[1] == 0.0  # chain head: predecessor's acceleration 0
     assert math.isclose(a[2], DT_S * 2.0)  # head of the second chain hears 2 m/s² ahead
-    a = chains.acceleration(obs[:2], [[1, 0]], ["c", "d"], [0.0])  # c now leads new vehicle d
-    assert math.isclose(a[0], 0.2 - DT_S * 0.2) and a[1] == 0.0  # d hears c's state of last step
+    # a new vehicle d, with nobody ahead, now leads c: d starts at u = 0, c hears d's state 0
+    a = chains.acceleration(obs[:2], [[1, 0]], ["c", "d"], [("d", 12.0), None], {})
+    assert math.isclose(a[0], 0.2 - DT_S * 0.2) and a[1] == 0.0
     assert set(chains.u) == {"c", "d"}  # vehicles that left are forgotten
 
 
