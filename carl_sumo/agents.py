@@ -59,10 +59,16 @@ class AgentConfig:
     max_grad_norm: float = 10.0     # gradient norm clipping of actor and critic updates
     smooth_jerk: float = 0.0      # actor loss weight on the policy's jerk, per (m/s³)² (CAPS-style)
     smooth_accel: float = 0.0     # actor loss weight on the policy's acceleration, per (m/s²)²
+    base: str = "idm"             # base model under a_adj: idm, or a classical CACC name
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
             raise InputError(f"unknown algorithm {self.algo!r}; choose one of {', '.join(ALGOS)}")
+
+    @property
+    def residual(self) -> bool:
+        """On a classical base the actor starts at a_adj = 0 (see :func:`zero_action_output`)."""
+        return self.base != "idm"
 
     @property
     def communication_aware(self) -> bool:
@@ -90,6 +96,17 @@ def idm_acceleration_torch(obs: torch.Tensor) -> torch.Tensor:
     return IDM.accel_mps2 * (1.0 - (v / IDM.desired_speed_mps) ** IDM.delta - (s_star / gap) ** 2)
 
 
+@torch.no_grad()
+def zero_action_output(actor: nn.Module) -> None:
+    """Zero the weights and bias of the actor's action output, so that a_adj = 0 for every
+    input at the start: a residual policy starts exactly on its classical base and moves off it
+    only where the critic says that pays. The layers below keep their random initialisation: the
+    output row learns from the first actor update, and the layers below from the next."""
+    last = [m for m in actor.modules() if isinstance(m, nn.Linear)][-1]
+    last.weight[-1:].zero_()  # the action is the last output (after the CA message)
+    last.bias[-1:].zero_()
+
+
 def _networks(cfg: AgentConfig) -> tuple[nn.Module, nn.Module]:
     """(actor, critic) of an algorithm; actor outputs pre-tanh, critic one Q per vehicle."""
     if cfg.communication_aware:
@@ -108,6 +125,9 @@ class Agent(nn.Module):
         super().__init__()
         self.cfg = cfg
         self.actor, self.critic1 = _networks(cfg)
+        if cfg.residual:
+            for net in getattr(self.actor, "nets", [self.actor]):  # MADDPG: one per vehicle
+                zero_action_output(net)
         self.critic2 = _networks(cfg)[1] if cfg.twin else None
         self.actor_target = copy.deepcopy(self.actor)
         self.critic1_target = copy.deepcopy(self.critic1)
@@ -198,14 +218,22 @@ class Agent(nn.Module):
         stats = {"critic_loss": float(loss.detach())}
         self.updates += 1
         if not cfg.twin or self.updates % cfg.policy_delay == 0:
-            stats["actor_loss"] = self._update_actor(x, next_x, obs, next_obs, mask, maskf)
+            stats["actor_loss"] = self._update_actor(x, next_x, obs, next_obs, mask, maskf,
+                                                     action)
             self._soft_update()
         return stats
 
     def _update_actor(self, x: torch.Tensor, next_x: torch.Tensor, obs: torch.Tensor,
-                      next_obs: torch.Tensor, mask: torch.Tensor, maskf: torch.Tensor) -> float:
+                      next_obs: torch.Tensor, mask: torch.Tensor, maskf: torch.Tensor,
+                      stored_action: torch.Tensor) -> float:
         """One actor step on -Q1 (+ penalties); the critic's weights get no gradient."""
         cfg = self.cfg
+        if cfg.residual and (cfg.smooth_jerk > 0 or cfg.smooth_accel > 0):
+            action_now, pre = self._act_normalised(self.actor, x, mask, True)
+            q = self._q([self.critic1], x, action_now, mask, detach_params=True)[0]
+            per_vehicle = cfg.preactivation_l2 * pre ** 2 - q + self._residual_smoothness(
+                obs, next_obs, stored_action, action_now)
+            return self._actor_step(per_vehicle, maskf)
         jerk = cfg.smooth_jerk > 0
         if jerk:  # the actor on o and o' in one pass (rows are independent)
             both, pre_both = self._act_normalised(self.actor, torch.cat([x, next_x]),
@@ -220,10 +248,14 @@ class Agent(nn.Module):
         if jerk or cfg.smooth_accel > 0:
             per_vehicle = per_vehicle + self._smoothness(obs, next_obs, action_now, mask,
                                                           action_next)
+        return self._actor_step(per_vehicle, maskf)
+
+    def _actor_step(self, per_vehicle: torch.Tensor, maskf: torch.Tensor) -> float:
+        """One optimiser step on the mean of a per-vehicle actor loss over real vehicles."""
         actor_loss = (per_vehicle * maskf).sum() / maskf.sum()
         self.actor_opt.zero_grad()
         actor_loss.backward()
-        nn.utils.clip_grad_norm_(self.actor.parameters(), cfg.max_grad_norm)
+        nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.max_grad_norm)
         self.actor_opt.step()
         return float(actor_loss.detach())
 
@@ -242,6 +274,21 @@ class Agent(nn.Module):
                 action_next = self._act(self.actor, next_obs, mask)
             acc_next = self.total_acceleration(next_obs, action_next)
             penalty = penalty + self.cfg.smooth_jerk * ((acc_next - acc_now) / DT_S) ** 2
+        return penalty
+
+    def _residual_smoothness(self, obs: torch.Tensor, next_obs: torch.Tensor,
+                             stored_action: torch.Tensor, action_now: torch.Tensor
+                             ) -> torch.Tensor:
+        """The smoothness penalty on a classical base, whose a_base has a state and is not a
+        function of o: it is read back from the transition instead. o' holds the acceleration
+        applied at the step, a = a_base + a_adj(stored), and o holds the one before it, so with
+        the actor's a_adj now, a(o) = a'_o' - a_adj(stored) + a_adj and the step's jerk is
+        (a(o) - a_o)/dt: ``smooth_jerk``·jerk² + ``smooth_accel``·a(o)², exactly the jerk and
+        acceleration the reward and the metrics see (while a stays inside the bounds)."""
+        acc_now = next_obs[..., 1] - stored_action + action_now
+        penalty = self.cfg.smooth_accel * acc_now ** 2
+        if self.cfg.smooth_jerk > 0:
+            penalty = penalty + self.cfg.smooth_jerk * ((acc_now - obs[..., 1]) / DT_S) ** 2
         return penalty
 
     @torch.no_grad()

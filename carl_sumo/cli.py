@@ -91,11 +91,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint-every", type=int, default=5_000)
     p.add_argument("--out", type=Path, default=None, help="policy file (default policies/ALGO.pt)")
     p.add_argument("--resume", type=Path, default=None, help="checkpoint (.ckpt) to continue")
-    p.add_argument("--select", default=None, choices=("margin", "metrics", "reward"),
+    p.add_argument("--select", default=None, choices=("margin", "comfort", "metrics", "reward"),
                    help="how the best validation checkpoint is kept: margin (default: the "
-                        "largest smallest z of the improvement over IDM on jerk, dampening and "
-                        "speed), metrics (jerk and dampening relative to IDM, speed at least "
-                        "IDM's) or reward")
+                        "largest smallest z of the improvement over the base on jerk, dampening "
+                        "and speed), comfort (the same on jerk and dampening only, at most 5 %% "
+                        "above the base's headway), metrics (jerk and dampening relative to the "
+                        "base, speed at least the base's) or reward")
+    p.add_argument("--base", default=None,
+                   help="base model under the learned adjustment: idm (default, the paper's) or "
+                        "a classical CACC such as ploeg-tuned:h=1 (the actor starts at a_adj = 0)")
     p.add_argument("--w-gap", type=float, default=None, help="reward weight of the headway term")
     p.add_argument("--w-safe", type=float, default=None, help="reward weight of the TTC term")
     p.add_argument("--w-comfort", type=float, default=None, help="reward weight of the jerk term")
@@ -158,7 +162,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("rank", help="rank runs of one model (several seeds) by their stored "
                        "validation score, best first")
     p.add_argument("paths", nargs="+", type=Path, help="policy files of one algorithm")
-    p.add_argument("--select", default="margin", choices=("margin", "metrics", "reward"),
+    p.add_argument("--select", default="margin", choices=("margin", "comfort", "metrics", "reward"),
                    help="the rule of `train --select` (default margin)")
     p.add_argument("--best-only", action="store_true",
                    help="print only the path of the best run (for scripts)")
@@ -317,7 +321,7 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
 TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_scale", "message_dim",
                    "hidden", "actor_lr", "critic_lr", "noise", "noise_correlation", "smooth_jerk",
                    "smooth_accel", "eval_events", "val_seed", "val_source", "gamma",
-                   "adj_max")
+                   "adj_max", "base")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 
@@ -330,6 +334,10 @@ def cmd_train(args: argparse.Namespace) -> None:
         raise InputError(f"unknown algorithm {args.algo!r}; choose one of {', '.join(ALGOS)}")
     for name in ("vehicles", "steps", "envs", "eval_every", "checkpoint_every"):
         _positive(getattr(args, name), "--" + name.replace("_", "-"))
+    if args.base is not None:
+        from carl_sumo.controllers import check_base
+
+        check_base(args.base)
     events = load_events(args.data, args.split)
     out = args.out or Path("policies") / f"{args.algo.replace('-', '_')}.pt"
     cfg = TrainConfig(algo=args.algo, n_vehicles=args.vehicles, steps=args.steps, seed=args.seed,

@@ -1,6 +1,9 @@
-"""Follower control: the IDM base acceleration and the controller interface for a_adj.
+"""Follower control: the base acceleration, the controller interface for a_adj, the residual sum.
 
-A CACC follower applies ``a = clip(a_IDM(o) + clip(a_adj, ±adj_max), acc_min, acc_max)``. The
+A CACC follower applies ``a = clip(a_base + clip(a_adj, ±adj_max), acc_min, acc_max)``. The base
+is IDM (``a_base = a_IDM(o)``, the paper's) or a classical CACC named as in :mod:`carl_sumo.cacc`
+(e.g. ``ploeg-tuned:h=1``: the Ploeg controller, with its own state, gives a_base), see
+:func:`base_controller`. The
 adjustment comes from a :class:`Controller`, which receives the observations of every follower of
 the platoon at once (rows ordered head to tail), so a communication-aware policy can pass messages
 along the platoon. The per-step arithmetic is compiled with numba: it runs in the 0.1 s SUMO loop
@@ -16,7 +19,12 @@ from typing import Protocol
 import numpy as np
 from numba import njit
 
+from carl_sumo.cacc import PloegController, is_ploeg_name, ploeg_controller
 from carl_sumo.config import BOUNDS, IDM, ControlBounds, IDMParams
+from carl_sumo.errors import InputError
+
+IDM_BASE = "idm"
+"""The name of the paper's base model: a_base = a_IDM(o)."""
 
 _EPS = 1e-6  # smallest gap in the IDM interaction term (m), as SUMO's NUMERICAL_EPS
 
@@ -68,6 +76,31 @@ def total_acceleration(obs: np.ndarray, adjustment: np.ndarray, p: IDMParams = I
     return _total_acceleration(obs, np.asarray(adjustment, dtype=np.float64), *_params(p, bounds))
 
 
+def check_base(name: str) -> str:
+    """``name`` if it names a base model (``idm`` or a Ploeg controller name); InputError if not."""
+    if name == IDM_BASE:
+        return name
+    if is_ploeg_name(name):
+        ploeg_controller(name)  # a bad option or missing tuned gains fail here, with one line
+        return name
+    raise InputError(f"unknown base model {name!r}; choose idm or a Ploeg CACC "
+                     "(ploeg, ploeg:h=H:kp=KP:kd=KD, ploeg-tuned:h=H)")
+
+
+def base_controller(name: str) -> PloegController | None:
+    """The controller giving a_base for a base name: None for IDM (computed from o alone by
+    :func:`total_acceleration`), a fresh :class:`PloegController` (it has state) otherwise."""
+    return None if check_base(name) == IDM_BASE else ploeg_controller(name)
+
+
+def residual_acceleration(base: np.ndarray, adjustment: np.ndarray,
+                          bounds: ControlBounds = BOUNDS) -> np.ndarray:
+    """a = clip(a_base + clip(a_adj, ±adj_max), acc_min, acc_max) (m/s², shape (n,))."""
+    adj = np.clip(np.asarray(adjustment, dtype=np.float64), -bounds.adj_max_mps2,
+                  bounds.adj_max_mps2)
+    return np.clip(base + adj, bounds.acc_min_mps2, bounds.acc_max_mps2)
+
+
 class Controller(Protocol):
     """Computes the acceleration adjustment a_adj of every follower of a platoon."""
 
@@ -81,7 +114,8 @@ class Controller(Protocol):
 
 
 class AccelerationController(Protocol):
-    """A controller that sets the whole acceleration (a classical CACC), not an IDM adjustment."""
+    """A controller that sets the whole acceleration (a classical CACC, or a learned adjustment
+    on a classical base), not an adjustment of IDM."""
 
     name: str
 

@@ -2,7 +2,8 @@
 
 Each agent observes o_i = [v_i, a_i, d_i, Δv_i] (m/s, m/s², m, m/s) and acts with its acceleration
 adjustment a_adj (m/s², bounded by ``ControlBounds.adj_max_mps2``); it applies
-a = clip(a_IDM + a_adj). Episodes replay one event each; a collision terminates every agent,
+a = clip(a_base + a_adj), the base being IDM (the paper's) or a classical CACC such as
+``ploeg-tuned:h=1`` (:func:`carl_sumo.controllers.base_controller`). Episodes replay one event each; a collision terminates every agent,
 the end of the event truncates them. :meth:`PlatoonEnv.step_array` is the same step on arrays,
 for batched (communication-aware) controllers.
 """
@@ -32,7 +33,7 @@ class PlatoonEnv(ParallelEnv):
     def __init__(self, events: Sequence[Event], n_followers: int = 10,
                  net_path: str | Path = DEFAULT_NET, reward: RewardConfig = REWARD,
                  idm: IDMParams = IDM, bounds: ControlBounds = BOUNDS,
-                 scenario: ScenarioConfig = SCENARIO):
+                 scenario: ScenarioConfig = SCENARIO, base: str = "idm"):
         if not events:
             raise InputError("the environment needs at least one event")
         self.events = list(events)
@@ -41,6 +42,8 @@ class PlatoonEnv(ParallelEnv):
             check_fits(self.sim.route, event, n_followers, scenario)
         self.n_followers = n_followers
         self.reward_cfg, self.idm, self.bounds = reward, idm, bounds
+        self.base = controllers.check_base(base)
+        self._base = controllers.base_controller(base)  # None: IDM, in the compiled kernel
         # kernels and their parameters, bound once: step_array runs every 0.1 s simulated
         self._control = controllers._total_acceleration
         self._control_params = controllers._params(idm, bounds)
@@ -68,6 +71,8 @@ class PlatoonEnv(ParallelEnv):
         self.event = event if event is not None else \
             self.events[int(self._rng.integers(len(self.events)))]
         self.sim.reset(self.event, self.n_followers)
+        if self._base is not None:
+            self._base.reset(self.n_followers)
         self._obs = self.sim.observation()
         self._first_step = True
         return self._obs
@@ -77,7 +82,11 @@ class PlatoonEnv(ParallelEnv):
         """Apply a_adj (m/s², shape (n,)); returns obs, rewards, terminated, truncated, a."""
         if adjustment.dtype != np.float64:
             adjustment = adjustment.astype(np.float64)
-        accel = self._control(self._obs, adjustment, *self._control_params)
+        if self._base is None:
+            accel = self._control(self._obs, adjustment, *self._control_params)
+        else:
+            accel = controllers.residual_acceleration(self._base.acceleration(self._obs),
+                                                      adjustment, self.bounds)
         # the first step has no previous acceleration: its jerk is taken as 0, not (a - 0)/dt
         prev_acc = accel if self._first_step else self.sim.acc
         self._first_step = False

@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from carl_sumo.agents import AgentConfig, Agent
+from carl_sumo.controllers import base_controller, residual_acceleration
 from carl_sumo.errors import InputError
 from carl_sumo.inference import CompiledActor
 from carl_sumo.sumo import atomic_output
@@ -90,7 +91,7 @@ def load_policy(path: Path) -> tuple[Agent, dict[str, Any]]:
 
 
 class PolicyController:
-    """A trained policy as a :class:`carl_sumo.controllers.Controller`.
+    """A trained policy on the IDM base as a :class:`carl_sumo.controllers.Controller`.
 
     Acts through :class:`carl_sumo.inference.CompiledActor` (numba, same numbers as
     ``agent.act``), compiled from ``agent``'s actor when the controller is made.
@@ -108,8 +109,28 @@ class PolicyController:
         return self._actor(obs)
 
 
+class ResidualPolicyController(PolicyController):
+    """A trained policy on a classical base (``agent.cfg.base``, e.g. ``ploeg-tuned:h=1``) as an
+    :class:`carl_sumo.controllers.AccelerationController`: a = clip(a_base + a_adj)."""
+
+    def __init__(self, agent: Agent, name: str):
+        super().__init__(agent, name)
+        self.base = base_controller(agent.cfg.base)
+
+    def reset(self, n_followers: int) -> None:
+        super().reset(n_followers)
+        self.base.reset(n_followers)
+
+    def acceleration(self, obs: np.ndarray) -> np.ndarray:
+        """a (m/s², shape (n,)) for one platoon observation (n, 4), head first."""
+        return residual_acceleration(self.base.acceleration(obs), self.adjustment(obs))
+
+
 def load_controller(path: Path) -> PolicyController:
+    """The controller of a policy file: on IDM, or on the classical base it was trained on."""
     agent, _ = load_policy(path)
+    if agent.cfg.base != "idm":
+        return ResidualPolicyController(agent, str(path))
     return PolicyController(agent, str(path))
 
 
@@ -147,7 +168,8 @@ def policy_card(path: Path) -> str:
             total = f"; whole run {float(last[2]):.0f} s for {last[0]} steps (learning curve: `{curve.name}`)"
     lines = [f"### `{Path(path).name}`", "",
              f"- algorithm: {meta.get('algo', agent.cfg.algo)}, trained on "
-             f"{meta.get('trained_vehicles', agent.cfg.n_vehicles)} vehicle(s), seed {meta.get('seed')}",
+             f"{meta.get('trained_vehicles', agent.cfg.n_vehicles)} vehicle(s), seed {meta.get('seed')}, "
+             f"base {agent.cfg.base}",
              f"- data: {meta.get('data')} split {meta.get('split')}, {meta.get('steps')} steps, "
              f"wall time {meta.get('wall_time_s', float('nan')):.0f} s to the best checkpoint{total}",
              f"- command: `{meta.get('command', '')}`" + _renamed(meta, path),
@@ -155,7 +177,9 @@ def policy_card(path: Path) -> str:
              f"- versions: {meta.get('sumo_version')}, carl-sumo {meta.get('carl_sumo_version')}, "
              f"torch {meta.get('torch_version')}",
              f"- validation ({_held_out(meta)}): " + _metric_list(val)]
-    if meta.get("validation_idm"):
-        lines.append("- IDM on the same events: " + _metric_list(meta["validation_idm"]))
+    baseline = meta.get("validation_base") or meta.get("validation_idm")
+    if baseline:
+        lines.append(f"- the base ({agent.cfg.base}) alone on the same events: "
+                     + _metric_list(baseline))
     lines.append("")
     return "\n".join(lines)

@@ -15,7 +15,8 @@ CACC vehicles (controller ``idm-external`` or a policy file) are driven by carl-
   of the one ahead; a human or a longer gap ends a chain. The policy runs on each chain as one
   platoon (the numba-compiled actor of :mod:`carl_sumo.inference`; the Communication-Aware module
   gives the boundary messages to each chain's ends);
-- a = clip(a_IDM + a_adj) (:func:`carl_sumo.controllers.total_acceleration`), applied exactly with
+- a = clip(a_base + a_adj), a_base being IDM (:func:`carl_sumo.controllers.total_acceleration`) or,
+  for a policy trained on a classical base, that CACC on the same chains, applied exactly with
   ``setSpeed(max(v + a·dt, 0))`` (speedMode 0); lane changes off (laneChangeMode 0).
 
 Controllers ``ploeg``, ``ploeg:h=..`` and ``ploeg-tuned:h=..``: Ploeg's CACC
@@ -56,7 +57,7 @@ import numpy as np
 
 from carl_sumo.config import DT_S, HEADWAY_MIN_SPEED_MPS
 from carl_sumo.cacc import PloegChains, is_ploeg_name, parse_ploeg
-from carl_sumo.controllers import total_acceleration
+from carl_sumo.controllers import residual_acceleration, total_acceleration
 from carl_sumo.errors import InputError
 from carl_sumo.sumo import (DEFAULT_NET, VTYPES_FILE, close_sumo, lane_route,
                             start_sumo, write_text_atomic)
@@ -215,12 +216,14 @@ def zipper_ahead(ls, vid: str, lane: str, siblings: tuple[str, ...],
 
 
 class ChainController:
-    """a_adj of all CACC vehicles from their chains: zero (``idm-external``) or a policy."""
+    """a_adj of all CACC vehicles from their chains: zero (``idm-external``) or a policy, on IDM
+    or, for a policy trained on a classical base, on that base run on the same chains."""
 
     def __init__(self, name: str):
         self.name = name
         self.agent = None
         self.compiled = None
+        self.base: PloegChains | None = None
         if name != "idm-external":
             from carl_sumo.policy import load_policy
 
@@ -234,13 +237,18 @@ class ChainController:
 
             self.agent = agent
             self.compiled = CompiledActor(agent)
+            if agent.cfg.base != "idm":
+                self.base = PloegChains(parse_ploeg(agent.cfg.base), agent.cfg.base)
 
     def acceleration(self, obs: np.ndarray, chains: list[list[int]], ids: list[str],
                      ahead: list[tuple[str, float] | None],
                      last_acc: dict[str, float]) -> np.ndarray:
-        """a = clip(a_IDM + a_adj) (m/s², shape (m,)) of the CACC vehicles (the interface of
-        :class:`carl_sumo.cacc.PloegChains`; ids, ahead and last_acc are not needed here)."""
-        return total_acceleration(obs, self.adjustment(obs, chains))
+        """a = clip(a_base + a_adj) (m/s², shape (m,)) of the CACC vehicles (the interface of
+        :class:`carl_sumo.cacc.PloegChains`; ids, ahead and last_acc serve a classical base)."""
+        if self.base is None:
+            return total_acceleration(obs, self.adjustment(obs, chains))
+        return residual_acceleration(self.base.acceleration(obs, chains, ids, ahead, last_acc),
+                                     self.adjustment(obs, chains))
 
     def adjustment(self, obs: np.ndarray, chains: list[list[int]]) -> np.ndarray:
         """a_adj (m/s², shape (m,)) for observations (m, 4) of the CACC vehicles and their chains."""

@@ -74,6 +74,7 @@ class TrainConfig:
     adj_max: float = AgentConfig.adj_max                  # |a_adj| bound of the actor (m/s²)
     smooth_jerk: float = AgentConfig.smooth_jerk          # actor smoothness terms (agents.py)
     smooth_accel: float = AgentConfig.smooth_accel
+    base: str = AgentConfig.base          # base model under a_adj: idm or a classical CACC name
 
     @property
     def reward(self) -> RewardConfig:
@@ -174,6 +175,9 @@ def improvement_z(per_event: Sequence[dict], baseline: Sequence[dict]) -> dict[s
 
 
 SAFETY_KEYS = ("collisions", "ttc_lt_1_5s_count", "headway_s")
+SELECT_RULES = ("margin", "comfort", "metrics", "reward")
+COMFORT_HEADWAY_SLACK = 1.05
+"""``comfort`` selection: a mean headway above this times the base's is ranked as unsafe."""
 
 
 def is_unsafe(val: dict[str, float]) -> bool:
@@ -191,16 +195,24 @@ def selection_score(val: dict[str, float], select: str,
     - ``metrics``: -(dampening ratio + mean |jerk|), each divided by the IDM ``baseline``'s value
       on the same events when one is given, with (given a baseline) a lower mean speed than
       IDM's ranked as unsafe. An undefined term (NaN: a leader that never accelerates) counts 0.
-    - ``margin``: the smallest of the paired z-statistics of the improvement over IDM on jerk,
-      dampening ratio and speed (``z_jerk``, ``z_dampening``, ``z_speed`` in ``val``, from
-      :func:`improvement_z`): the checkpoint that beats IDM most convincingly on its weakest
-      criterion of the quality bar.
+    - ``margin``: the smallest of the paired z-statistics of the improvement over the base
+      (IDM for the paper's configuration) on jerk, dampening ratio and speed (``z_jerk``,
+      ``z_dampening``, ``z_speed`` in ``val``, from :func:`improvement_z`): the checkpoint that
+      beats its base most convincingly on its weakest criterion of the quality bar.
+    - ``comfort``: the smaller of ``z_jerk`` and ``z_dampening``, with a mean headway more than
+      5 % above the base's ranked as unsafe: the checkpoint that improves most on its classical
+      base at the base's headway (a residual on a CACC on its tuned frontier has to beat the
+      frontier where it stands, not by following further behind).
     """
     if select == "reward":
         return val["val_reward"] - 10.0 * val["collisions"]
     penalty = 1000.0 if is_unsafe(val) else 0.0
     if select == "margin":
         return min(val[name] for name, _ in MARGIN_KEYS.values()) - penalty
+    if select == "comfort":
+        if baseline is not None and val["headway_s"] > COMFORT_HEADWAY_SLACK * baseline["headway_s"]:
+            penalty = 1000.0
+        return min(val["z_jerk"], val["z_dampening"]) - penalty
     damp, jerk = np.nan_to_num(val["dampening_ratio"]), np.nan_to_num(val["jerk_mps3"])
     if baseline is not None:
         if val["speed_mps"] < baseline["speed_mps"]:
@@ -219,8 +231,8 @@ def rank_runs(paths: Sequence[Path], select: str = "margin") -> list[dict[str, A
     InputError for files of different algorithms or platoon lengths, or without the validation
     metrics the rule needs.
     """
-    if select not in ("margin", "metrics", "reward"):
-        raise InputError(f"unknown rule {select!r}; choose margin, metrics or reward")
+    if select not in SELECT_RULES:
+        raise InputError(f"unknown rule {select!r}; choose {', '.join(SELECT_RULES)}")
     rows, model = [], None
     for path in paths:
         payload = read_policy_payload(Path(path))
@@ -231,8 +243,10 @@ def rank_runs(paths: Sequence[Path], select: str = "margin") -> list[dict[str, A
         elif this != model:
             raise InputError(f"{path} is {this[0]} on {this[1]} vehicle(s), the first file is "
                              f"{model[0]} on {model[1]}; rank the runs of one model at a time")
-        val, baseline = meta.get("validation") or {}, meta.get("validation_idm") or None
+        val = meta.get("validation") or {}
+        baseline = meta.get("validation_base") or meta.get("validation_idm") or None
         needed = {"margin": [name for name, _ in MARGIN_KEYS.values()],
+                  "comfort": ["z_jerk", "z_dampening"],
                   "metrics": ["jerk_mps3", "dampening_ratio", "speed_mps"],
                   "reward": ["val_reward"]}[select]
         missing = [k for k in (*needed, *SAFETY_KEYS) if k not in val]
@@ -246,8 +260,9 @@ def rank_runs(paths: Sequence[Path], select: str = "margin") -> list[dict[str, A
     return sorted(rows, key=lambda r: (-r["score"], r["seed"] is None, r["seed"] or 0))
 
 
-class _IDMOnly:
-    """a_adj = 0: plain IDM, the validation baseline."""
+class _BaseOnly:
+    """a_adj = 0: the base model alone (IDM in the paper's configuration), the validation
+    baseline."""
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         return np.zeros(obs.shape[:-1])
@@ -283,11 +298,12 @@ def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: flo
               val_events: Sequence[Event] = ()) -> dict:
     import libsumo
 
-    return {"algo": cfg.algo, "trained_vehicles": cfg.n_vehicles, "seed": cfg.seed,
+    return {"algo": cfg.algo, "base": cfg.base, "trained_vehicles": cfg.n_vehicles,
+            "seed": cfg.seed,
             "data": cfg.data, "split": cfg.split, "steps": cfg.steps,
             "observation": "[v m/s, a m/s^2, d m, dv m/s]", "reward": asdict(cfg.reward),
             "validation": {k: float(v) for k, v in val.items()},
-            "validation_idm": {k: float(v) for k, v in (baseline or {}).items()},
+            "validation_base": {k: float(v) for k, v in (baseline or {}).items()},
             "validation_events": [e.event_id for e in val_events],
             "wall_time_s": float(wall_s),
             "command": cfg.command, "sumo_version": str(libsumo.getVersion()[1]),
@@ -316,7 +332,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                               exploration_noise=cfg.noise,
                               noise_correlation=cfg.noise_correlation,
                               smooth_jerk=cfg.smooth_jerk, smooth_accel=cfg.smooth_accel,
-                              gamma=cfg.gamma, adj_max=cfg.adj_max))
+                              gamma=cfg.gamma, adj_max=cfg.adj_max, base=cfg.base))
     buffer = ReplayBuffer(cfg.buffer_size, n)
     rng = np.random.default_rng(cfg.seed)
     start_step, best, wall_before = 0, -np.inf, 0.0
@@ -338,13 +354,14 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
         start_step, best = int(state["step"]), float(state["best"])
         wall_before = float(state["wall_s"])
         log(f"resumed {resume} at step {start_step}")
-    val_env = PlatoonEnv(val_events, n, cfg.net, reward=cfg.reward)
+    val_env = PlatoonEnv(val_events, n, cfg.net, reward=cfg.reward, base=cfg.base)
     for event in train_events:  # fail here, not in a worker, when an event does not fit the net
         check_fits(val_env.sim.route, event, n)
-    idm_reward, baseline_events = validate_events(_IDMOnly(), val_env, val_events)  # same events
-    baseline = {"val_reward": idm_reward, **aggregate(baseline_events)}
-    log("validation baseline (IDM): " + ", ".join(f"{k}={v:.3f}" for k, v in baseline.items()))
-    vec = VecPlatoon(train_events, n, cfg.net, cfg.num_envs, cfg.seed + start_step, cfg.reward)
+    base_reward, baseline_events = validate_events(_BaseOnly(), val_env, val_events)  # same events
+    baseline = {"val_reward": base_reward, **aggregate(baseline_events)}
+    log(f"validation baseline ({cfg.base}): " + ", ".join(f"{k}={v:.3f}" for k, v in baseline.items()))
+    vec = VecPlatoon(train_events, n, cfg.net, cfg.num_envs, cfg.seed + start_step, cfg.reward,
+                     cfg.base)
     obs = vec.reset(cfg.seed + start_step)
     new_log = not (resume is not None and log_path.exists())
     if not new_log:
@@ -367,7 +384,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                          agent.cfg.noise_correlation, rng)
     try:
         for step in range(start_step, cfg.steps):
-            if step < cfg.learning_starts:  # IDM plus exploration noise only
+            if step < cfg.learning_starts:  # the base plus exploration noise only
                 action = np.clip(noise.sample(), -agent.cfg.adj_max, agent.cfg.adj_max)
             else:
                 action = agent.act(obs, noise.sample())
@@ -420,7 +437,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
         if bar is not None:
             bar.close()
     wall = wall_before + time.perf_counter() - t0
-    return {"validation": val, "validation_idm": baseline, "wall_time_s": wall, "best_score": best}
+    return {"validation": val, "validation_base": baseline, "wall_time_s": wall,
+            "best_score": best}
 
 
 def _tensorboard(logdir: Path):
@@ -456,7 +474,7 @@ def export_policy(checkpoint: Path, out: Path) -> dict[str, Any]:
     cfg = TrainConfig(**state["train_config"])
     agent = Agent(AgentConfig(algo=cfg.algo, n_vehicles=cfg.n_vehicles,
                               message_dim=cfg.message_dim, hidden=cfg.hidden,
-                              gamma=cfg.gamma, adj_max=cfg.adj_max))
+                              gamma=cfg.gamma, adj_max=cfg.adj_max, base=cfg.base))
     agent.load_state_dict(state["agent"])
     meta = _metadata(cfg, agent, {}, float(state["wall_s"]))
     meta["exported_from"] = f"{Path(checkpoint).name} at step {int(state['step'])}"

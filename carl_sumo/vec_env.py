@@ -19,10 +19,10 @@ from carl_sumo.data.events import Event
 
 
 def _worker(conn, events: Sequence[Event], n: int, net_path: str, seed: int,
-            reward: RewardConfig) -> None:
+            reward: RewardConfig, base: str) -> None:
     from carl_sumo.env import PlatoonEnv
 
-    env = PlatoonEnv(events, n, net_path, reward=reward)
+    env = PlatoonEnv(events, n, net_path, reward=reward, base=base)
     rng_seed = seed
     env.reset_array(seed=rng_seed)
     while True:
@@ -41,17 +41,18 @@ def _worker(conn, events: Sequence[Event], n: int, net_path: str, seed: int,
 
 
 class VecPlatoon:
-    """``num_envs`` platoon environments in worker processes."""
+    """``num_envs`` platoon environments in worker processes (``base``: their base model)."""
 
     def __init__(self, events: Sequence[Event], n_followers: int, net_path: str | Path,
-                 num_envs: int = 2, seed: int = 0, reward: RewardConfig = REWARD):
+                 num_envs: int = 2, seed: int = 0, reward: RewardConfig = REWARD,
+                 base: str = "idm"):
         ctx = mp.get_context("spawn")
         self.num_envs, self.n = num_envs, n_followers
         self._conns, self._procs = [], []
         for i in range(num_envs):
             parent, child = ctx.Pipe()
             proc = ctx.Process(target=_worker, args=(child, list(events), n_followers,
-                                                     str(net_path), seed * 1000 + i, reward),
+                                                     str(net_path), seed * 1000 + i, reward, base),
                                daemon=True)
             proc.start()
             child.close()

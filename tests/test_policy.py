@@ -84,3 +84,21 @@ def test_card_says_when_a_shipped_file_was_renamed(tmp_path):
     save_policy(Agent(AgentConfig(algo="td3", n_vehicles=1)), tmp_path / "td3_1_seed7.pt", meta)
     assert "written as `td3_1_seed7.pt`, since renamed `td3_1.pt`" in policy_card(tmp_path / "td3_1.pt")
     assert "renamed" not in policy_card(tmp_path / "td3_1_seed7.pt")
+
+
+def test_residual_policy_starts_on_its_classical_base(tmp_path):
+    """A fresh agent on base ploeg outputs a_adj = 0, so its controller is the Ploeg CACC."""
+    from carl_sumo.cacc import ploeg_controller
+    from carl_sumo.controllers import applied_acceleration
+
+    for algo in ("ca-td3", "td3", "maddpg"):
+        agent = Agent(AgentConfig(algo=algo, n_vehicles=3, base="ploeg:h=0.8"))
+        save_policy(agent, tmp_path / f"{algo}.pt", {})
+        controller = load_controller(tmp_path / f"{algo}.pt")
+        reference = ploeg_controller("ploeg:h=0.8")
+        controller.reset(3), reference.reset(3)
+        rng = np.random.default_rng(0)
+        for _ in range(5):
+            obs = rng.uniform([5, -1, 10, -2], [20, 1, 40, 2], (3, 4))
+            assert np.all(controller.adjustment(obs) == 0.0)
+            assert np.allclose(applied_acceleration(controller, obs), reference.acceleration(obs))

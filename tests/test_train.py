@@ -214,3 +214,42 @@ def test_resuming_an_older_learning_curve_upgrades_its_header(tmp_path):
     before = log.read_text()
     _upgrade_log(log)  # a current log is left as it is
     assert log.read_text() == before
+
+
+def test_residual_smoothness_reads_the_applied_acceleration_back():
+    """On a classical base a(o) = a'_o' - stored a_adj + a_adj: with the stored action it is the
+    acceleration the simulation applied, and its jerk is the one the reward sees."""
+    from carl_sumo.bench import cruise_event
+
+    env = PlatoonEnv([cruise_event(80, 12.0, 20.0)], 3, NET, base="ploeg:h=0.8")
+    obs = env.reset_array(seed=0)
+    env.step_array(np.zeros(3))
+    obs = env._obs.copy()
+    action = np.array([0.3, -0.2, 0.1])
+    next_obs, _, _, _, applied = env.step_array(action)
+    agent = Agent(AgentConfig(algo="td3", base="ploeg:h=0.8", smooth_jerk=1.0, smooth_accel=0.5))
+    t = lambda x: torch.as_tensor(x[None])
+    penalty = agent._residual_smoothness(t(obs), t(next_obs), t(action), t(action))[0].numpy()
+    jerk = (applied - obs[:, 1]) / 0.1
+    assert np.allclose(penalty, 1.0 * jerk ** 2 + 0.5 * applied ** 2, rtol=1e-9)
+
+
+def test_training_on_a_classical_base_records_it(tmp_path):
+    events = [cruise_event(200, 15.0, 30.0)]
+    cfg = TrainConfig(algo="ca-td3", n_vehicles=2, steps=300, seed=0, num_envs=2,
+                      learning_starts=100, eval_every=300, eval_events=1, checkpoint_every=300,
+                      net=str(NET), base="ploeg:h=0.8", smooth_jerk=0.05, select="comfort",
+                      out=str(tmp_path / "r.pt"))
+    result = train(cfg, events, progress=False)
+    agent, meta = load_policy(tmp_path / "r.pt")
+    assert agent.cfg.base == meta["base"] == "ploeg:h=0.8"
+    assert meta["validation_base"]["headway_s"] == pytest.approx(
+        result["validation_base"]["headway_s"])
+    assert rank_runs([tmp_path / "r.pt"], "comfort")[0]["path"] == str(tmp_path / "r.pt")
+
+
+def test_comfort_selection_refuses_a_longer_headway_than_the_base():
+    base = {"headway_s": 1.30}
+    val = {"collisions": 0, "ttc_lt_1_5s_count": 0, "z_jerk": 3.0, "z_dampening": 2.0}
+    assert selection_score({**val, "headway_s": 1.33}, "comfort", base) == 2.0
+    assert selection_score({**val, "headway_s": 1.40}, "comfort", base) < -900
