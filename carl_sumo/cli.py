@@ -252,16 +252,9 @@ def format_table(results: list[dict]) -> str:
     return "\n".join([line(header), line(["-" * w for w in widths]), *map(line, rows)])
 
 
-def _write_json_atomic(path: Path, payload: dict) -> None:
-    from carl_sumo.sumo import atomic_output
-
-    tmp = atomic_output(path)
-    tmp.write_text(json.dumps(payload, indent=2, allow_nan=True))
-    os.replace(tmp, path)
-
-
 def cmd_simulate(args: argparse.Namespace) -> None:
     from carl_sumo.data import load_events
+    from carl_sumo.files import write_text_atomic
     from carl_sumo.simulate import resolve_controller, simulate
 
     _positive(args.vehicles, "--vehicles")
@@ -283,7 +276,7 @@ def cmd_simulate(args: argparse.Namespace) -> None:
     if args.json is not None:
         payload = {k: results[0][k] for k in ("metrics", "events", "controller", "followers")} \
             if len(results) == 1 else {"controllers": {r["controller"]: r for r in results}}
-        _write_json_atomic(args.json, payload)
+        write_text_atomic(args.json, json.dumps(payload, indent=2, allow_nan=True))
 
 
 def cmd_replay(args: argparse.Namespace) -> None:

@@ -58,10 +58,11 @@ from carl_sumo.data import load_events
 from carl_sumo.data.events import Event
 from carl_sumo.data.synthetic import stop_and_go_event
 from carl_sumo.errors import InputError
+from carl_sumo.files import write_text_atomic
 from carl_sumo.metrics import (BETTER, METRIC_KEYS, POOLED_WEIGHTS, acceleration_norms,
                                aggregate, bootstrap_ci, metric_samples, paired_difference,
                                score_event, seed_comparison)
-from carl_sumo.sumo import REPO_ROOT, check_fits, lane_route, write_text_atomic
+from carl_sumo.sumo import REPO_ROOT, check_fits, lane_route
 
 DEFAULT_NGSIM = Path("../shared/data/ngsim/ngsim_cf_events.csv.gz")
 """The NGSIM event table, relative to the directory carl-sumo runs in (the repository root)."""

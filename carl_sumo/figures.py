@@ -25,8 +25,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from carl_sumo.files import atomic_output
 from carl_sumo.metrics import aggregate
-from carl_sumo.sumo import atomic_output
 
 if TYPE_CHECKING:  # pragma: no cover
     from carl_sumo.evaluate import JobResult, Suite

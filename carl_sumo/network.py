@@ -13,7 +13,8 @@ import subprocess
 from pathlib import Path
 
 from carl_sumo.errors import InputError
-from carl_sumo.sumo import REPO_ROOT, atomic_output
+from carl_sumo.files import atomic_output
+from carl_sumo.sumo import REPO_ROOT
 
 NET_SOURCES = REPO_ROOT / "networks" / "i80" / "i80.netccfg"
 NET_FILE = REPO_ROOT / "networks" / "i80.net.xml"

@@ -20,7 +20,7 @@ from carl_sumo.agents import AgentConfig, Agent
 from carl_sumo.controllers import base_controller, residual_acceleration
 from carl_sumo.errors import InputError
 from carl_sumo.inference import CompiledActor
-from carl_sumo.sumo import atomic_output
+from carl_sumo.files import atomic_output
 
 FORMAT = "carl-sumo-policy"
 FORMAT_VERSION = 1

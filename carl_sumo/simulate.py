@@ -24,8 +24,9 @@ from carl_sumo.controllers import AccelerationController, Controller, ZeroAdjust
     applied_acceleration
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
+from carl_sumo.files import atomic_output
 from carl_sumo.metrics import PlatoonTrajectory, aggregate, score_event
-from carl_sumo.sumo import DEFAULT_NET, PlatoonSim, atomic_output, close_sumo, use_gui
+from carl_sumo.sumo import DEFAULT_NET, PlatoonSim, close_sumo, use_gui
 
 NATIVE_CONTROLLERS = {"idm": "idm", "krauss": "krauss", "sumo-cacc": "sumo-cacc"}
 BUILTIN_CONTROLLERS = ("idm", "krauss", "sumo-cacc", "idm-external", "ploeg[:h=H:kp=KP:kd=KD]",

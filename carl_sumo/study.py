@@ -59,8 +59,8 @@ from carl_sumo.config import DT_S, HEADWAY_MIN_SPEED_MPS
 from carl_sumo.cacc import PloegChains, is_ploeg_name, parse_ploeg
 from carl_sumo.controllers import residual_acceleration, total_acceleration
 from carl_sumo.errors import InputError
-from carl_sumo.sumo import (DEFAULT_NET, VTYPES_FILE, close_sumo, lane_route,
-                            start_sumo, write_text_atomic)
+from carl_sumo.files import write_text_atomic
+from carl_sumo.sumo import DEFAULT_NET, VTYPES_FILE, close_sumo, lane_route, start_sumo
 from carl_sumo.traffic import DEFAULT_DEMAND, MAIN_EDGE, Demand, write_detectors, write_routes
 
 SENSOR_RANGE_M = 300.0

@@ -382,20 +382,3 @@ class PlatoonSim:
     def leader_sumo_speed(self) -> float:
         return _libsumo().vehicle.getSpeed(self.leader_id)
 
-
-def atomic_output(path: Path) -> Path:
-    """A temporary path beside ``path`` to write to before ``os.replace`` moves it in place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
-
-
-def write_text_atomic(path: Path, text: str) -> Path:
-    """Write ``text`` to ``path`` through a temporary file: never a half-written file."""
-    path = Path(path)
-    tmp = atomic_output(path)
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from carl_sumo.errors import InputError
-from carl_sumo.sumo import write_text_atomic
+from carl_sumo.files import write_text_atomic
 
 MAINLINE_EDGE = "i80_approach"
 ONRAMP_EDGE = "powell_onramp"

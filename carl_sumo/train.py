@@ -31,7 +31,8 @@ from carl_sumo.metrics import (BETTER, PlatoonTrajectory, aggregate, event_weigh
                                score_event)
 from carl_sumo.policy import load_torch, read_policy_payload, save_policy, save_torch_atomic
 from carl_sumo.replay import ReplayBuffer
-from carl_sumo.sumo import DEFAULT_NET, check_fits, write_text_atomic
+from carl_sumo.files import write_text_atomic
+from carl_sumo.sumo import DEFAULT_NET, check_fits
 
 CHECKPOINT_FORMAT = "carl-sumo-checkpoint"
 

@@ -36,7 +36,8 @@ from typing import Callable
 from carl_sumo.cacc import TEXTBOOK, TUNED_FILE, PloegParams
 from carl_sumo.errors import InputError
 from carl_sumo.metrics import METRIC_KEYS, aggregate
-from carl_sumo.sumo import DEFAULT_NET, write_text_atomic
+from carl_sumo.files import write_text_atomic
+from carl_sumo.sumo import DEFAULT_NET
 
 GROWTH = 1.5
 """Factor by which the grid grows beyond an edge (kp·1.5 or kp/1.5, the same for kd)."""
