@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 from carl_sumo.errors import InputError
+from carl_sumo.files import check_output_dir, check_output_file, write_text_atomic
 
 EXIT_BAD_INPUT = 2
 
@@ -254,10 +255,11 @@ def format_table(results: list[dict]) -> str:
 
 def cmd_simulate(args: argparse.Namespace) -> None:
     from carl_sumo.data import load_events
-    from carl_sumo.files import write_text_atomic
     from carl_sumo.simulate import resolve_controller, simulate
 
     _positive(args.vehicles, "--vehicles")
+    if args.json is not None:
+        check_output_file(args.json, "--json")
     if args.events is not None:
         _positive(args.events, "--events")
     names = [c.strip() for c in args.controller.split(",") if c.strip()]
@@ -286,6 +288,7 @@ def cmd_replay(args: argparse.Namespace) -> None:
     from carl_sumo.sumo import has_display, use_gui
 
     _positive(args.vehicles, "--vehicles")
+    check_output_file(args.fcd, "--fcd")
     if args.gui and not has_display():
         use_gui(True)  # raises the one-line "no display" error before anything runs
     (event,) = load_events(args.data, args.split, event_ids=[args.event])
@@ -300,6 +303,7 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
     from carl_sumo.evaluate import evaluate
 
     workers = _positive(args.workers, "--workers")
+    check_output_dir(args.out, "--out")
     result = evaluate(args.suite, args.out, args.data, args.quick, args.events, args.policies,
                       args.net, workers, progress=sys.stderr.isatty(),
                       command="carl-sumo " + " ".join(sys.argv[1:]), all_seeds=args.all_seeds,
@@ -331,8 +335,9 @@ def cmd_train(args: argparse.Namespace) -> None:
         from carl_sumo.controllers import check_base
 
         check_base(args.base)
+    out = check_output_file(args.out or Path("policies") / f"{args.algo.replace('-', '_')}.pt",
+                            "--out")
     events = load_events(args.data, args.split)
-    out = args.out or Path("policies") / f"{args.algo.replace('-', '_')}.pt"
     cfg = TrainConfig(algo=args.algo, n_vehicles=args.vehicles, steps=args.steps, seed=args.seed,
                       num_envs=args.envs, learning_starts=args.learning_starts,
                       eval_every=args.eval_every, checkpoint_every=args.checkpoint_every,
@@ -344,21 +349,6 @@ def cmd_train(args: argparse.Namespace) -> None:
     print(f"wrote {out} (best validation score {result['best_score']:.4f}); "
           f"wall time {result['wall_time_s']:.0f} s; last validation: "
           + ", ".join(f"{k}={_fmt(v)}" for k, v in val.items()))
-
-
-def _check_writable(path: Path) -> None:
-    """InputError now, before any long run, when ``path`` cannot be written."""
-    path = Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        probe = path.with_name(f".{path.name}.{os.getpid()}.probe")
-        probe.write_text("")
-        probe.unlink()
-    except OSError as exc:
-        raise InputError(f"cannot write {path} ({exc.strerror or type(exc).__name__}); give an "
-                         "output path in a writable directory") from None
-    if path.is_dir():
-        raise InputError(f"{path} is a directory; give a file path for the result")
 
 
 def cmd_tune(args: argparse.Namespace) -> None:
@@ -375,7 +365,7 @@ def cmd_tune(args: argparse.Namespace) -> None:
         raise InputError(f"--headway-tolerance must be a non-negative fraction, got "
                          f"{args.headway_tolerance}")
     out = args.out or TUNED_FILE
-    _check_writable(out)
+    check_output_file(out, "--out")
     cfg = TuneConfig(gaps_s=parse_values(args.gaps, "--gaps"), kp=parse_values(args.kp, "--kp"),
                      kd=parse_values(args.kd, "--kd"), n_followers=args.vehicles,
                      headway_tolerance=args.headway_tolerance,
@@ -397,6 +387,7 @@ def cmd_tune(args: argparse.Namespace) -> None:
 def cmd_export(args: argparse.Namespace) -> None:
     from carl_sumo.train import export_policy
 
+    check_output_file(args.out, "--out")
     meta = export_policy(args.checkpoint, args.out)
     print(f"wrote {args.out} ({meta['exported_from']})")
 
@@ -482,6 +473,7 @@ def cmd_study(args: argparse.Namespace) -> None:
         raise InputError(f"--warmup must be a non-negative number of seconds, got {args.warmup}")
     _positive(args.seeds, "--seeds")
     _positive(args.workers, "--workers")
+    check_output_dir(args.out, "--out")
     lane_route(args.net, args.heatmap_lane)  # checks the network and the lane
     if not 0.0 <= args.detector_pos:
         raise InputError(f"--detector-pos must be non-negative, got {args.detector_pos}")
@@ -519,7 +511,8 @@ def _check_detector(cfg) -> None:
 def cmd_net(args: argparse.Namespace) -> None:
     from carl_sumo.network import NET_FILE, NET_SOURCES, build_network
 
-    out = build_network(args.config or NET_SOURCES, args.out or NET_FILE)
+    out = check_output_file(args.out or NET_FILE, "--out")
+    out = build_network(args.config or NET_SOURCES, out)
     print(f"wrote {out}")
 
 
@@ -534,7 +527,7 @@ def cmd_data(args: argparse.Namespace) -> None:
         from carl_sumo.data import DEFAULT_EVENTS
         from carl_sumo.data.default_set import make_default_set
 
-        out = args.out or DEFAULT_EVENTS
+        out = check_output_file(args.out or DEFAULT_EVENTS, "--out")
         table = make_default_set(Path(args.net), Path(out), seed=args.seed)
         print(f"wrote {out}: {table['event_id'].nunique()} events")
 

@@ -5,8 +5,11 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+import pytest
+
 import carl_sumo
-from carl_sumo.files import atomic_output, write_text_atomic
+from carl_sumo.errors import InputError
+from carl_sumo.files import atomic_output, check_output_dir, check_output_file, write_text_atomic
 
 PACKAGE = Path(carl_sumo.__file__).parent
 HELPERS = {"atomic_output", "write_text_atomic"}
@@ -33,3 +36,68 @@ def test_every_writer_imports_the_file_helpers_from_files():
             if isinstance(node, ast.ImportFrom) and HELPERS & {a.name for a in node.names}:
                 assert node.module == "carl_sumo.files", \
                     f"{path}:{node.lineno} imports a file helper from {node.module}"
+
+
+def _must_not_run(*args, **kwargs):
+    raise AssertionError("the long work started before the output path was checked")
+
+
+LONG_WORK = ("carl_sumo.simulate.simulate", "carl_sumo.simulate.replay",
+             "carl_sumo.evaluate.evaluate", "carl_sumo.train.train",
+             "carl_sumo.train.export_policy", "carl_sumo.tune.tune_ploeg",
+             "carl_sumo.study.run_study", "carl_sumo.network.build_network",
+             "carl_sumo.data.default_set.make_default_set")
+
+BAD_OUTPUTS = {
+    "simulate --json": ["simulate", "--json", "/proc/x/y.json"],
+    "replay --fcd": ["replay", "--event", "e", "--fcd", "/proc/nope/f.xml"],
+    "evaluate --out": ["evaluate", "--quick", "--out", "/proc/nope"],
+    "study --out": ["study", "--out", "/proc/nope", "--seeds", "1"],
+    "tune --out": ["tune", "ploeg", "--out", "/proc/nope/t.json"],
+    "train --out": ["train", "--out", "/proc/nope/p.pt"],
+    "export --out": ["export", "x.ckpt", "--out", "/proc/nope/p.pt"],
+    "net build --out": ["net", "build", "--out", "/proc/nope/i80.net.xml"],
+    "data make-default --out": ["data", "make-default", "--out", "/proc/nope/e.csv.gz"],
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_OUTPUTS))
+def test_unwritable_output_is_one_line_exit_2_before_any_work(capsys, monkeypatch, case):
+    from carl_sumo.cli import main
+
+    for target in LONG_WORK:
+        monkeypatch.setattr(target, _must_not_run)
+    argv = BAD_OUTPUTS[case]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    option = case.split()[-1]
+    assert err.count("\n") == 1 and err.startswith("carl-sumo: error: cannot write " + option)
+    assert "/proc/" in err and "give a path in a folder you can write to" in err
+
+
+def test_a_folder_for_a_file_and_a_file_for_a_folder_are_refused(capsys, tmp_path):
+    from carl_sumo.cli import main
+
+    assert main(["simulate", "--json", str(tmp_path)]) == 2
+    assert "is a folder; give the path of a file" in capsys.readouterr().err
+    (tmp_path / "f").write_text("")
+    assert main(["evaluate", "--quick", "--out", str(tmp_path / "f")]) == 2
+    assert "is a file; give a folder" in capsys.readouterr().err
+
+
+def test_the_check_leaves_nothing_behind(tmp_path):
+    assert check_output_file(tmp_path / "a" / "b" / "c.json", "--json") == tmp_path / "a/b/c.json"
+    assert check_output_dir(tmp_path / "d" / "e", "--out") == tmp_path / "d" / "e"
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(InputError, match="cannot create the folder /proc/nope"):
+        check_output_dir("/proc/nope/deeper", "--out")
+
+
+def test_the_command_itself_exits_2_on_an_unwritable_json(tmp_path):
+    import subprocess
+    import sys
+
+    result = subprocess.run([sys.executable, "-m", "carl_sumo.cli", "simulate", "--json",
+                             "/proc/x/y.json"], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr.count("\n") == 1 and "cannot write --json /proc/x/y.json" in result.stderr
