@@ -47,6 +47,49 @@ def test_bad_tables(tmp_path, small_table_path, mutate, message):
         load_events(bad, "all")
 
 
+def _one_event(small_table_path, tmp_path, rows=None, **columns):
+    """A table of the first event of the small table, cut to ``rows`` and with columns replaced."""
+    table = pd.read_csv(small_table_path)
+    table = table[table.event_id == "ev_test_0"].iloc[:rows].assign(**columns)
+    path = tmp_path / "one.csv"
+    table.to_csv(path, index=False)
+    return path
+
+
+@pytest.mark.parametrize("rows", [1, 2])
+def test_an_event_too_short_for_a_jerk_is_refused_with_exit_2(capsys, tmp_path, small_table_path,
+                                                              rows):
+    from carl_sumo.cli import main
+
+    path = _one_event(small_table_path, tmp_path, rows)
+    with pytest.raises(InputError, match=f"ev_test_0 has {rows} sample.*at least 3 samples"):
+        load_events(path, "all")
+    assert main(["simulate", "--data", str(path), "--split", "all", "--vehicles", "2"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and "at least 3 samples" in err
+    (event,) = load_events(_one_event(small_table_path, tmp_path, 3), "all")  # 3 is enough
+    assert event.n_samples == 3
+
+
+@pytest.mark.parametrize("column", ["leader_speed_mps", "follower_speed_mps"])
+def test_an_implausible_speed_is_named_as_such(capsys, tmp_path, small_table_path, column):
+    from carl_sumo.cli import main
+
+    path = _one_event(small_table_path, tmp_path)
+    table = pd.read_csv(path)
+    table.loc[7, column] = 1e6
+    table.to_csv(path, index=False)
+    with pytest.raises(InputError, match=f"ev_test_0 has an implausible speed in column {column}: "
+                                         "1e\\+06 m/s at t_s = 0.7 s"):
+        load_events(path, "all")
+    assert main(["simulate", "--data", str(path), "--split", "all", "--vehicles", "2"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "implausible speed" in err and "too short" not in err
+    table.loc[7, column] = 70.0  # the bound itself is plausible
+    table.to_csv(path, index=False)
+    assert load_events(path, "all")[0].n_samples == len(table)
+
+
 def test_missing_and_malformed_files(tmp_path):
     with pytest.raises(InputError, match="does not exist"):
         load_table(tmp_path / "nope.csv")

@@ -22,7 +22,15 @@ DEFAULT_VEHICLE_LENGTH_M = 5.0
 """Vehicle length used where an event does not give one (m)."""
 
 MIN_EVENT_SAMPLES = 151
-"""Shortest event: 151 samples = 15.0 s."""
+"""Shortest event that the extractors of raw trajectories keep: 151 samples = 15.0 s."""
+
+MIN_SCORED_SAMPLES = 3
+"""Shortest event that a table may hold: 3 samples = 0.2 s, the fewest that give every follower a
+jerk (j_k = (a_{k+1} - a_k)/dt needs three speeds); a shorter event is refused, not scored nan."""
+
+MAX_SPEED_MPS = 70.0
+"""Highest plausible speed of a leader or follower (m/s, 252 km/h); a higher one is refused as
+implausible (wrong units, a broken record) before anything is simulated."""
 
 EVENT_COLUMNS: tuple[str, ...] = (
     "event_id", "source", "site", "period", "split_in_source", "follower_id", "leader_id", "lane",
@@ -138,6 +146,20 @@ def select_split(table: pd.DataFrame, split: str) -> pd.DataFrame:
     return table[mask]
 
 
+def _check_plausible_speeds(rows: pd.DataFrame, event_id, name: str) -> None:
+    """InputError naming the event, the time and the column of the first speed above
+    :data:`MAX_SPEED_MPS`."""
+    for column in ("leader_speed_mps", "follower_speed_mps"):
+        values = rows[column].to_numpy(float)
+        above = np.flatnonzero(values > MAX_SPEED_MPS)
+        if above.size:
+            k = int(above[0])
+            raise InputError(f"{name}: event {event_id} has an implausible speed in column "
+                             f"{column}: {values[k]:g} m/s at t_s = {rows['t_s'].iloc[k]:g} s "
+                             f"(sample {k}); speeds above {MAX_SPEED_MPS:g} m/s are not road "
+                             "traffic: check the units (m/s) or drop that event")
+
+
 def events_from_table(table: pd.DataFrame, name: str = "event table") -> list[Event]:
     """Build :class:`Event` objects from a validated table, in file order of their first row.
 
@@ -150,9 +172,10 @@ def events_from_table(table: pd.DataFrame, name: str = "event table") -> list[Ev
     has_lane = "lane" in table.columns
     for event_id, rows in table.groupby("event_id", sort=False):
         t = rows["t_s"].to_numpy(float)
-        if len(t) < 2:
+        if len(t) < MIN_SCORED_SAMPLES:
             raise InputError(f"{name}: event {event_id} has {len(t)} sample(s); an event needs at "
-                             "least 2 samples 0.1 s apart")
+                             f"least {MIN_SCORED_SAMPLES} samples {DT_S} s apart (its jerk is "
+                             "not defined otherwise); drop that event or give a longer one")
         steps = np.diff(t)
         if not np.allclose(steps, DT_S, atol=1e-3):
             raise InputError(f"{name}: event {event_id} is not sampled every {DT_S} s in column "
@@ -161,6 +184,7 @@ def events_from_table(table: pd.DataFrame, name: str = "event table") -> list[Ev
         if (leader_speed < 0).any() or (rows["follower_speed_mps"].to_numpy(float) < 0).any():
             raise InputError(f"{name}: event {event_id} has a negative speed; speeds are in m/s "
                              "and must be >= 0")
+        _check_plausible_speeds(rows, event_id, name)
         pos = rows["leader_pos_m"].to_numpy(float) if has_pos else None
         if pos is None or np.isnan(pos).any():
             pos = np.concatenate([[0.0], np.cumsum(leader_speed[1:]) * DT_S])
