@@ -39,7 +39,10 @@ FOLLOWER_TYPES = {"external": "cacc", "idm": "human_idm", "krauss": "human_kraus
                   "sumo-cacc": "cacc_sumo"}
 """SUMO vehicle type of the followers for each follower model."""
 
-FCD_ATTRIBUTES = "id,type,x,y,speed,acceleration,pos,lane,odometer,leaderID,leaderSpeed,leaderGap"
+FCD_ATTRIBUTES = ("id,type,x,y,angle,speed,acceleration,pos,lane,odometer,leaderID,leaderSpeed,"
+                  "leaderGap")
+"""Attributes of every vehicle in FCD output (``replay --fcd``): with ``angle``, ``x``, ``y``,
+``speed`` and ``lane``, what SUMO's tools (``plot_trajectories.py``, ``sumolib.output``) read."""
 
 _sumo_running = False  # whether this process has a libsumo simulation open
 _gui = False  # whether simulations of this process run in sumo-gui through TraCI

@@ -53,6 +53,47 @@ def test_replay_writes_fcd_with_acceleration_and_leader(capsys, tmp_path, small_
     assert sorted(p.name for p in tmp_path.iterdir()) == ["events.csv", "out.xml"]
 
 
+def _sumo_tool(name: str) -> Path | None:
+    """A script of SUMO's tools: in $SUMO_HOME/tools or the eclipse-sumo wheel's (libsumo points
+    SUMO_HOME at the sumo_data wheel, which has no tools)."""
+    import os
+
+    homes = [os.environ.get("SUMO_HOME")]
+    try:
+        import sumo
+
+        homes.append(sumo.SUMO_HOME)
+    except ImportError:
+        pass
+    return next((Path(h) / "tools" / name for h in homes
+                 if h and (Path(h) / "tools" / name).is_file()), None)
+
+
+def test_replay_fcd_is_read_by_sumos_trajectory_plotter(capsys, tmp_path, small_table_path):
+    import os
+    import subprocess
+    import sys
+
+    fcd = tmp_path / "out.xml"
+    code, out, _ = run(capsys, "replay", "--controller", "idm", "--event", "ev_test_0",
+                       "--data", str(small_table_path), "--vehicles", "2", "--fcd", str(fcd))
+    assert code == 0, out
+    vehicles = [v for step in ET.parse(fcd).getroot().iter("timestep") for v in step.iter("vehicle")]
+    assert vehicles and all(v.get("angle") is not None for v in vehicles)
+    tool = _sumo_tool("plot_trajectories.py")
+    if tool is None:
+        pytest.skip("SUMO's tools (plot_trajectories.py) are not installed")
+    for kind in ("ts", "st"):  # time-space and speed-time
+        png = tmp_path / f"{kind}.png"
+        result = subprocess.run([sys.executable, str(tool), str(fcd), "-t", kind, "-o", str(png),
+                                 "-v"], capture_output=True, text=True, timeout=300,
+                                env={**os.environ, "MPLBACKEND": "Agg"})
+        assert result.returncode == 0, result.stderr
+        found = [line for line in result.stdout.splitlines() if line.startswith("Found ")]
+        assert found and f"Found {len(vehicles)} datapoints" in found[0], result.stdout
+        assert png.stat().st_size > 0
+
+
 def bad_cases(tmp_path: Path, table: Path):
     nan = tmp_path / "nan.csv"
     pd.read_csv(table).assign(gap_m=lambda t: t.gap_m.where(t.index != 3)).to_csv(nan, index=False)
