@@ -35,6 +35,9 @@ OBS_SCALE = (20.0, 3.0, 50.0, 5.0)
 GAP_CLIP_M = 150.0
 """Gaps above this are seen as this (m): beyond it a follower is effectively free."""
 
+BASE_SCALE = 3.0
+"""On a classical base the observation has a fifth column, a_base (m/s²), divided by this."""
+
 
 @dataclass(frozen=True)
 class AgentConfig:
@@ -71,6 +74,23 @@ class AgentConfig:
         return self.base != "idm"
 
     @property
+    def adjustment_gain(self) -> float:
+        """da/da_adj within one step (-): 1 on IDM (a = a_IDM + a_adj); dt/h on a Ploeg base,
+        whose first-order law lets that share of a_adj through at once."""
+        if not self.residual:
+            return 1.0
+        from carl_sumo.cacc import parse_ploeg
+
+        return DT_S / parse_ploeg(self.base).time_gap_s
+
+    @property
+    def obs_dim(self) -> int:
+        """4: o = [v, a, d, Δv]; 5 on a classical base, whose command a_base (m/s²) the vehicle
+        knows (it computes it) and sees as a fifth column: the adjustment has to know what it
+        adjusts, since a_base has a state and is not a function of o."""
+        return 5 if self.residual else 4
+
+    @property
     def communication_aware(self) -> bool:
         return self.algo.startswith("ca-")
 
@@ -80,8 +100,10 @@ class AgentConfig:
 
 
 def normalise(obs: torch.Tensor) -> torch.Tensor:
-    """Scale observations for the networks (see OBS_SCALE, GAP_CLIP_M)."""
-    scale = torch.tensor(OBS_SCALE, dtype=obs.dtype, device=obs.device)
+    """Scale observations for the networks (see OBS_SCALE, GAP_CLIP_M; a fifth column a_base
+    by BASE_SCALE)."""
+    scale = torch.tensor(OBS_SCALE + (BASE_SCALE,) * (obs.shape[-1] - 4), dtype=obs.dtype,
+                         device=obs.device)
     obs = torch.cat([obs[..., :2], obs[..., 2:3].clamp(max=GAP_CLIP_M), obs[..., 3:]], dim=-1)
     return obs / scale
 
@@ -109,13 +131,14 @@ def zero_action_output(actor: nn.Module) -> None:
 
 def _networks(cfg: AgentConfig) -> tuple[nn.Module, nn.Module]:
     """(actor, critic) of an algorithm; actor outputs pre-tanh, critic one Q per vehicle."""
+    d = cfg.obs_dim
     if cfg.communication_aware:
-        return (CommunicationAware(4, 1, cfg.message_dim, cfg.hidden),
-                CommunicationAware(5, 1, cfg.message_dim, cfg.hidden))
+        return (CommunicationAware(d, 1, cfg.message_dim, cfg.hidden),
+                CommunicationAware(d + 1, 1, cfg.message_dim, cfg.hidden))
     if cfg.algo == "maddpg":
-        return (PerAgentActors(cfg.n_vehicles, 4, 1, cfg.hidden),
-                CentralCritic(cfg.n_vehicles, 5, 2 * cfg.hidden))
-    return PerVehicle(4, 1, cfg.hidden), PerVehicle(5, 1, cfg.hidden)
+        return (PerAgentActors(cfg.n_vehicles, d, 1, cfg.hidden),
+                CentralCritic(cfg.n_vehicles, d + 1, 2 * cfg.hidden))
+    return PerVehicle(d, 1, cfg.hidden), PerVehicle(d + 1, 1, cfg.hidden)
 
 
 class Agent(nn.Module):
@@ -125,6 +148,7 @@ class Agent(nn.Module):
         super().__init__()
         self.cfg = cfg
         self.actor, self.critic1 = _networks(cfg)
+        self._adjustment_gain = cfg.adjustment_gain
         if cfg.residual:
             for net in getattr(self.actor, "nets", [self.actor]):  # MADDPG: one per vehicle
                 zero_action_output(net)
@@ -281,11 +305,12 @@ class Agent(nn.Module):
                              ) -> torch.Tensor:
         """The smoothness penalty on a classical base, whose a_base has a state and is not a
         function of o: it is read back from the transition instead. o' holds the acceleration
-        applied at the step, a = a_base + a_adj(stored), and o holds the one before it, so with
-        the actor's a_adj now, a(o) = a'_o' - a_adj(stored) + a_adj and the step's jerk is
-        (a(o) - a_o)/dt: ``smooth_jerk``·jerk² + ``smooth_accel``·a(o)², exactly the jerk and
-        acceleration the reward and the metrics see (while a stays inside the bounds)."""
-        acc_now = next_obs[..., 1] - stored_action + action_now
+        a' applied at the step with the stored a_adj, and a moves by ``adjustment_gain`` g per
+        m/s² of a_adj, so with the actor's a_adj now, a(o) = a' + g·(a_adj - a_adj(stored)) and
+        the step's jerk is (a(o) - a_o)/dt: ``smooth_jerk``·jerk² + ``smooth_accel``·a(o)²,
+        exactly the jerk and acceleration the reward and the metrics see (while a stays inside
+        the bounds and below the cruise cap)."""
+        acc_now = next_obs[..., 1] + self._adjustment_gain * (action_now - stored_action)
         penalty = self.cfg.smooth_accel * acc_now ** 2
         if self.cfg.smooth_jerk > 0:
             penalty = penalty + self.cfg.smooth_jerk * ((acc_now - obs[..., 1]) / DT_S) ** 2

@@ -21,6 +21,13 @@ receives the leader's acceleration over the last step instead (0 at the first st
 h is the time gap (s), s0 = 2 m the standstill gap, kp (1/s²) and kd (1/s) the feedback gains.
 The textbook gains are kp = 0.2, kd = 0.7 (Ploeg et al. 2011).
 
+As the base of a learned controller (``carl-sumo train --base ploeg-tuned:h=1``), a learned term
+a_adj,i (m/s²) enters the law as one more feed-forward input beside the predecessor's:
+u_i(k+1) = u_i(k) + (dt/h)·(-u_i(k) + kp·e_i + kd·ė_i + u_{i-1}(k) + a_adj,i). So it passes
+through the controller's own first-order filter (time constant h), is part of the state u_i the
+follower hears, and shifts the steady state by a_adj,i; an adjustment added after the law instead
+is undone by it (measured: a low-pass adjustment added after the law raises jerk).
+
 Names (accepted wherever a controller name is): ``ploeg`` (h = 1.0 s, textbook gains),
 ``ploeg:h=0.8``, ``ploeg:h=0.8:kp=0.1:kd=1.5``, and ``ploeg-tuned:h=0.8`` (the gains
 ``carl-sumo tune ploeg`` chose for that h, read from :data:`TUNED_FILE`).
@@ -64,8 +71,9 @@ CRUISE_GAIN_PER_S = 0.4
 
 
 @njit(cache=True)
-def _ploeg_step(obs, u, u_lead, h, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc):
-    """One step of every follower (head first): updates ``u`` in place, returns a (m/s²)."""
+def _ploeg_step(obs, u, u_lead, adj, h, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc):
+    """One step of every follower (head first): updates ``u`` in place, returns a (m/s²);
+    ``adj`` (m/s², shape (n,)) is the learned feed-forward term (zeros for the plain law)."""
     n = obs.shape[0]
     out = np.empty(n)
     u_pred = u_lead
@@ -73,7 +81,7 @@ def _ploeg_step(obs, u, u_lead, h, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc):
         e = obs[i, 2] - s0 - h * obs[i, 0]
         e_dot = obs[i, 3] - h * obs[i, 1]
         u_old = u[i]
-        u[i] = min(u_old + (dt / h) * (-u_old + kp * e + kd * e_dot + u_pred),
+        u[i] = min(u_old + (dt / h) * (-u_old + kp * e + kd * e_dot + u_pred + adj[i]),
                    k_cc * (v0 - obs[i, 0]))
         u_pred = u_old  # the message of vehicle i is its state at step k
         out[i] = min(max(u[i], acc_min), acc_max)
@@ -98,20 +106,34 @@ class PloegController:
         self.u = np.zeros(n_followers)
         self._leader_speed = None
 
-    def acceleration(self, obs: np.ndarray) -> np.ndarray:
-        """a (m/s², shape (n,)) from the observations [v, a, d, Δv] (shape (n, 4), head first)."""
+    def acceleration(self, obs: np.ndarray, adjustment: np.ndarray | None = None,
+                     commit: bool = True) -> np.ndarray:
+        """a (m/s², shape (n,)) from the observations [v, a, d, Δv] (shape (n, 4+), head first),
+        with a learned feed-forward ``adjustment`` (m/s², shape (n,)) in the law when given.
+        ``commit=False``: what the law would apply, the state left as it is (a preview)."""
         leader_speed = float(obs[0, 0] + obs[0, 3])
         a_lead = 0.0 if self._leader_speed is None else (leader_speed - self._leader_speed) / DT_S
+        if not commit:
+            return self.step(obs, self.u.copy(), a_lead)
         self._leader_speed = leader_speed
-        return self.step(obs, self.u, a_lead)
+        return self.step(obs, self.u, a_lead, adjustment)
 
-    def step(self, obs: np.ndarray, u: np.ndarray, u_lead: float) -> np.ndarray:
+    def step(self, obs: np.ndarray, u: np.ndarray, u_lead: float,
+             adjustment: np.ndarray | None = None) -> np.ndarray:
         """One step of the law on a chain (head first): updates the states ``u`` in place; the
-        head hears ``u_lead`` (m/s²). Returns a (m/s²)."""
+        head hears ``u_lead`` (m/s²); ``adjustment``: the learned feed-forward term (m/s²).
+        Returns a (m/s²)."""
         p, b = self.params, self.bounds
-        return _ploeg_step(obs, u, u_lead, p.time_gap_s, p.kp, p.kd, p.standstill_gap_m, DT_S,
-                           b.acc_min_mps2, b.acc_max_mps2, IDM.desired_speed_mps,
+        adj = np.zeros(obs.shape[0]) if adjustment is None else \
+            np.ascontiguousarray(adjustment, dtype=np.float64)
+        return _ploeg_step(obs, u, u_lead, adj, p.time_gap_s, p.kp, p.kd, p.standstill_gap_m,
+                           DT_S, b.acc_min_mps2, b.acc_max_mps2, IDM.desired_speed_mps,
                            CRUISE_GAIN_PER_S)
+
+    @property
+    def adjustment_gain(self) -> float:
+        """da/da_adj of one step, dt/h (-): how much of a_adj reaches this step's a."""
+        return DT_S / self.params.time_gap_s
 
 
 # ------------------------------------------------------------------------------------ names
@@ -197,17 +219,22 @@ class PloegChains:
 
     def acceleration(self, obs: np.ndarray, chains: list[list[int]], ids: list[str],
                      ahead: list[tuple[str, float] | None],
-                     last_acc: dict[str, float]) -> np.ndarray:
+                     last_acc: dict[str, float], adjustment: np.ndarray | None = None,
+                     commit: bool = True) -> np.ndarray:
         """a (m/s², shape (m,)) of the CACC vehicles ``ids`` with observations ``obs`` (m, 4);
         ``chains`` index rows head first, ``ahead`` is each row's (vehicle ahead, gap) or None
-        and ``last_acc`` every vehicle's acceleration over the last step (m/s²)."""
+        and ``last_acc`` every vehicle's acceleration over the last step (m/s²). ``adjustment``
+        (m/s², shape (m,)): a learned feed-forward term in the law; ``commit=False``: a preview
+        that leaves the states as they are."""
         out = np.empty(obs.shape[0])
         u_new: dict[str, float] = {}
         for chain in chains:
             head = ahead[chain[0]]
             a_pred = last_acc.get(head[0], 0.0) if head is not None else 0.0
             u = np.array([self.u.get(ids[i], 0.0) for i in chain])
-            out[chain] = self.controller.step(np.ascontiguousarray(obs[chain]), u, a_pred)
+            adj = None if adjustment is None else adjustment[chain]
+            out[chain] = self.controller.step(np.ascontiguousarray(obs[chain]), u, a_pred, adj)
             u_new.update(zip((ids[i] for i in chain), u.tolist()))
-        self.u = u_new
+        if commit:
+            self.u = u_new
         return out

@@ -1,9 +1,9 @@
 """Follower control: the base acceleration, the controller interface for a_adj, the residual sum.
 
-A CACC follower applies ``a = clip(a_base + clip(a_adj, ±adj_max), acc_min, acc_max)``. The base
-is IDM (``a_base = a_IDM(o)``, the paper's) or a classical CACC named as in :mod:`carl_sumo.cacc`
-(e.g. ``ploeg-tuned:h=1``: the Ploeg controller, with its own state, gives a_base), see
-:func:`base_controller`. The
+On the IDM base (the paper's) a CACC follower applies
+``a = clip(a_IDM(o) + clip(a_adj, ±adj_max), acc_min, acc_max)``. On a classical base named as in
+:mod:`carl_sumo.cacc` (e.g. ``ploeg-tuned:h=1``, see :func:`base_controller`) the learned a_adj
+enters that controller's law as a feed-forward term (:class:`carl_sumo.cacc.PloegController`). The
 adjustment comes from a :class:`Controller`, which receives the observations of every follower of
 the platoon at once (rows ordered head to tail), so a communication-aware policy can pass messages
 along the platoon. The per-step arithmetic is compiled with numba: it runs in the 0.1 s SUMO loop
@@ -91,14 +91,6 @@ def base_controller(name: str) -> PloegController | None:
     """The controller giving a_base for a base name: None for IDM (computed from o alone by
     :func:`total_acceleration`), a fresh :class:`PloegController` (it has state) otherwise."""
     return None if check_base(name) == IDM_BASE else ploeg_controller(name)
-
-
-def residual_acceleration(base: np.ndarray, adjustment: np.ndarray,
-                          bounds: ControlBounds = BOUNDS) -> np.ndarray:
-    """a = clip(a_base + clip(a_adj, ±adj_max), acc_min, acc_max) (m/s², shape (n,))."""
-    adj = np.clip(np.asarray(adjustment, dtype=np.float64), -bounds.adj_max_mps2,
-                  bounds.adj_max_mps2)
-    return np.clip(base + adj, bounds.acc_min_mps2, bounds.acc_max_mps2)
 
 
 class Controller(Protocol):

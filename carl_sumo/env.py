@@ -2,8 +2,8 @@
 
 Each agent observes o_i = [v_i, a_i, d_i, Δv_i] (m/s, m/s², m, m/s) and acts with its acceleration
 adjustment a_adj (m/s², bounded by ``ControlBounds.adj_max_mps2``); it applies
-a = clip(a_base + a_adj), the base being IDM (the paper's) or a classical CACC such as
-``ploeg-tuned:h=1`` (:func:`carl_sumo.controllers.base_controller`). Episodes replay one event each; a collision terminates every agent,
+a = clip(a_IDM + a_adj) on the paper's IDM base, or a_adj enters the law of a classical CACC base
+such as ``ploeg-tuned:h=1`` (:func:`carl_sumo.controllers.base_controller`). Episodes replay one event each; a collision terminates every agent,
 the end of the event truncates them. :meth:`PlatoonEnv.step_array` is the same step on arrays,
 for batched (communication-aware) controllers.
 """
@@ -53,7 +53,8 @@ class PlatoonEnv(ParallelEnv):
         self.agents: list[str] = []
         high = np.float32(bounds.adj_max_mps2)
         self._action_space = spaces.Box(-high, high, shape=(1,), dtype=np.float32)
-        self._observation_space = spaces.Box(-np.inf, np.inf, shape=(4,), dtype=np.float32)
+        obs_dim = 4 if self._base is None else 5  # a classical base adds its command a_base
+        self._observation_space = spaces.Box(-np.inf, np.inf, shape=(obs_dim,), dtype=np.float32)
         self._rng = np.random.default_rng()
         self.event: Event | None = None
 
@@ -73,9 +74,17 @@ class PlatoonEnv(ParallelEnv):
         self.sim.reset(self.event, self.n_followers)
         if self._base is not None:
             self._base.reset(self.n_followers)
-        self._obs = self.sim.observation()
+        self._obs = self._observe()
         self._first_step = True
         return self._obs
+
+    def _observe(self) -> np.ndarray:
+        """o = [v, a, d, Δv] per follower; on a classical base also a_base (m/s²), what the
+        base alone would apply at the coming step (a preview: its state moves in the step)."""
+        obs = self.sim.observation()
+        if self._base is None:
+            return obs
+        return np.column_stack([obs, self._base.acceleration(obs, commit=False)])
 
     def step_array(self, adjustment: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray, bool, bool, np.ndarray]:
@@ -85,13 +94,13 @@ class PlatoonEnv(ParallelEnv):
         if self._base is None:
             accel = self._control(self._obs, adjustment, *self._control_params)
         else:
-            accel = controllers.residual_acceleration(self._base.acceleration(self._obs),
-                                                      adjustment, self.bounds)
+            adj = np.clip(adjustment, -self.bounds.adj_max_mps2, self.bounds.adj_max_mps2)
+            accel = self._base.acceleration(self._obs, adj)
         # the first step has no previous acceleration: its jerk is taken as 0, not (a - 0)/dt
         prev_acc = accel if self._first_step else self.sim.acc
         self._first_step = False
         self.sim.step(accel)
-        self._obs = self.sim.observation()
+        self._obs = self._observe()
         rewards, collided = self._reward(self._obs, prev_acc, *self._reward_params)
         terminated = bool(collided.any())
         return self._obs, rewards, terminated, self.sim.done and not terminated, accel

@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 from torch import nn
 
-from carl_sumo.agents import GAP_CLIP_M, OBS_SCALE, Agent
+from carl_sumo.agents import BASE_SCALE, GAP_CLIP_M, OBS_SCALE, Agent
 from carl_sumo.models import CommunicationAware, PerAgentActors, PerVehicle
 
 _OBS_SCALE = np.array(OBS_SCALE, dtype=np.float64)
@@ -48,13 +48,15 @@ def _mlp(x, w1, b1, w2, b2, w3, b3):
 
 @njit(cache=True)
 def _normalised(obs: np.ndarray) -> np.ndarray:
-    """carl_sumo.agents.normalise of one platoon (n, 4)."""
+    """carl_sumo.agents.normalise of one platoon (n, 4), or (n, 5) with a_base."""
     x = np.empty_like(obs)
     for i in range(obs.shape[0]):
         x[i, 0] = obs[i, 0] / _OBS_SCALE[0]
         x[i, 1] = obs[i, 1] / _OBS_SCALE[1]
         x[i, 2] = min(obs[i, 2], GAP_CLIP_M) / _OBS_SCALE[2]
         x[i, 3] = obs[i, 3] / _OBS_SCALE[3]
+        for j in range(4, obs.shape[1]):
+            x[i, j] = obs[i, j] / BASE_SCALE
     return x
 
 

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from carl_sumo.agents import AgentConfig, Agent
-from carl_sumo.controllers import base_controller, residual_acceleration
+from carl_sumo.controllers import base_controller
 from carl_sumo.errors import InputError
 from carl_sumo.inference import CompiledActor
 from carl_sumo.files import atomic_output
@@ -111,7 +111,7 @@ class PolicyController:
 
 class ResidualPolicyController(PolicyController):
     """A trained policy on a classical base (``agent.cfg.base``, e.g. ``ploeg-tuned:h=1``) as an
-    :class:`carl_sumo.controllers.AccelerationController`: a = clip(a_base + a_adj)."""
+    :class:`carl_sumo.controllers.AccelerationController`: a_adj enters the base's law."""
 
     def __init__(self, agent: Agent, name: str):
         super().__init__(agent, name)
@@ -122,8 +122,11 @@ class ResidualPolicyController(PolicyController):
         self.base.reset(n_followers)
 
     def acceleration(self, obs: np.ndarray) -> np.ndarray:
-        """a (m/s², shape (n,)) for one platoon observation (n, 4), head first."""
-        return residual_acceleration(self.base.acceleration(obs), self.adjustment(obs))
+        """a (m/s², shape (n,)) for one platoon observation (n, 4), head first; the actor sees
+        a_base as a fifth column."""
+        obs = obs[:, :4]
+        preview = self.base.acceleration(obs, commit=False)
+        return self.base.acceleration(obs, self.adjustment(np.column_stack([obs, preview])))
 
 
 def load_controller(path: Path) -> PolicyController:

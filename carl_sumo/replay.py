@@ -16,12 +16,13 @@ FIELDS = ("obs", "action", "reward", "next_obs", "done")
 
 
 class ReplayBuffer:
-    """Joint platoon transitions: obs (n, 4), action (n,) (m/s²), reward (n,), next_obs, done."""
+    """Joint platoon transitions: obs (n, obs_dim), action (n,) (m/s²), reward (n,), next_obs,
+    done; obs_dim 4, or 5 on a classical base (a_base)."""
 
-    def __init__(self, capacity: int, n: int):
+    def __init__(self, capacity: int, n: int, obs_dim: int = 4):
         self.capacity, self.n, self.size, self.pos = capacity, n, 0, 0
-        self.obs = torch.zeros((capacity, n, 4))
-        self.next_obs = torch.zeros((capacity, n, 4))
+        self.obs = torch.zeros((capacity, n, obs_dim))
+        self.next_obs = torch.zeros((capacity, n, obs_dim))
         self.action = torch.zeros((capacity, n))
         self.reward = torch.zeros((capacity, n))
         self.done = torch.zeros(capacity)
@@ -56,7 +57,7 @@ class ReplayBuffer:
 
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> "ReplayBuffer":
-        buf = cls(int(state["capacity"]), int(state["n"]))
+        buf = cls(int(state["capacity"]), int(state["n"]), int(state["obs"].shape[-1]))
         s = int(state["size"])
         for k in FIELDS:
             getattr(buf, k)[:s] = torch.as_tensor(state[k])

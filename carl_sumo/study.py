@@ -15,8 +15,8 @@ CACC vehicles (controller ``idm-external`` or a policy file) are driven by carl-
   of the one ahead; a human or a longer gap ends a chain. The policy runs on each chain as one
   platoon (the numba-compiled actor of :mod:`carl_sumo.inference`; the Communication-Aware module
   gives the boundary messages to each chain's ends);
-- a = clip(a_base + a_adj), a_base being IDM (:func:`carl_sumo.controllers.total_acceleration`) or,
-  for a policy trained on a classical base, that CACC on the same chains, applied exactly with
+- a = clip(a_IDM + a_adj) (:func:`carl_sumo.controllers.total_acceleration`), or for a policy
+  trained on a classical base, that CACC on the same chains with a_adj in its law, applied exactly with
   ``setSpeed(max(v + a·dt, 0))`` (speedMode 0); lane changes off (laneChangeMode 0).
 
 Controllers ``ploeg``, ``ploeg:h=..`` and ``ploeg-tuned:h=..``: Ploeg's CACC
@@ -55,13 +55,14 @@ from typing import Sequence
 
 import numpy as np
 
-from carl_sumo.config import DT_S, HEADWAY_MIN_SPEED_MPS
+from carl_sumo.config import DT_S, HEADWAY_MIN_SPEED_MPS, IDM
 from carl_sumo.cacc import PloegChains, is_ploeg_name, parse_ploeg
-from carl_sumo.controllers import residual_acceleration, total_acceleration
+from carl_sumo.controllers import total_acceleration
 from carl_sumo.errors import InputError
 from carl_sumo.files import write_text_atomic
 from carl_sumo.sumo import DEFAULT_NET, VTYPES_FILE, close_sumo, lane_route, start_sumo
-from carl_sumo.traffic import DEFAULT_DEMAND, MAIN_EDGE, Demand, write_detectors, write_routes
+from carl_sumo.traffic import (CACC_TYPES, DEFAULT_DEMAND, MAIN_EDGE, Demand, write_detectors,
+                               write_routes)
 
 SENSOR_RANGE_M = 300.0
 """Range within which a CACC vehicle sees the vehicle ahead (radar), m; at least the V2V range."""
@@ -71,6 +72,21 @@ FOLLOWING_GAP_M = 150.0
 
 SPEED_MODE_CACC = 0
 """speedMode of carl-sumo's CACC vehicles: the commanded speed is applied exactly, no SUMO checks."""
+
+
+def insertion_time_gap(controller: ChainController | PloegChains | None) -> float | None:
+    """The tau (s) SUMO inserts carl-sumo's CACC vehicles with: the time gap the controller
+    follows at (Ploeg's h; a policy on a classical base, its base's h; IDM and policies on it,
+    IDM's T = 1.5 s). SUMO's insertion check keeps a vehicle out until the gap ahead is safe for
+    its vType's tau, so a fixed tau of 1.5 s caps what a closer-following CACC can carry (None:
+    SUMO's own CACC type, whose tau is part of its model)."""
+    if controller is None:
+        return None
+    if isinstance(controller, PloegChains):
+        return controller.controller.params.time_gap_s
+    if controller.base is not None:
+        return controller.base.controller.params.time_gap_s
+    return IDM.time_headway_s
 
 HEATMAP_BIN_S = 10.0
 """Time bin of the time-space speed map (s)."""
@@ -243,12 +259,14 @@ class ChainController:
     def acceleration(self, obs: np.ndarray, chains: list[list[int]], ids: list[str],
                      ahead: list[tuple[str, float] | None],
                      last_acc: dict[str, float]) -> np.ndarray:
-        """a = clip(a_base + a_adj) (m/s², shape (m,)) of the CACC vehicles (the interface of
+        """a (m/s², shape (m,)) of the CACC vehicles: clip(a_IDM + a_adj), or a_adj in the law of
+        a classical base (the interface of
         :class:`carl_sumo.cacc.PloegChains`; ids, ahead and last_acc serve a classical base)."""
         if self.base is None:
             return total_acceleration(obs, self.adjustment(obs, chains))
-        return residual_acceleration(self.base.acceleration(obs, chains, ids, ahead, last_acc),
-                                     self.adjustment(obs, chains))
+        preview = self.base.acceleration(obs, chains, ids, ahead, last_acc, commit=False)
+        adj = self.adjustment(np.column_stack([obs, preview]), chains)
+        return self.base.acceleration(obs, chains, ids, ahead, last_acc, adj)
 
     def adjustment(self, obs: np.ndarray, chains: list[list[int]]) -> np.ndarray:
         """a_adj (m/s², shape (m,)) for observations (m, 4) of the CACC vehicles and their chains."""
@@ -343,6 +361,9 @@ def run_one(cfg: StudyConfig, penetration: float, seed: int, out_dir: Path) -> R
         fcd = work / f"fcd_{name}.xml.gz" if cfg.fcd and seed == cfg.seeds[0] else None
         lane_chain = lane_route(cfg.net, cfg.heatmap_lane)
         start_sumo(_sumo_study_args(cfg, routes.path, work / "outputs.add.xml", fcd, seed))
+        tau = insertion_time_gap(controller)
+        if tau is not None:
+            ls.vehicletype.setTau(CACC_TYPES["external"], tau)
         try:
             acc, heat, timing = _simulate(ls, cfg, kind, controller, routes.cacc_ids, lane_chain)
         finally:

@@ -334,7 +334,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                               noise_correlation=cfg.noise_correlation,
                               smooth_jerk=cfg.smooth_jerk, smooth_accel=cfg.smooth_accel,
                               gamma=cfg.gamma, adj_max=cfg.adj_max, base=cfg.base))
-    buffer = ReplayBuffer(cfg.buffer_size, n)
+    buffer = ReplayBuffer(cfg.buffer_size, n, agent.cfg.obs_dim)
     rng = np.random.default_rng(cfg.seed)
     start_step, best, wall_before = 0, -np.inf, 0.0
     if resume is not None:
@@ -360,7 +360,14 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
         check_fits(val_env.sim.route, event, n)
     base_reward, baseline_events = validate_events(_BaseOnly(), val_env, val_events)  # same events
     baseline = {"val_reward": base_reward, **aggregate(baseline_events)}
-    log(f"validation baseline ({cfg.base}): " + ", ".join(f"{k}={v:.3f}" for k, v in baseline.items()))
+    log(f"validation baseline ({cfg.base}): "
+        + ", ".join(f"{k}={v:.3f}" for k, v in baseline.items()))
+    if agent.cfg.residual and resume is None:
+        # the untrained actor is its base exactly (a_adj = 0): the policy to beat, kept unless a
+        # trained checkpoint scores better on validation
+        start = {**baseline, **improvement_z(baseline_events, baseline_events)}
+        best = selection_score(start, cfg.select, baseline)
+        save_policy(agent, out, _metadata(cfg, agent, start, 0.0, baseline, val_events))
     vec = VecPlatoon(train_events, n, cfg.net, cfg.num_envs, cfg.seed + start_step, cfg.reward,
                      cfg.base)
     obs = vec.reset(cfg.seed + start_step)

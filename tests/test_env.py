@@ -50,7 +50,8 @@ def test_adjustment_changes_the_applied_acceleration():
 
 
 def test_classical_base_at_zero_adjustment_is_that_controller():
-    """base=ploeg with a_adj = 0 applies exactly the Ploeg CACC; a_adj adds on top of it."""
+    """base=ploeg with a_adj = 0 applies exactly the Ploeg CACC; a_adj enters its law, so the
+    first step moves by dt/h·a_adj; the fifth observation column previews the base's command."""
     from carl_sumo.cacc import ploeg_controller
 
     env = PlatoonEnv([braking_event()], n_followers=3, net_path=NET, base="ploeg:h=0.8")
@@ -59,13 +60,14 @@ def test_classical_base_at_zero_adjustment_is_that_controller():
     reference.reset(3)
     for _ in range(30):
         expected = reference.acceleration(obs)
+        assert np.allclose(obs[:, 4], expected, atol=1e-12)
         obs, _, _, _, applied = env.step_array(np.zeros(3))
         assert np.allclose(applied, expected, atol=1e-12)
     env.reset_array(seed=0)
     _, _, _, _, a_zero = env.step_array(np.zeros(3))
     env.reset_array(seed=0)
     _, _, _, _, a_adj = env.step_array(np.array([0.2, -0.2, 0.1]))
-    assert np.allclose(a_adj - a_zero, [0.2, -0.2, 0.1])
+    assert np.allclose(a_adj - a_zero, np.array([0.2, -0.2, 0.1]) * 0.1 / 0.8)
 
 
 def test_unknown_base_is_refused():

@@ -228,3 +228,29 @@ def test_short_study_end_to_end(tmp_path, capsys):
     assert (out / "runs" / "p1_seed0" / "fcd_p1_seed0.xml.gz").stat().st_size > 0
     assert not (out / "runs" / "p1_seed1" / "fcd_p1_seed1.xml.gz").exists()
     assert not [p for p in out.rglob(".*")]  # no temporary files left
+
+
+def test_residual_policy_on_chains_starts_as_its_classical_base(tmp_path):
+    """A fresh policy on base ploeg (a_adj = 0) gives the same accelerations on chains as
+    PloegChains, keeps the same per-vehicle states, and inserts at the base's time gap."""
+    from carl_sumo.cacc import PloegChains, parse_ploeg
+    from carl_sumo.study import insertion_time_gap
+
+    save_policy(Agent(AgentConfig(algo="ca-td3", base="ploeg:h=0.8")), tmp_path / "r.pt", {})
+    controller = ChainController(str(tmp_path / "r.pt"))
+    reference = PloegChains(parse_ploeg("ploeg:h=0.8"))
+    rng = np.random.default_rng(0)
+    ids = [f"v{i}" for i in range(9)]
+    chains = [[4, 0, 7], [1], [2, 3, 5, 6, 8]]
+    ahead = [("h", 20.0)] * 9
+    for _ in range(3):
+        obs = np.column_stack([rng.uniform(10, 30, 9), rng.uniform(-1, 1, 9),
+                               rng.uniform(5, 60, 9), rng.uniform(-2, 2, 9)])
+        last = {"h": float(rng.uniform(-1, 1))}
+        expected = reference.acceleration(obs, chains, ids, ahead, last)
+        assert np.allclose(controller.acceleration(obs, chains, ids, ahead, last), expected)
+    assert controller.base.u == pytest.approx(reference.u)
+    assert insertion_time_gap(controller) == 0.8
+    assert insertion_time_gap(reference) == 0.8
+    assert insertion_time_gap(ChainController("idm-external")) == 1.5
+    assert insertion_time_gap(None) is None

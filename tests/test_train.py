@@ -217,19 +217,27 @@ def test_resuming_an_older_learning_curve_upgrades_its_header(tmp_path):
 
 
 def test_residual_smoothness_reads_the_applied_acceleration_back():
-    """On a classical base a(o) = a'_o' - stored a_adj + a_adj: with the stored action it is the
-    acceleration the simulation applied, and its jerk is the one the reward sees."""
+    """On a classical base a(o) = a'_o' + g·(a_adj - stored a_adj): with another action it is the
+    acceleration the simulation would have applied, and its jerk is the one the reward sees."""
     from carl_sumo.bench import cruise_event
 
     env = PlatoonEnv([cruise_event(80, 12.0, 20.0)], 3, NET, base="ploeg:h=0.8")
     obs = env.reset_array(seed=0)
     env.step_array(np.zeros(3))
     obs = env._obs.copy()
-    action = np.array([0.3, -0.2, 0.1])
-    next_obs, _, _, _, applied = env.step_array(action)
+    stored, other = np.array([0.3, -0.2, 0.1]), np.array([-0.1, 0.4, 0.0])
+    state = env._base.u.copy(), env._base._leader_speed
+    _, _, _, _, applied = env.step_array(other)  # what the other action applies
+    env._base.u, env._base._leader_speed = state
+    env.sim.reset(env.event, 3)  # replay the same two steps, then take the stored action
+    env._base.reset(3)
+    env._obs = env._observe()
+    env.step_array(np.zeros(3))
+    assert np.allclose(env._obs, obs)
+    next_obs, _, _, _, _ = env.step_array(stored)
     agent = Agent(AgentConfig(algo="td3", base="ploeg:h=0.8", smooth_jerk=1.0, smooth_accel=0.5))
     t = lambda x: torch.as_tensor(x[None])
-    penalty = agent._residual_smoothness(t(obs), t(next_obs), t(action), t(action))[0].numpy()
+    penalty = agent._residual_smoothness(t(obs), t(next_obs), t(stored), t(other))[0].numpy()
     jerk = (applied - obs[:, 1]) / 0.1
     assert np.allclose(penalty, 1.0 * jerk ** 2 + 0.5 * applied ** 2, rtol=1e-9)
 
