@@ -29,7 +29,7 @@ from carl_sumo.files import atomic_output
 from carl_sumo.metrics import aggregate
 
 if TYPE_CHECKING:  # pragma: no cover
-    from carl_sumo.evaluate import JobResult, Suite
+    from carl_sumo.suite import JobResult, Suite
 
 ECDF_POINTS = 2000
 """Sample ranks at which an ECDF is drawn."""

@@ -12,9 +12,10 @@ import pytest
 import torch
 
 from carl_sumo.cli import main
-from carl_sumo.evaluate import CSV_COLUMNS, classical_models, discover_model, figure_event
 from carl_sumo.errors import InputError
 from carl_sumo.metrics import METRIC_KEYS, aggregate, bootstrap_ci, paired_difference
+from carl_sumo.suite import classical_models, discover_model, figure_event
+from carl_sumo.suite_stats import CSV_COLUMNS
 
 from conftest import NET, REPO_ROOT, braking_event
 
@@ -244,7 +245,7 @@ def test_figure_event_is_the_largest_leader_speed_range():
 
 
 def test_seed_files_run_with_seeds_or_all_seeds_only(tmp_path):
-    from carl_sumo.evaluate import _controllers_run, plan_suite
+    from carl_sumo.suite import controllers_run, plan_suite
 
     shutil.copytree(POLICIES, tmp_path / "p", ignore=shutil.ignore_patterns("*.ckpt", "logs"))
     for mode in ("shipped", "seeds", "all"):
@@ -253,7 +254,7 @@ def test_seed_files_run_with_seeds_or_all_seeds_only(tmp_path):
         for key in ("ca_td3_10", "maddpg_10"):
             model = suite.models[key]
             assert len(model.files) > 1
-            runs = {(spec.key, n): len(_controllers_run(spec, model, n))
+            runs = {(spec.key, n): len(controllers_run(spec, model, n))
                     for spec in suite.tables for n in spec.followers if model.runs_on(n)}
             every = len(model.files) if mode == "all" else 1
             compared = key == "ca_td3_10" and mode == "seeds"  # Table 1 compares it across seeds
