@@ -459,8 +459,8 @@ def _rates(text: str) -> tuple[float, ...]:
 def cmd_study(args: argparse.Namespace) -> None:
     from dataclasses import replace
 
-    from carl_sumo.study import (StudyConfig, markdown_table, resolve_study_controller,
-                                 run_study, summarise, write_outputs)
+    from carl_sumo.study import StudyConfig, resolve_study_controller, run_study, write_outputs
+    from carl_sumo.study_results import markdown_table, summarise
     from carl_sumo.sumo import lane_route
     from carl_sumo.traffic import DEFAULT_DEMAND
 

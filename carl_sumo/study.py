@@ -11,7 +11,7 @@ CACC vehicles (controller ``idm-external`` or a policy file) are driven by carl-
   ``max(v2v_range_m, SENSOR_RANGE_M)``), whoever it is: humans may cut in;
 - the observation is o_i = [v_i (m/s), a_i (m/s²), d_i (m, bumper gap), Δv_i = v_ahead - v_i
   (m/s)]; with no vehicle within the sensing range d_i = the sensing range and Δv_i = 0;
-- chains (:func:`form_chains`): consecutive CACC vehicles in one lane, each within ``v2v_range_m``
+- chains (:func:`carl_sumo.study_chains.form_chains`): consecutive CACC vehicles in one lane, each within ``v2v_range_m``
   of the one ahead; a human or a longer gap ends a chain. The policy runs on each chain as one
   platoon (the numba-compiled actor of :mod:`carl_sumo.inference`; the Communication-Aware module
   gives the boundary messages to each chain's ends);
@@ -42,16 +42,13 @@ Metrics of a run (over the measurement interval, every vehicle on the network):
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 import os
 import shutil
 import time
 import xml.etree.ElementTree as ET
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -60,6 +57,8 @@ from carl_sumo.cacc import PloegChains, is_ploeg_name, parse_ploeg
 from carl_sumo.controllers import total_acceleration
 from carl_sumo.errors import InputError
 from carl_sumo.files import write_text_atomic
+from carl_sumo.study_chains import cacc_observations, form_chains, merging_lanes, zipper_ahead
+from carl_sumo.study_results import RunResult, markdown_table, run_name, summarise, write_csv
 from carl_sumo.sumo import DEFAULT_NET, VTYPES_FILE, close_sumo, lane_route, start_sumo
 from carl_sumo.traffic import (CACC_TYPES, DEFAULT_DEMAND, MAIN_EDGE, Demand, write_detectors,
                                write_routes)
@@ -97,12 +96,6 @@ HEATMAP_BIN_M = 100.0
 STUDY_CONTROLLERS = ("idm-external", "sumo-cacc", "ploeg[:h=H:kp=KP:kd=KD]", "ploeg-tuned:h=H")
 """Built-in CACC controllers of a study; a policy file (.pt) is the third kind."""
 
-METRICS = ("throughput_vph", "speed_mps", "headway_s", "ttc_lt_4s_per_vh", "ttc_lt_1_5s_per_vh",
-           "jerk_mps3", "collisions", "co2_g_per_km", "fuel_g_per_km")
-RUN_EXTRA = ("mean_vehicles", "max_vehicles", "cacc_share", "mean_chain_length",
-             "max_chain_length", "sim_speed", "sumo_share")
-
-
 @dataclass(frozen=True)
 class StudyConfig:
     """Everything that defines a study (units in the names)."""
@@ -119,116 +112,6 @@ class StudyConfig:
     demand: Demand = DEFAULT_DEMAND
     fcd: bool = False                  # FCD output of the first seed of each rate
     workers: int = 2
-
-
-# --------------------------------------------------------------------------------- chains
-def form_chains(vehicles: Sequence[str], ahead: Sequence[tuple[str, float] | None],
-                range_m: float) -> list[list[int]]:
-    """Chains of consecutive CACC vehicles, head first, as indices into ``vehicles``.
-
-    ``vehicles`` are the CACC vehicles on the network; ``ahead[i]`` is (id, bumper gap m) of the
-    vehicle SUMO reports ahead of vehicle i in its lane, or None. Vehicle i follows j in a chain
-    when j is CACC and the gap is at most ``range_m``; where two CACC vehicles report the same
-    vehicle ahead (two lanes joining), the nearer one follows it. Every vehicle is in one chain.
-    """
-    index = {v: i for i, v in enumerate(vehicles)}
-    claimed: dict[int, tuple[float, int]] = {}
-    for i, item in enumerate(ahead):
-        if item is None:
-            continue
-        j = index.get(item[0])
-        if j is None or j == i or item[1] > range_m:
-            continue
-        best = claimed.get(j)
-        if best is None or item[1] < best[0]:
-            claimed[j] = (item[1], i)
-    follower = {j: i for j, (_, i) in claimed.items()}
-    linked = set(follower.values())
-    chains, seen = [], set()
-    for head in range(len(vehicles)):
-        if head in linked:
-            continue
-        chain, cur = [head], head
-        while cur in follower and follower[cur] not in seen:
-            cur = follower[cur]
-            chain.append(cur)
-        seen.update(chain)
-        chains.append(chain)
-    chains.extend([i] for i in range(len(vehicles)) if i not in seen)  # cycles (not physical)
-    return chains
-
-
-def cacc_observations(cids: Sequence[str], speeds: Sequence[float],
-                      accels: Sequence[float | None], ahead: Sequence[tuple[str, float] | None],
-                      speed_of: dict[str, float], min_gap: dict[str, float],
-                      sensor_range_m: float) -> tuple[np.ndarray, list[tuple[str, float] | None]]:
-    """Observations o_i = [v, a, d, Δv] (m, 4) of CACC vehicles and their vehicle ahead.
-
-    ``ahead[i]`` is SUMO's ``getLeader`` answer (id, gap without the follower's minGap) or None;
-    d = that gap + minGap (bumper to bumper, m), Δv = v_ahead - v (m/s). Without a vehicle ahead
-    within the sensing range, d = ``sensor_range_m`` and Δv = 0. Returns the observations and
-    (id, bumper gap) of the vehicle ahead of each (None if none), for :func:`form_chains`.
-    """
-    obs = np.empty((len(cids), 4))
-    chain_ahead: list[tuple[str, float] | None] = []
-    for row, (vid, v, a, item) in enumerate(zip(cids, speeds, accels, ahead)):
-        obs[row, 0] = v
-        obs[row, 1] = a if a is not None else 0.0
-        if item is None or item[0] == "":
-            obs[row, 2], obs[row, 3] = sensor_range_m, 0.0
-            chain_ahead.append(None)
-        else:
-            gap = item[1] + min_gap[vid]
-            obs[row, 2], obs[row, 3] = gap, speed_of[item[0]] - v
-            chain_ahead.append((item[0], gap))
-    return obs, chain_ahead
-
-
-def merging_lanes(net: str) -> dict[str, tuple[str, ...]]:
-    """For every lane that shares its successor lane with other lanes (a zipper merge, such as
-    ``i80_merge_0`` and ``i80_merge_1`` into ``i80_main_0``): those other lanes."""
-    import sumolib
-
-    feeders: dict[str, list[str]] = {}
-    for edge in sumolib.net.readNet(str(net)).getEdges():
-        for lane in edge.getLanes():
-            for conn in lane.getOutgoing():
-                feeders.setdefault(conn.getToLane().getID(), []).append(lane.getID())
-    out: dict[str, tuple[str, ...]] = {}
-    for lanes in feeders.values():
-        if len(lanes) > 1:
-            for lane in lanes:
-                out[lane] = tuple(x for x in lanes if x != lane)
-    return out
-
-
-def zipper_ahead(ls, vid: str, lane: str, siblings: tuple[str, ...],
-                 item: tuple[str, float] | None, min_gap_m: float,
-                 range_m: float) -> tuple[str, float] | None:
-    """The vehicle ahead of a CACC vehicle approaching a zipper merge, in ``getLeader`` form.
-
-    SUMO's ``getLeader`` sees only the vehicle's own lane; a vehicle on a sibling lane that is
-    nearer to the merge point will enter the same lane first, so it is a virtual vehicle ahead
-    with gap = (ego's distance to the lane end) - (its distance to the lane end) - its length
-    (as SUMO's zipper model does for its own drivers). Returns whichever of that and ``item`` is
-    nearer; ties in distance to the merge point go to the smaller id.
-    """
-    get_pos, get_length = ls.vehicle.getLanePosition, ls.lane.getLength
-    ego_rest = get_length(lane) - get_pos(vid)
-    if ego_rest > range_m:
-        return item
-    best: tuple[str, float] | None = None
-    for sibling in siblings:
-        sib_length = get_length(sibling)
-        for foe in ls.lane.getLastStepVehicleIDs(sibling):
-            foe_rest = sib_length - get_pos(foe)
-            if foe_rest < ego_rest or (foe_rest == ego_rest and foe < vid):
-                gap = ego_rest - foe_rest - ls.vehicle.getLength(foe) - min_gap_m
-                if best is None or gap < best[1]:
-                    best = (foe, gap)
-    if best is None or (item is not None and item[0] != "" and item[1] <= best[1]):
-        return item
-    return best
 
 
 class ChainController:
@@ -311,20 +194,6 @@ class _Accumulator:
     chain_sum: int = 0
     chain_n: int = 0
     chain_max: int = 0
-
-
-@dataclass
-class RunResult:
-    penetration: float
-    seed: int
-    metrics: dict[str, float]
-    heatmap: list[list[float]] = field(default_factory=list)  # mean speed (m/s), [time][space]
-    heatmap_extent: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # t0, t1, x0, x1
-    run_dir: str = ""
-
-
-def run_name(penetration: float, seed: int) -> str:
-    return f"p{penetration:g}_seed{seed}"
 
 
 def _sumo_study_args(cfg: StudyConfig, routes: Path, additional: Path,
@@ -576,59 +445,13 @@ def run_study(cfg: StudyConfig, out_dir: Path, progress: bool = False) -> list[R
     return sorted(results, key=lambda r: (r.penetration, r.seed))
 
 
-def summarise(results: list[RunResult]) -> list[dict[str, float]]:
-    """One row per penetration rate: mean and standard deviation over seeds of every metric."""
-    rows = []
-    for p in sorted({r.penetration for r in results}):
-        group = [r for r in results if r.penetration == p]
-        row: dict[str, float] = {"penetration": p, "runs": len(group)}
-        for key in (*METRICS, *RUN_EXTRA):
-            values = np.array([r.metrics[key] for r in group], dtype=float)
-            row[key] = float(np.mean(values))
-            row[key + "_sd"] = float(np.std(values, ddof=1)) if len(values) > 1 else 0.0
-        rows.append(row)
-    return rows
-
-
-TABLE_COLUMNS = (("penetration", "p", "{:g}"), ("throughput_vph", "throughput (veh/h)", "{:.0f}"),
-                 ("speed_mps", "mean speed (m/s)", "{:.2f}"), ("headway_s", "headway (s)", "{:.3f}"),
-                 ("ttc_lt_4s_per_vh", "TTC<4 s (/veh-h)", "{:.1f}"),
-                 ("ttc_lt_1_5s_per_vh", "TTC<1.5 s (/veh-h)", "{:.2f}"),
-                 ("jerk_mps3", "jerk (m/s³)", "{:.3f}"), ("collisions", "collisions", "{:.1f}"),
-                 ("co2_g_per_km", "CO2 (g/veh-km)", "{:.1f}"),
-                 ("fuel_g_per_km", "fuel (g/veh-km)", "{:.1f}"),
-                 ("mean_vehicles", "vehicles on net", "{:.0f}"),
-                 ("mean_chain_length", "mean chain", "{:.2f}"),
-                 ("sim_speed", "sim s / wall s", "{:.2f}"))
-
-
-def markdown_table(rows: list[dict[str, float]]) -> str:
-    """The per-rate table in Markdown: mean ± sd over seeds."""
-    header = "| " + " | ".join(h for _, h, _ in TABLE_COLUMNS) + " |"
-    lines = [header, "|" + "---|" * len(TABLE_COLUMNS)]
-    for row in rows:
-        cells = []
-        for key, _, fmt in TABLE_COLUMNS:
-            value = row[key]
-            if isinstance(value, float) and math.isnan(value):
-                cells.append("-")
-                continue
-            cell = fmt.format(value)
-            sd = row.get(key + "_sd")
-            if key != "penetration" and sd and row["runs"] > 1 and not math.isnan(sd):
-                cell += " ± " + fmt.format(sd)
-            cells.append(cell)
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
 def write_outputs(cfg: StudyConfig, results: list[RunResult], out_dir: Path,
                   command: str = "", wall_s: float | None = None) -> list[Path]:
     """Write ``study.csv``, ``runs.csv``, ``study.md`` and the figures (each atomically)."""
     out_dir = Path(out_dir)
     rows = summarise(results)
-    written = [_write_csv(out_dir / "study.csv", rows),
-               _write_csv(out_dir / "runs.csv",
+    written = [write_csv(out_dir / "study.csv", rows),
+               write_csv(out_dir / "runs.csv",
                           [{"penetration": r.penetration, "seed": r.seed, **r.metrics}
                            for r in results])]
     from carl_sumo.study_figures import plot_heatmap, plot_metrics
@@ -645,13 +468,5 @@ def write_outputs(cfg: StudyConfig, results: list[RunResult], out_dir: Path,
             markdown_table(rows), ""]
     written.append(write_text_atomic(out_dir / "study.md", "\n".join(t for t in text if t is not None)))
     return written
-
-
-def _write_csv(path: Path, rows: list[dict]) -> Path:
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=list(rows[0]))
-    writer.writeheader()
-    writer.writerows(rows)
-    return write_text_atomic(path, buffer.getvalue())
 
 

@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from carl_sumo.figures import pyplot, save_png
-
-if TYPE_CHECKING:
-    from carl_sumo.study import RunResult
+from carl_sumo.study_results import RunResult
 
 PANELS = (("throughput_vph", "throughput (veh/h)"), ("speed_mps", "mean speed (m/s)"),
           ("headway_s", "mean headway (s)"), ("ttc_lt_4s_per_vh", "TTC < 4 s (samples/veh-h)"),
@@ -37,7 +34,7 @@ def plot_metrics(rows: list[dict[str, float]], path: Path, controller: str) -> P
     return save_png(fig, path, dpi=110, bbox_inches="tight")
 
 
-def plot_heatmap(result: "RunResult", path: Path, ngsim_lane: int) -> Path:
+def plot_heatmap(result: RunResult, path: Path, ngsim_lane: int) -> Path:
     """Time-space map of the mean speed (m/s) along one lane of the mainline, one run."""
     plt = pyplot()
     grid = np.array(result.heatmap, dtype=float)

@@ -15,8 +15,8 @@ from carl_sumo.agents import Agent, AgentConfig
 from carl_sumo.cli import main
 from carl_sumo.errors import InputError
 from carl_sumo.policy import save_policy
-from carl_sumo.study import (ChainController, StudyConfig, cacc_observations, form_chains,
-                             merging_lanes, run_one, zipper_ahead, _sumo_study_args)
+from carl_sumo.study import ChainController, StudyConfig, run_one, _sumo_study_args
+from carl_sumo.study_chains import cacc_observations, form_chains, merging_lanes, zipper_ahead
 from carl_sumo.sumo import close_sumo, start_sumo, sumo_args
 from carl_sumo.traffic import DEFAULT_DEMAND, Demand, write_routes
 
