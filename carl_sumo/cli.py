@@ -35,10 +35,30 @@ def _add_common(p: argparse.ArgumentParser, split_default: str = "test") -> None
     p.add_argument("--vehicles", type=int, default=10, help="number of CACC followers")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="carl-sumo", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+def _positive(value: int, name: str) -> int:
+    if value < 1:
+        raise InputError(f"{name} must be at least 1, got {value}")
+    return value
 
+
+def _fmt(value: float) -> str:
+    if isinstance(value, int):
+        return str(value)
+    return "nan" if math.isnan(value) else f"{value:.3f}"
+
+
+def format_table(results: list[dict]) -> str:
+    from carl_sumo.metrics import METRIC_KEYS
+
+    header = ["controller", "followers", "events", *METRIC_KEYS]
+    rows = [[r["controller"], str(r["followers"]), str(len(r["events"])),
+             *(_fmt(r["metrics"][k]) for k in METRIC_KEYS)] for r in results]
+    widths = [max(len(h), *(len(row[i]) for row in rows)) for i, h in enumerate(header)]
+    line = lambda cells: "  ".join(c.rjust(w) for c, w in zip(cells, widths))  # noqa: E731
+    return "\n".join([line(header), line(["-" * w for w in widths]), *map(line, rows)])
+
+
+def _simulate_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="run controllers on the events of a split; print metrics")
     _add_common(p)
     p.add_argument("--controller", default="idm",
@@ -49,6 +69,36 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                    help="parallel SUMO processes (default: 2, or the number of cores if fewer)")
 
+
+def cmd_simulate(args: argparse.Namespace) -> None:
+    from carl_sumo.data import load_events
+    from carl_sumo.simulate import resolve_controller, simulate
+
+    _positive(args.vehicles, "--vehicles")
+    if args.json is not None:
+        check_output_file(args.json, "--json")
+    if args.events is not None:
+        _positive(args.events, "--events")
+    names = [c.strip() for c in args.controller.split(",") if c.strip()]
+    for name in names:  # fail on a bad controller or platoon length before any simulation runs
+        _, controller = resolve_controller(name)
+        if controller is not None:
+            controller.reset(args.vehicles)
+    events = load_events(args.data, args.split, limit=args.events)
+    start = time.perf_counter()
+    workers = _positive(args.workers, "--workers")
+    results = [simulate(name, events, args.vehicles, args.net, progress=sys.stderr.isatty(),
+                        workers=workers) for name in names]
+    print(format_table(results))
+    print(f"{len(events)} events of split {args.split} of {args.data}, "
+          f"{time.perf_counter() - start:.1f} s")
+    if args.json is not None:
+        payload = {k: results[0][k] for k in ("metrics", "events", "controller", "followers")} \
+            if len(results) == 1 else {"controllers": {r["controller"]: r for r in results}}
+        write_text_atomic(args.json, json.dumps(payload, indent=2, allow_nan=True))
+
+
+def _replay_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("replay", help="run one event and write SUMO FCD output")
     _add_common(p, split_default="all")
     p.add_argument("--controller", default="idm",
@@ -59,6 +109,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gui", action="store_true",
                    help="show the run in sumo-gui (needs a display; closes when you close it)")
 
+
+def cmd_replay(args: argparse.Namespace) -> None:
+    from carl_sumo.data import load_events
+    from carl_sumo.simulate import replay
+
+    from carl_sumo.sumo import has_display, use_gui
+
+    _positive(args.vehicles, "--vehicles")
+    check_output_file(args.fcd, "--fcd")
+    if args.gui and not has_display():
+        use_gui(True)  # raises the one-line "no display" error before anything runs
+    (event,) = load_events(args.data, args.split, event_ids=[args.event])
+    metrics = replay(args.controller, event, args.vehicles, args.fcd, args.net, gui=args.gui)
+    print(f"wrote {args.fcd}: event {event.event_id}, {args.vehicles} followers, "
+          f"{event.duration_s:.1f} s, controller {args.controller}")
+    print(", ".join(f"{k}={_fmt(v)}" for k, v in metrics.items() if not k.startswith("n_")
+                    and k != "event_id"))
+
+
+def _evaluate_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("evaluate", help="the paper's tables and figures, written to --out")
     p.add_argument("--suite", default="paper", choices=("paper",), help="which suite (paper)")
     p.add_argument("--out", type=Path, default=Path("results"), help="output directory")
@@ -81,6 +151,25 @@ def build_parser() -> argparse.ArgumentParser:
                         "(and its 10-follower rows of Table 2), and compare them across seeds "
                         "(default: the shipped policy files only)")
 
+
+def cmd_evaluate(args: argparse.Namespace) -> None:
+    from carl_sumo.evaluate import evaluate
+
+    workers = _positive(args.workers, "--workers")
+    check_output_dir(args.out, "--out")
+    result = evaluate(args.suite, args.out, args.data, args.quick, args.events, args.policies,
+                      args.net, workers, progress=sys.stderr.isatty(),
+                      command="carl-sumo " + " ".join(sys.argv[1:]), all_seeds=args.all_seeds,
+                      seeds=args.seeds)
+    for key, rows in result["rows"].items():
+        print(f"wrote {args.out / (key + '.md')} and .csv ({len(rows)} rows)")
+    print(f"wrote {args.out / 'README.md'}, per_event.csv, timing.csv and "
+          f"{len(result['figures'])} figures; wall time {result['wall_time_s']:.0f} s "
+          f"({result['tasks']} tasks, {workers} workers)")
+
+
+def _train_parser(sub: argparse._SubParsersAction) -> None:
+    # train options
     p = sub.add_parser("train", help="train a CA-RL (or baseline) agent inside SUMO")
     _add_common(p, split_default="train")
     p.add_argument("--algo", default="ca-td3", help="ca-td3 | ca-ddpg | td3 | ddpg | maddpg")
@@ -132,188 +221,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help="hold the validation events out of this event source only (the data "
                         "file's `source` column), e.g. the one most like the test set")
 
-    p = sub.add_parser("tune", help="tune a classical CACC's gains on the training events")
-    p.add_argument("controller", choices=("ploeg",), help="which controller (ploeg)")
-    _add_common(p, split_default="train")
-    p.add_argument("--gaps", default="0.6,0.8,1.0,1.2", help="time gaps h to tune (s), commas")
-    p.add_argument("--kp", default="0.1,0.15,0.2,0.3,0.45,0.675,1.0125",
-                   help="starting grid of kp (1/s²)")
-    p.add_argument("--kd", default="0.5,0.7,1.0,1.4,2.1,3.15,4.725",
-                   help="starting grid of kd (1/s)")
-    p.add_argument("--reuse", type=Path, default=None,
-                   help="an earlier result file on the same events: its gains are not run again")
-    p.add_argument("--headway-tolerance", type=float, default=0.05,
-                   help="safe: mean headway at most this fraction above the textbook gains' "
-                        "(default 0.05)")
-    p.add_argument("--max-extensions", type=int, default=3,
-                   help="times the grid may grow beyond an edge where the best point lies")
-    p.add_argument("--events", type=int, default=None, metavar="K", help="only the first K events")
-    p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
-                   help="parallel SUMO processes")
-    p.add_argument("--out", type=Path, default=None,
-                   help="result file (default policies/ploeg_tuned.json)")
-
-    p = sub.add_parser("export", help="write the current actor of a training checkpoint as a policy")
-    p.add_argument("checkpoint", type=Path)
-    p.add_argument("--out", type=Path, required=True)
-
-    p = sub.add_parser("policy-info", help="print the Markdown card of policy files")
-    p.add_argument("paths", nargs="+", type=Path)
-
-    p = sub.add_parser("rank", help="rank runs of one model (several seeds) by their stored "
-                       "validation score, best first")
-    p.add_argument("paths", nargs="+", type=Path, help="policy files of one algorithm")
-    p.add_argument("--select", default="margin", choices=("margin", "comfort", "metrics", "reward"),
-                   help="the rule of `train --select` (default margin)")
-    p.add_argument("--best-only", action="store_true",
-                   help="print only the path of the best run (for scripts)")
-
-    p = sub.add_parser("bench", help="env steps/s beside a bare libsumo loop")
-    p.add_argument("--net", default="networks/i80.net.xml")
-    p.add_argument("--sizes", default="10,20,100", help="platoon sizes, comma-separated")
-    p.add_argument("--steps", type=int, default=2000)
-    p.add_argument("--rounds", type=int, default=3)
-    p.add_argument("--training", action="store_true",
-                   help="measure training throughput (parallel workers, updates) instead")
-    p.add_argument("--algo", default="ca-td3", help="with --training: the algorithm")
-    p.add_argument("--vehicles", default="10,20",
-                   help="with --training: platoon lengths, comma-separated (default 10,20)")
-    p.add_argument("--envs", type=int, default=2, help="with --training: worker processes")
-    p.add_argument("--smooth-jerk", type=float, default=0.0,
-                   help="with --training: the actor smoothness terms of `train` (default 0), "
-                        "which add one actor pass per update")
-    p.add_argument("--smooth-accel", type=float, default=0.0, help="with --training: see above")
-
-    p = sub.add_parser("study", help="mixed human/CACC traffic on the freeway against the "
-                       "CACC penetration rate: tables and figures")
-    p.add_argument("--net", default="networks/i80.net.xml", help="SUMO network (.net.xml)")
-    p.add_argument("--controller", default="idm-external",
-                   help="CACC controller: idm-external | sumo-cacc | ploeg[:h=H:kp=KP:kd=KD] | "
-                        "ploeg-tuned:h=H | POLICY.pt (not MADDPG)")
-    p.add_argument("--penetration", default="0,0.25,0.5,0.75,1",
-                   help="CACC penetration rates in [0, 1], comma-separated")
-    p.add_argument("--duration", type=float, default=900.0, help="measured simulated time (s)")
-    p.add_argument("--warmup", type=float, default=300.0,
-                   help="simulated time before measuring (s)")
-    p.add_argument("--seeds", type=int, default=3, help="number of seeds (0, 1, ...) per rate")
-    p.add_argument("--v2v-range", type=float, default=300.0,
-                   help="V2V range between consecutive CACC vehicles (m)")
-    p.add_argument("--demand-scale", type=float, default=1.0,
-                   help="multiplies the default demand (2000 veh/h/lane, on-ramp 500 veh/h)")
-    p.add_argument("--krauss-share", type=float, default=0.5,
-                   help="share of human drivers with SUMO's Krauss model (rest IDM)")
-    p.add_argument("--detector-pos", type=float, default=5000.0,
-                   help="position of the induction loops on i80_main (m from its start)")
-    p.add_argument("--heatmap-lane", type=int, default=6,
-                   help="NGSIM lane of the time-space speed maps (1 = leftmost, 6 = rightmost)")
-    p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
-                   help="parallel SUMO processes")
-    p.add_argument("--fcd", action="store_true",
-                   help="also write SUMO FCD output (1 s period, gzip) of the first seed per rate")
-    p.add_argument("--out", type=Path, default=Path("results/study"), help="output folder")
-
-    p = sub.add_parser("net", help="network tools")
-    net_sub = p.add_subparsers(dest="net_command", required=True, parser_class=_Parser)
-    b = net_sub.add_parser("build", help="regenerate networks/i80.net.xml with netconvert")
-    b.add_argument("--config", type=Path, default=None, help="netconvert .netccfg")
-    b.add_argument("--out", type=Path, default=None)
-
-    p = sub.add_parser("data", help="leader data tools")
-    data_sub = p.add_subparsers(dest="data_command", required=True, parser_class=_Parser)
-    d = data_sub.add_parser("list", help="list the events of a split")
-    d.add_argument("--data", default="default")
-    d.add_argument("--split", default="all")
-    d = data_sub.add_parser("make-default", help="regenerate the shipped default leader set")
-    d.add_argument("--net", default="networks/i80.net.xml")
-    d.add_argument("--out", type=Path, default=None)
-    d.add_argument("--seed", type=int, default=42)
-    return parser
-
-
-def _positive(value: int, name: str) -> int:
-    if value < 1:
-        raise InputError(f"{name} must be at least 1, got {value}")
-    return value
-
-
-def _fmt(value: float) -> str:
-    if isinstance(value, int):
-        return str(value)
-    return "nan" if math.isnan(value) else f"{value:.3f}"
-
-
-def format_table(results: list[dict]) -> str:
-    from carl_sumo.metrics import METRIC_KEYS
-
-    header = ["controller", "followers", "events", *METRIC_KEYS]
-    rows = [[r["controller"], str(r["followers"]), str(len(r["events"])),
-             *(_fmt(r["metrics"][k]) for k in METRIC_KEYS)] for r in results]
-    widths = [max(len(h), *(len(row[i]) for row in rows)) for i, h in enumerate(header)]
-    line = lambda cells: "  ".join(c.rjust(w) for c, w in zip(cells, widths))  # noqa: E731
-    return "\n".join([line(header), line(["-" * w for w in widths]), *map(line, rows)])
-
-
-def cmd_simulate(args: argparse.Namespace) -> None:
-    from carl_sumo.data import load_events
-    from carl_sumo.simulate import resolve_controller, simulate
-
-    _positive(args.vehicles, "--vehicles")
-    if args.json is not None:
-        check_output_file(args.json, "--json")
-    if args.events is not None:
-        _positive(args.events, "--events")
-    names = [c.strip() for c in args.controller.split(",") if c.strip()]
-    for name in names:  # fail on a bad controller or platoon length before any simulation runs
-        _, controller = resolve_controller(name)
-        if controller is not None:
-            controller.reset(args.vehicles)
-    events = load_events(args.data, args.split, limit=args.events)
-    start = time.perf_counter()
-    workers = _positive(args.workers, "--workers")
-    results = [simulate(name, events, args.vehicles, args.net, progress=sys.stderr.isatty(),
-                        workers=workers) for name in names]
-    print(format_table(results))
-    print(f"{len(events)} events of split {args.split} of {args.data}, "
-          f"{time.perf_counter() - start:.1f} s")
-    if args.json is not None:
-        payload = {k: results[0][k] for k in ("metrics", "events", "controller", "followers")} \
-            if len(results) == 1 else {"controllers": {r["controller"]: r for r in results}}
-        write_text_atomic(args.json, json.dumps(payload, indent=2, allow_nan=True))
-
-
-def cmd_replay(args: argparse.Namespace) -> None:
-    from carl_sumo.data import load_events
-    from carl_sumo.simulate import replay
-
-    from carl_sumo.sumo import has_display, use_gui
-
-    _positive(args.vehicles, "--vehicles")
-    check_output_file(args.fcd, "--fcd")
-    if args.gui and not has_display():
-        use_gui(True)  # raises the one-line "no display" error before anything runs
-    (event,) = load_events(args.data, args.split, event_ids=[args.event])
-    metrics = replay(args.controller, event, args.vehicles, args.fcd, args.net, gui=args.gui)
-    print(f"wrote {args.fcd}: event {event.event_id}, {args.vehicles} followers, "
-          f"{event.duration_s:.1f} s, controller {args.controller}")
-    print(", ".join(f"{k}={_fmt(v)}" for k, v in metrics.items() if not k.startswith("n_")
-                    and k != "event_id"))
-
-
-def cmd_evaluate(args: argparse.Namespace) -> None:
-    from carl_sumo.evaluate import evaluate
-
-    workers = _positive(args.workers, "--workers")
-    check_output_dir(args.out, "--out")
-    result = evaluate(args.suite, args.out, args.data, args.quick, args.events, args.policies,
-                      args.net, workers, progress=sys.stderr.isatty(),
-                      command="carl-sumo " + " ".join(sys.argv[1:]), all_seeds=args.all_seeds,
-                      seeds=args.seeds)
-    for key, rows in result["rows"].items():
-        print(f"wrote {args.out / (key + '.md')} and .csv ({len(rows)} rows)")
-    print(f"wrote {args.out / 'README.md'}, per_event.csv, timing.csv and "
-          f"{len(result['figures'])} figures; wall time {result['wall_time_s']:.0f} s "
-          f"({result['tasks']} tasks, {workers} workers)")
-
 
 TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_scale", "message_dim",
                    "hidden", "actor_lr", "critic_lr", "noise", "noise_correlation", "smooth_jerk",
@@ -351,6 +258,29 @@ def cmd_train(args: argparse.Namespace) -> None:
           + ", ".join(f"{k}={_fmt(v)}" for k, v in val.items()))
 
 
+def _tune_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("tune", help="tune a classical CACC's gains on the training events")
+    p.add_argument("controller", choices=("ploeg",), help="which controller (ploeg)")
+    _add_common(p, split_default="train")
+    p.add_argument("--gaps", default="0.6,0.8,1.0,1.2", help="time gaps h to tune (s), commas")
+    p.add_argument("--kp", default="0.1,0.15,0.2,0.3,0.45,0.675,1.0125",
+                   help="starting grid of kp (1/s²)")
+    p.add_argument("--kd", default="0.5,0.7,1.0,1.4,2.1,3.15,4.725",
+                   help="starting grid of kd (1/s)")
+    p.add_argument("--reuse", type=Path, default=None,
+                   help="an earlier result file on the same events: its gains are not run again")
+    p.add_argument("--headway-tolerance", type=float, default=0.05,
+                   help="safe: mean headway at most this fraction above the textbook gains' "
+                        "(default 0.05)")
+    p.add_argument("--max-extensions", type=int, default=3,
+                   help="times the grid may grow beyond an edge where the best point lies")
+    p.add_argument("--events", type=int, default=None, metavar="K", help="only the first K events")
+    p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                   help="parallel SUMO processes")
+    p.add_argument("--out", type=Path, default=None,
+                   help="result file (default policies/ploeg_tuned.json)")
+
+
 def cmd_tune(args: argparse.Namespace) -> None:
     from carl_sumo.cacc import TUNED_FILE
     from carl_sumo.tune import TuneConfig, format_result, grid_figure, parse_values, tune_ploeg
@@ -384,6 +314,12 @@ def cmd_tune(args: argparse.Namespace) -> None:
           f"of split {cfg.split}, {payload['wall_time_s']:.0f} s")
 
 
+def _export_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("export", help="write the current actor of a training checkpoint as a policy")
+    p.add_argument("checkpoint", type=Path)
+    p.add_argument("--out", type=Path, required=True)
+
+
 def cmd_export(args: argparse.Namespace) -> None:
     from carl_sumo.train import export_policy
 
@@ -392,11 +328,26 @@ def cmd_export(args: argparse.Namespace) -> None:
     print(f"wrote {args.out} ({meta['exported_from']})")
 
 
+def _policy_info_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("policy-info", help="print the Markdown card of policy files")
+    p.add_argument("paths", nargs="+", type=Path)
+
+
 def cmd_policy_info(args: argparse.Namespace) -> None:
     from carl_sumo.policy import policy_card
 
     cards = [policy_card(path) for path in args.paths]  # all checked before anything is printed
     print("\n".join(cards))
+
+
+def _rank_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("rank", help="rank runs of one model (several seeds) by their stored "
+                       "validation score, best first")
+    p.add_argument("paths", nargs="+", type=Path, help="policy files of one algorithm")
+    p.add_argument("--select", default="margin", choices=("margin", "comfort", "metrics", "reward"),
+                   help="the rule of `train --select` (default margin)")
+    p.add_argument("--best-only", action="store_true",
+                   help="print only the path of the best run (for scripts)")
 
 
 def cmd_rank(args: argparse.Namespace) -> None:
@@ -414,6 +365,24 @@ def cmd_rank(args: argparse.Namespace) -> None:
               f"{'yes' if r['unsafe'] else 'no'} | " + " | ".join(f"{r[k]:.3f}" for k in inputs)
               + " |")
     print(f"best: {rows[0]['path']}")
+
+
+def _bench_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("bench", help="env steps/s beside a bare libsumo loop")
+    p.add_argument("--net", default="networks/i80.net.xml")
+    p.add_argument("--sizes", default="10,20,100", help="platoon sizes, comma-separated")
+    p.add_argument("--steps", type=int, default=2000)
+    p.add_argument("--rounds", type=int, default=3)
+    p.add_argument("--training", action="store_true",
+                   help="measure training throughput (parallel workers, updates) instead")
+    p.add_argument("--algo", default="ca-td3", help="with --training: the algorithm")
+    p.add_argument("--vehicles", default="10,20",
+                   help="with --training: platoon lengths, comma-separated (default 10,20)")
+    p.add_argument("--envs", type=int, default=2, help="with --training: worker processes")
+    p.add_argument("--smooth-jerk", type=float, default=0.0,
+                   help="with --training: the actor smoothness terms of `train` (default 0), "
+                        "which add one actor pass per update")
+    p.add_argument("--smooth-accel", type=float, default=0.0, help="with --training: see above")
 
 
 def cmd_bench(args: argparse.Namespace) -> None:
@@ -442,6 +411,36 @@ def cmd_bench(args: argparse.Namespace) -> None:
     rows = run_bench(sizes, _positive(args.steps, "--steps"), _positive(args.rounds, "--rounds"),
                      args.net)
     print(format_bench(rows))
+
+
+def _study_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("study", help="mixed human/CACC traffic on the freeway against the "
+                       "CACC penetration rate: tables and figures")
+    p.add_argument("--net", default="networks/i80.net.xml", help="SUMO network (.net.xml)")
+    p.add_argument("--controller", default="idm-external",
+                   help="CACC controller: idm-external | sumo-cacc | ploeg[:h=H:kp=KP:kd=KD] | "
+                        "ploeg-tuned:h=H | POLICY.pt (not MADDPG)")
+    p.add_argument("--penetration", default="0,0.25,0.5,0.75,1",
+                   help="CACC penetration rates in [0, 1], comma-separated")
+    p.add_argument("--duration", type=float, default=900.0, help="measured simulated time (s)")
+    p.add_argument("--warmup", type=float, default=300.0,
+                   help="simulated time before measuring (s)")
+    p.add_argument("--seeds", type=int, default=3, help="number of seeds (0, 1, ...) per rate")
+    p.add_argument("--v2v-range", type=float, default=300.0,
+                   help="V2V range between consecutive CACC vehicles (m)")
+    p.add_argument("--demand-scale", type=float, default=1.0,
+                   help="multiplies the default demand (2000 veh/h/lane, on-ramp 500 veh/h)")
+    p.add_argument("--krauss-share", type=float, default=0.5,
+                   help="share of human drivers with SUMO's Krauss model (rest IDM)")
+    p.add_argument("--detector-pos", type=float, default=5000.0,
+                   help="position of the induction loops on i80_main (m from its start)")
+    p.add_argument("--heatmap-lane", type=int, default=6,
+                   help="NGSIM lane of the time-space speed maps (1 = leftmost, 6 = rightmost)")
+    p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                   help="parallel SUMO processes")
+    p.add_argument("--fcd", action="store_true",
+                   help="also write SUMO FCD output (1 s period, gzip) of the first seed per rate")
+    p.add_argument("--out", type=Path, default=Path("results/study"), help="output folder")
 
 
 def _rates(text: str) -> tuple[float, ...]:
@@ -508,12 +507,32 @@ def _check_detector(cfg) -> None:
                          f"{MAIN_EDGE} ({length:.0f} m)")
 
 
+def _net_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("net", help="network tools")
+    net_sub = p.add_subparsers(dest="net_command", required=True, parser_class=_Parser)
+    b = net_sub.add_parser("build", help="regenerate networks/i80.net.xml with netconvert")
+    b.add_argument("--config", type=Path, default=None, help="netconvert .netccfg")
+    b.add_argument("--out", type=Path, default=None)
+
+
 def cmd_net(args: argparse.Namespace) -> None:
     from carl_sumo.network import NET_FILE, NET_SOURCES, build_network
 
     out = check_output_file(args.out or NET_FILE, "--out")
     out = build_network(args.config or NET_SOURCES, out)
     print(f"wrote {out}")
+
+
+def _data_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("data", help="leader data tools")
+    data_sub = p.add_subparsers(dest="data_command", required=True, parser_class=_Parser)
+    d = data_sub.add_parser("list", help="list the events of a split")
+    d.add_argument("--data", default="default")
+    d.add_argument("--split", default="all")
+    d = data_sub.add_parser("make-default", help="regenerate the shipped default leader set")
+    d.add_argument("--net", default="networks/i80.net.xml")
+    d.add_argument("--out", type=Path, default=None)
+    d.add_argument("--seed", type=int, default=42)
 
 
 def cmd_data(args: argparse.Namespace) -> None:
@@ -530,6 +549,18 @@ def cmd_data(args: argparse.Namespace) -> None:
         out = check_output_file(args.out or DEFAULT_EVENTS, "--out")
         table = make_default_set(Path(args.net), Path(out), seed=args.seed)
         print(f"wrote {out}: {table['event_id'].nunique()} events")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The parser of ``carl-sumo``: each subcommand's options are defined beside the command
+    (``_<command>_parser`` above ``cmd_<command>``)."""
+    parser = _Parser(prog="carl-sumo", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    for add in (_simulate_parser, _replay_parser, _evaluate_parser, _train_parser, _tune_parser,
+                _export_parser, _policy_info_parser, _rank_parser, _bench_parser, _study_parser,
+                _net_parser, _data_parser):
+        add(sub)
+    return parser
 
 
 COMMANDS = {"simulate": cmd_simulate, "evaluate": cmd_evaluate, "train": cmd_train,

@@ -184,3 +184,29 @@ def test_rank_prints_the_seeds_best_first_and_the_best_path(capsys, tmp_path):
 def test_train_rejects_unknown_algorithm(capsys):
     code, _, err = run(capsys, "train", "--algo", "ppo")
     assert code == 2 and "unknown algorithm" in err
+
+
+def test_each_subcommand_has_a_small_parser_function_beside_its_command():
+    import argparse
+    import ast
+    import inspect
+
+    from carl_sumo import cli
+
+    parser = cli.build_parser()
+    (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    assert set(sub.choices) == set(cli.COMMANDS)
+    source = inspect.getsource(cli)
+    functions = [n for n in ast.parse(source).body if isinstance(n, ast.FunctionDef)]
+    names = [f.name for f in functions]
+    for f in functions:
+        assert f.end_lineno - f.lineno < 80, f"{f.name} is {f.end_lineno - f.lineno + 1} lines"
+    build = functions[names.index("build_parser")]
+    assert build.end_lineno - build.lineno < 15
+    for command in sub.choices:
+        key = command.replace("-", "_")
+        options, run = names.index(f"_{key}_parser"), names.index(f"cmd_{key}")
+        assert 0 < run - options <= 2, f"the options of {command} are not beside cmd_{key}"
+    lines = source.splitlines()
+    marker = lines.index("    # train options")
+    assert lines[marker + 1].startswith('    p = sub.add_parser("train"')
