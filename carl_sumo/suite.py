@@ -135,10 +135,11 @@ class JobResult:
 PAIRED_COMPARISONS = (("ca_td3_10", "idm"), ("ca_ddpg_10", "idm"), ("ca_td3_10", "td3_1"),
                       ("ca_ddpg_10", "ddpg_1"), ("td3_1", "idm"), ("ddpg_1", "idm"),
                       ("maddpg_10", "idm"), ("ca_td3_10", "ploeg:h=1.5"),
-                      ("ca_ddpg_10", "ploeg:h=1.5"))
+                      ("ca_ddpg_10", "ploeg:h=1.5"), ("ca_td3_ploeg_10", "ploeg-tuned:h=1"))
 """Table 1's paired comparisons: the quality bar's (CA models against IDM and against their
-plain variants), the other learned models against IDM, and the CA models against the textbook
-Ploeg CACC at h = 1.5 s, which follows at the same mean headway (1.75 s)."""
+plain variants), the other learned models against IDM, the CA models against the textbook
+Ploeg CACC at h = 1.5 s, which follows at the same mean headway (1.75 s), and the product
+configuration (CA-TD3 on the tuned Ploeg CACC) against its base alone."""
 SEED_MODELS = tuple(dict.fromkeys(key for pair in PAIRED_COMPARISONS
                                   if not is_classical(pair[1]) for key in pair))
 """Models whose seed files ``--seeds`` runs: the policy pairs of :data:`PAIRED_COMPARISONS`,
@@ -180,10 +181,16 @@ def policy_dir(path: Path | None) -> Path:
     return Path("policies") if Path("policies").is_dir() else REPO_ROOT / "policies"
 
 
-def discover_model(stem: str, directory: Path) -> Model:
-    """A policy model: ``<stem>.pt`` (the shipped run) and every ``<stem>_seed<K>.pt`` beside it.
+SEEDS_DIR = "seeds"
+"""Sub-directory of the policy directory with every training run: ``<stem>_seed<K>.pt``."""
 
-    Files whose training seed repeats one already found are left out (the same run twice).
+
+def discover_model(stem: str, directory: Path) -> Model:
+    """A policy model: ``<stem>.pt`` (the shipped run) and every ``seeds/<stem>_seed<K>.pt``.
+
+    Files whose training seed repeats one already found are left out (the same run twice: the
+    shipped file is one of the seed files). A policy on a classical base is named with it
+    (``CA-TD3 on ploeg-tuned:h=1``).
     """
     from carl_sumo.policy import read_policy_payload
 
@@ -192,10 +199,11 @@ def discover_model(stem: str, directory: Path) -> Model:
         raise InputError(f"policy {shipped} does not exist; the paper suite needs the shipped "
                          "policies (restore them from git, or pass --policies DIR)")
     pattern = re.compile(rf"{re.escape(stem)}_seed(\d+)\.pt")
-    extra = sorted((p for p in directory.glob(f"{stem}_seed*.pt") if pattern.fullmatch(p.name)),
+    extra = sorted((p for p in (directory / SEEDS_DIR).glob(f"{stem}_seed*.pt")
+                    if pattern.fullmatch(p.name)),
                    key=lambda p: int(pattern.fullmatch(p.name).group(1)))
     files, seeds = [], []
-    algo, trained, fixed = "", None, None
+    algo, trained, fixed, base = "", None, None, "idm"
     for path in [shipped, *extra]:
         payload = read_policy_payload(path)  # the metadata only: no network is built here
         cfg, meta = payload["agent_config"], payload.get("metadata") or {}
@@ -210,12 +218,14 @@ def discover_model(stem: str, directory: Path) -> Model:
             n_cfg = int(cfg.get("n_vehicles", 1))
             trained = int(meta.get("trained_vehicles", n_cfg))
             fixed = n_cfg if algo == "maddpg" else None
+            base = str(cfg.get("base", "idm"))
         elif cfg["algo"] != algo:
             raise InputError(f"policy {path} is {cfg['algo']}, but {shipped} is {algo}; a "
                              "seed file must be the same algorithm as its shipped policy")
         files.append(str(path))
         seeds.append(seed)
-    return Model(stem, ALGO_NAMES.get(algo, algo), tuple(files), tuple(seeds), trained, fixed)
+    name = ALGO_NAMES.get(algo, algo) + ("" if base == "idm" else f" on {base}")
+    return Model(stem, name, tuple(files), tuple(seeds), trained, fixed)
 
 
 def _events(es: EventSet, quick: bool) -> list[Event]:
@@ -263,10 +273,10 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
                                                            "three brakings") + " at -5 m/s² to 1 m/s")
     classical = classical_models()
     table1_models = ("human", "idm", "krauss", *classical, "maddpg_10", "ddpg_1", "ca_ddpg_10",
-                     "td3_1", "ca_td3_10")
+                     "td3_1", "ca_td3_10", "ca_td3_ploeg_10")
     seed_models = None if all_seeds else SEED_MODELS if seeds else ()
     table2_models = ("idm", "krauss", *classical, "maddpg_10", "maddpg_20", "ddpg_1", "td3_1",
-                     "ca_ddpg_10", "ca_td3_10", "ca_ddpg_20", "ca_td3_20")
+                     "ca_ddpg_10", "ca_td3_10", "ca_ddpg_20", "ca_td3_20", "ca_td3_ploeg_10")
     tables = [
         TableSpec("table1_ngsim_test", "Table 1: NGSIM test split, 10 followers", test, (10,),
                   table1_models, figures=True, paired=PAIRED_COMPARISONS,

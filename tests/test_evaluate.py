@@ -21,7 +21,7 @@ from conftest import NET, REPO_ROOT, braking_event
 
 POLICIES = REPO_ROOT / "policies"
 SHIPPED = ("ca_td3_10", "ca_ddpg_10", "td3_1", "ddpg_1", "maddpg_10", "maddpg_20", "ca_td3_20",
-           "ca_ddpg_20")
+           "ca_ddpg_20", "ca_td3_ploeg_10")
 
 
 def run(capsys, *argv):
@@ -46,12 +46,14 @@ def quick_suite(tmp_path_factory) -> Path:
     duplicate of TD3's shipped one)."""
     root = tmp_path_factory.mktemp("suite")
     policies = root / "policies"
-    policies.mkdir()
+    seeds = policies / "seeds"
+    seeds.mkdir(parents=True)
     for stem in SHIPPED:
         shutil.copy(POLICIES / f"{stem}.pt", policies / f"{stem}.pt")
-    extra_seed(POLICIES / "td3_1.pt", policies / "td3_1_seed1.pt", 1)
-    extra_seed(POLICIES / "ca_td3_10.pt", policies / "ca_td3_10_seed1.pt", 1)
-    shutil.copy(POLICIES / "td3_1.pt", policies / "td3_1_seed7.pt")  # the shipped seed again: left out
+    extra_seed(POLICIES / "td3_1.pt", seeds / "td3_1_seed1.pt", 1)
+    extra_seed(POLICIES / "ca_td3_10.pt", seeds / "ca_td3_10_seed1.pt", 1)
+    shutil.copy(POLICIES / "td3_1.pt", seeds / "td3_1_seed7.pt")  # the shipped seed again: left out
+    shutil.copy(POLICIES / "td3_1.pt", policies / "td3_1_seed3.pt")  # not in seeds/: not a seed
     out = root / "results"
     code = main(["evaluate", "--suite", "paper", "--quick", "--seeds", "--out", str(out),
                  "--policies", str(policies), "--net", str(NET), "--workers", "2"])
@@ -61,10 +63,10 @@ def quick_suite(tmp_path_factory) -> Path:
 
 CLASSICAL = classical_models()  # SUMO's CACC, the textbook and the tuned Ploeg curves
 TABLES = {  # file stem -> (rows, platoon lengths)
-    "table1_ngsim_test": (8 + len(CLASSICAL), {1, 10}),
-    "table2_generalization": (18 + 2 * len(CLASSICAL), {10, 20}),
-    "table3_stop_and_go": (7 + len(CLASSICAL), {10}),
-    "cross_site_us101": (8 + len(CLASSICAL), {1, 10}),
+    "table1_ngsim_test": (9 + len(CLASSICAL), {1, 10}),
+    "table2_generalization": (20 + 2 * len(CLASSICAL), {10, 20}),
+    "table3_stop_and_go": (8 + len(CLASSICAL), {10}),
+    "cross_site_us101": (9 + len(CLASSICAL), {1, 10}),
 }
 
 
@@ -136,7 +138,7 @@ def test_quick_suite_csv_rows_columns_and_intervals(quick_suite):
     t1 = pd.read_csv(quick_suite / "table1_ngsim_test.csv")
     assert list(t1["model"]) == ["human (recorded)", "IDM (SUMO)", "Krauss (SUMO)",
                                  *CLASSICAL.values(), "MADDPG", "DDPG", "CA-DDPG", "TD3",
-                                 "CA-TD3"]
+                                 "CA-TD3", "CA-TD3 on ploeg-tuned:h=1"]
     assert {"CACC (SUMO)", "Ploeg h=1 s", "Ploeg h=0.6 s"} <= set(CLASSICAL.values())
     assert (t1[t1["model"].str.startswith(("Ploeg", "CACC"))]["collisions"] == 0).all()
     t2 = pd.read_csv(quick_suite / "table2_generalization.csv")
@@ -268,11 +270,15 @@ def test_seed_files_run_with_seeds_or_all_seeds_only(tmp_path):
 
 
 def test_seed_files_are_found_and_duplicates_left_out(tmp_path):
+    seeds = tmp_path / "seeds"
+    seeds.mkdir()
     extra_seed(POLICIES / "ca_td3_10.pt", tmp_path / "ca_td3_10.pt", 7)  # shipped: seed 7
-    extra_seed(POLICIES / "ca_td3_10.pt", tmp_path / "ca_td3_10_seed2.pt", 2)
-    extra_seed(POLICIES / "ca_td3_10.pt", tmp_path / "ca_td3_10_seed0.pt", 0)
-    shutil.copy(tmp_path / "ca_td3_10.pt", tmp_path / "ca_td3_10_seed3.pt")  # seed 7 again
-    shutil.copy(POLICIES / "ca_td3_10.pt", tmp_path / "ca_td3_10_seedx.pt")  # not a seed name
+    extra_seed(POLICIES / "ca_td3_10.pt", seeds / "ca_td3_10_seed2.pt", 2)
+    extra_seed(POLICIES / "ca_td3_10.pt", seeds / "ca_td3_10_seed0.pt", 0)
+    shutil.copy(tmp_path / "ca_td3_10.pt", seeds / "ca_td3_10_seed7.pt")  # the shipped run again
+    shutil.copy(tmp_path / "ca_td3_10.pt", seeds / "ca_td3_10_seed3.pt")  # seed 7 again
+    shutil.copy(POLICIES / "ca_td3_10.pt", seeds / "ca_td3_10_seedx.pt")  # not a seed name
+    extra_seed(POLICIES / "ca_td3_10.pt", tmp_path / "ca_td3_10_seed5.pt", 5)  # not in seeds/
     model = discover_model("ca_td3_10", tmp_path)
     assert model.seeds == (7, 0, 2) and model.name == "CA-TD3" and model.trained_on == 10
     assert [Path(f).name for f in model.files] == ["ca_td3_10.pt", "ca_td3_10_seed0.pt",
