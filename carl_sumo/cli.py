@@ -331,11 +331,17 @@ def cmd_export(args: argparse.Namespace) -> None:
 def _policy_info_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("policy-info", help="print the Markdown card of policy files")
     p.add_argument("paths", nargs="+", type=Path)
+    p.add_argument("--table", action="store_true",
+                   help="one Markdown table row per file (with its seed files in seeds/) "
+                        "instead of a card each")
 
 
 def cmd_policy_info(args: argparse.Namespace) -> None:
-    from carl_sumo.policy import policy_card
+    from carl_sumo.policy import policy_card, policy_table
 
+    if args.table:
+        print(policy_table(args.paths))
+        return
     cards = [policy_card(path) for path in args.paths]  # all checked before anything is printed
     print("\n".join(cards))
 

@@ -158,6 +158,44 @@ def _renamed(meta: dict[str, Any], path: Path) -> str:
     return f" (written as `{trained_as}`, since renamed `{Path(path).name}`)"
 
 
+def _training_wall_s(curve: Path) -> float:
+    """Wall time (s) of a whole training run, from the last row of its learning curve."""
+    if not curve.is_file():
+        return float("nan")
+    rows = curve.read_text().strip().splitlines()
+    return float(rows[-1].split(",")[2]) if len(rows) > 1 else float("nan")
+
+
+def policy_table(paths: list[Path]) -> str:
+    """A Markdown table of shipped policy files, one row each: algorithm, base, platoon length,
+    the seed files beside it (``seeds/<stem>_seed<K>.pt``) and which one is shipped, steps,
+    training wall time per seed, and the validation metrics against the base alone."""
+    head = ("| file | algorithm | base | trained on | seeds (shipped) | steps | wall time per "
+            "seed (s) | validation headway (s) | jerk (m/s³) | dampening | base alone: headway "
+            "/ jerk / dampening |\n|---|---|---|---|---|---|---|---|---|---|---|")
+    rows = [head]
+    for path in map(Path, paths):
+        agent, meta = load_policy(path)
+        val = meta.get("validation", {})
+        base = meta.get("validation_base") or meta.get("validation_idm") or {}
+        seeds = [p for p in (path.parent / "seeds").glob(f"{path.stem}_seed*.pt")
+                 if p.stem.rsplit("_seed", 1)[1].isdigit()]
+        seeds.sort(key=lambda p: int(p.stem.rsplit("_seed", 1)[1]))
+        seed_ids = [p.stem.rsplit("_seed", 1)[1] for p in seeds]
+        walls = [_training_wall_s(p.with_suffix(".csv")) for p in seeds] or \
+            [_training_wall_s(path.with_suffix(".csv"))]
+        fmt = lambda d, k: f"{d[k]:.3f}" if k in d else "–"
+        rows.append(
+            f"| `{path.name}` | {meta.get('algo', agent.cfg.algo)} | {agent.cfg.base} | "
+            f"{meta.get('trained_vehicles', agent.cfg.n_vehicles)} | "
+            f"{', '.join(seed_ids) or '–'} ({meta.get('seed')}) | {meta.get('steps')} | "
+            f"{np.nanmean(walls):.0f} (max {np.nanmax(walls):.0f}) | {fmt(val, 'headway_s')} | "
+            f"{fmt(val, 'jerk_mps3')} | {fmt(val, 'dampening_ratio')} | "
+            f"{fmt(base, 'headway_s')} / {fmt(base, 'jerk_mps3')} / "
+            f"{fmt(base, 'dampening_ratio')} |")
+    return "\n".join(rows)
+
+
 def policy_card(path: Path) -> str:
     """A Markdown card of a policy file: algorithm, command, seed, wall time, validation metrics."""
     agent, meta = load_policy(path)

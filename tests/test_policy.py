@@ -102,3 +102,20 @@ def test_residual_policy_starts_on_its_classical_base(tmp_path):
             obs = rng.uniform([5, -1, 10, -2], [20, 1, 40, 2], (3, 4))
             assert np.all(controller.adjustment(obs) == 0.0)
             assert np.allclose(applied_acceleration(controller, obs), reference.acceleration(obs))
+
+
+def test_policy_table_lists_the_seed_files_and_the_base(tmp_path):
+    from carl_sumo.policy import policy_table
+
+    (tmp_path / "seeds").mkdir()
+    agent = Agent(AgentConfig(algo="ca-td3", base="ploeg:h=0.8"))
+    meta = {"algo": "ca-td3", "seed": 2, "steps": 100, "trained_vehicles": 10,
+            "validation": {"headway_s": 1.1, "jerk_mps3": 0.2, "dampening_ratio": 0.5},
+            "validation_base": {"headway_s": 1.0, "jerk_mps3": 0.3, "dampening_ratio": 0.6}}
+    save_policy(agent, tmp_path / "r.pt", meta)
+    for k in (10, 2):
+        save_policy(agent, tmp_path / "seeds" / f"r_seed{k}.pt", {**meta, "seed": k})
+        (tmp_path / "seeds" / f"r_seed{k}.csv").write_text(f"step,transitions,wall_s\n100,200,{k}\n")
+    row = policy_table([tmp_path / "r.pt"]).splitlines()[-1]
+    assert row.startswith("| `r.pt` | ca-td3 | ploeg:h=0.8 | 10 | 2, 10 (2) | 100 | 6 (max 10) |")
+    assert "| 1.100 | 0.200 | 0.500 | 1.000 / 0.300 / 0.600 |" in row
