@@ -213,8 +213,10 @@ class Agent(nn.Module):
         return action[0] if single else action
 
     # ---------------------------------------------------------------------------- learning
-    def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
-        """One gradient step on a replay batch: obs, action, reward, next_obs, done, mask."""
+    def update(self, batch: dict[str, torch.Tensor], train_actor: bool = True
+               ) -> dict[str, float]:
+        """One gradient step on a replay batch: obs, action, reward, next_obs, done, mask
+        (``train_actor=False``: the critics only, as in a critic burn-in)."""
         cfg = self.cfg
         obs, action, reward = batch["obs"], batch["action"], batch["reward"]
         next_obs, done, mask = batch["next_obs"], batch["done"], batch["mask"]
@@ -241,7 +243,7 @@ class Agent(nn.Module):
         self.critic_opt.step()
         stats = {"critic_loss": float(loss.detach())}
         self.updates += 1
-        if not cfg.twin or self.updates % cfg.policy_delay == 0:
+        if train_actor and (not cfg.twin or self.updates % cfg.policy_delay == 0):
             stats["actor_loss"] = self._update_actor(x, next_x, obs, next_obs, mask, maskf,
                                                      action)
             self._soft_update()

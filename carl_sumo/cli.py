@@ -187,6 +187,9 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
                         "and speed), comfort (the same on jerk and dampening only, at most 5 %% "
                         "above the base's headway), metrics (jerk and dampening relative to the "
                         "base, speed at least the base's) or reward")
+    p.add_argument("--critic-burn-in", type=int, default=None, metavar="STEPS",
+                   help="steps after --learning-starts that train the critics only, the actor "
+                        "staying as it is (residual policy learning's burn-in; default 0)")
     p.add_argument("--base", default=None,
                    help="base model under the learned adjustment: idm (default, the paper's) or "
                         "a classical CACC such as ploeg-tuned:h=1 (the actor starts at a_adj = 0)")
@@ -225,7 +228,7 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
 TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_scale", "message_dim",
                    "hidden", "actor_lr", "critic_lr", "noise", "noise_correlation", "smooth_jerk",
                    "smooth_accel", "eval_events", "val_seed", "val_source", "gamma",
-                   "adj_max", "base")
+                   "adj_max", "base", "critic_burn_in")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 

@@ -47,6 +47,7 @@ class TrainConfig:
     seed: int = 0
     num_envs: int = 2
     learning_starts: int = 1_000   # vector steps of pure exploration noise before updates
+    critic_burn_in: int = 0        # vector steps after learning_starts that train the critics only
     updates_per_step: int = 1
     buffer_size: int = 200_000     # platoon transitions
     eval_every: int = 2_000        # vector steps between validations
@@ -402,8 +403,9 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
             recent.append(float(reward.mean()))
             obs = next_obs
             if step >= cfg.learning_starts:
+                train_actor = step >= cfg.learning_starts + cfg.critic_burn_in
                 for _ in range(cfg.updates_per_step):
-                    agent.update(buffer.sample(agent.cfg.batch_size, rng))
+                    agent.update(buffer.sample(agent.cfg.batch_size, rng), train_actor)
             done_steps = step + 1
             if done_steps % cfg.eval_every == 0 or done_steps == cfg.steps:
                 val_reward, per_event = validate_events(agent, val_env, val_events)

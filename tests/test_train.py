@@ -261,3 +261,20 @@ def test_comfort_selection_refuses_a_longer_headway_than_the_base():
     val = {"collisions": 0, "ttc_lt_1_5s_count": 0, "z_jerk": 3.0, "z_dampening": 2.0}
     assert selection_score({**val, "headway_s": 1.33}, "comfort", base) == 2.0
     assert selection_score({**val, "headway_s": 1.40}, "comfort", base) < -900
+
+
+def test_critic_burn_in_leaves_the_actor_as_it_is():
+    torch.manual_seed(0)
+    agent = Agent(AgentConfig(algo="ca-td3", n_vehicles=3, base="ploeg:h=0.8"))
+    batch = {"obs": torch.rand(16, 3, 5) * 10, "next_obs": torch.rand(16, 3, 5) * 10,
+             "action": torch.rand(16, 3) - 0.5, "reward": torch.rand(16, 3),
+             "done": torch.zeros(16), "mask": torch.ones(16, 3, dtype=torch.bool)}
+    actor = [p.detach().clone() for p in agent.actor.parameters()]
+    critic = [p.detach().clone() for p in agent.critic1.parameters()]
+    for _ in range(4):
+        agent.update(batch, train_actor=False)
+    assert all(torch.equal(a, p) for a, p in zip(actor, agent.actor.parameters()))
+    assert not all(torch.equal(c, p) for c, p in zip(critic, agent.critic1.parameters()))
+    for _ in range(2):
+        agent.update(batch)
+    assert not all(torch.equal(a, p) for a, p in zip(actor, agent.actor.parameters()))
