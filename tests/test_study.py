@@ -232,9 +232,8 @@ def test_short_study_end_to_end(tmp_path, capsys):
 
 def test_residual_policy_on_chains_starts_as_its_classical_base(tmp_path):
     """A fresh policy on base ploeg (a_adj = 0) gives the same accelerations on chains as
-    PloegChains, keeps the same per-vehicle states, and inserts at the base's time gap."""
+    PloegChains and keeps the same per-vehicle states."""
     from carl_sumo.cacc import PloegChains, parse_ploeg
-    from carl_sumo.study import insertion_time_gap
 
     save_policy(Agent(AgentConfig(algo="ca-td3", base="ploeg:h=0.8")), tmp_path / "r.pt", {})
     controller = ChainController(str(tmp_path / "r.pt"))
@@ -250,7 +249,9 @@ def test_residual_policy_on_chains_starts_as_its_classical_base(tmp_path):
         expected = reference.acceleration(obs, chains, ids, ahead, last)
         assert np.allclose(controller.acceleration(obs, chains, ids, ahead, last), expected)
     assert controller.base.u == pytest.approx(reference.u)
-    assert insertion_time_gap(controller) == 0.8
-    assert insertion_time_gap(reference) == 0.8
-    assert insertion_time_gap(ChainController("idm-external")) == 1.5
-    assert insertion_time_gap(None) is None
+
+
+def test_every_cacc_controller_is_inserted_like_sumos_cacc():
+    from carl_sumo.study import insertion_tau_s
+
+    assert insertion_tau_s() == 0.6
