@@ -138,7 +138,7 @@ def test_quick_suite_csv_rows_columns_and_intervals(quick_suite):
     t1 = pd.read_csv(quick_suite / "table1_ngsim_test.csv")
     assert list(t1["model"]) == ["human (recorded)", "IDM (SUMO)", "Krauss (SUMO)",
                                  *CLASSICAL.values(), "MADDPG", "DDPG", "CA-DDPG", "TD3",
-                                 "CA-TD3", "CA-TD3 on ploeg-tuned:h=1"]
+                                 "CA-TD3", "CA-TD3 on ploeg-tuned:h=0.8"]
     assert {"CACC (SUMO)", "Ploeg h=1 s", "Ploeg h=0.6 s"} <= set(CLASSICAL.values())
     assert (t1[t1["model"].str.startswith(("Ploeg", "CACC"))]["collisions"] == 0).all()
     t2 = pd.read_csv(quick_suite / "table2_generalization.csv")
