@@ -11,4 +11,5 @@ carl-sumo study $common --controller idm-external --penetration 0,0.5,1 --out $o
 carl-sumo study $common --controller sumo-cacc --penetration 0.5,1 --out $out/sumo_cacc
 carl-sumo study $common --controller policies/ca_td3_10.pt --penetration 0.5,1 --out $out/ca_td3_10
 carl-sumo study $common --controller ploeg-tuned:h=1 --penetration 0.5,1 --out $out/ploeg_tuned_h1
+carl-sumo study $common --controller ploeg-tuned:h=0.8 --penetration 0.5,1 --out $out/ploeg_tuned_h08
 carl-sumo study $common --controller policies/ca_td3_ploeg_10.pt --penetration 0.5,1 --out $out/ca_td3_ploeg_10
