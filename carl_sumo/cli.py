@@ -187,6 +187,9 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
                         "and speed), comfort (the same on jerk and dampening only, at most 5 %% "
                         "above the base's headway), metrics (jerk and dampening relative to the "
                         "base, speed at least the base's) or reward")
+    p.add_argument("--braking-events", type=int, default=None, metavar="N",
+                   help="add N synthetic hard-braking leaders (15-30 m/s, -3 to -6 m/s²) to the "
+                        "training events, a quarter of them to the validation events (default 0)")
     p.add_argument("--critic-burn-in", type=int, default=None, metavar="STEPS",
                    help="steps after --learning-starts that train the critics only, the actor "
                         "staying as it is (residual policy learning's burn-in; default 0)")
@@ -228,7 +231,7 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
 TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_scale", "message_dim",
                    "hidden", "actor_lr", "critic_lr", "noise", "noise_correlation", "smooth_jerk",
                    "smooth_accel", "eval_events", "val_seed", "val_source", "gamma",
-                   "adj_max", "base", "critic_burn_in")
+                   "adj_max", "base", "critic_burn_in", "braking_events")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 

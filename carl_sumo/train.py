@@ -54,6 +54,7 @@ class TrainConfig:
     eval_events: int = 8           # held-out training events used for validation
     val_seed: int | None = None    # seed choosing those events (None: the training seed)
     val_source: str | None = None  # draw them from this event source only (None: any)
+    braking_events: int = 0        # synthetic hard-braking leaders added (a quarter validates)
     checkpoint_every: int = 5_000  # vector steps between checkpoints
     net: str = str(DEFAULT_NET)
     data: str = "default"
@@ -111,8 +112,15 @@ def held_out_split(events: Sequence[Event], cfg: TrainConfig) -> tuple[list[Even
     """(training, validation) events of a run: ``cfg.eval_events`` held out with ``cfg.val_seed``
     (the training seed when None), so runs of several seeds can share one validation set, from
     the events of ``cfg.val_source`` when given (e.g. the source most like the test set)."""
-    return split_validation(events, cfg.eval_events,
-                            cfg.seed if cfg.val_seed is None else cfg.val_seed, cfg.val_source)
+    val_seed = cfg.seed if cfg.val_seed is None else cfg.val_seed
+    train, val = split_validation(events, cfg.eval_events, val_seed, cfg.val_source)
+    if cfg.braking_events > 0:  # hard braking in training, and in the validation's safety check
+        from carl_sumo.data.synthetic import braking_events
+
+        braking = braking_events(cfg.braking_events, val_seed)
+        k = max(1, cfg.braking_events // 4)
+        train, val = train + braking[k:], val + braking[:k]
+    return train, val
 
 
 def validate_events(agent: Agent, env: PlatoonEnv, events: Sequence[Event]

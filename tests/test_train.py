@@ -278,3 +278,24 @@ def test_critic_burn_in_leaves_the_actor_as_it_is():
     for _ in range(2):
         agent.update(batch)
     assert not all(torch.equal(a, p) for a, p in zip(actor, agent.actor.parameters()))
+
+
+def test_braking_events_join_training_and_a_quarter_validates():
+    from carl_sumo.data.synthetic import BRAKING_SOURCE, braking_events
+    from carl_sumo.sumo import lane_route, check_fits
+
+    events = [dataclasses.replace(cruise_event(50), event_id=f"e{i}") for i in range(40)]
+    train_set, val = held_out_split(events, TrainConfig(eval_events=8, val_seed=0,
+                                                        braking_events=8))
+    braking_val = [e for e in val if e.source == BRAKING_SOURCE]
+    braking_train = [e for e in train_set if e.source == BRAKING_SOURCE]
+    assert len(val) == 8 + 2 and len(braking_val) == 2 and len(braking_train) == 6
+    assert not {e.event_id for e in braking_val} & {e.event_id for e in braking_train}
+    again = braking_events(8, 0)
+    assert [e.event_id for e in again] == [e.event_id for e in braking_val + braking_train]
+    assert np.array_equal(again[0].leader_speed_mps, braking_val[0].leader_speed_mps)
+    route = lane_route(NET)
+    for e in again:
+        v = e.leader_speed_mps
+        assert 15.0 <= v[0] <= 30.0 and v.min() <= 8.0 and np.diff(v).min() / 0.1 >= -6.0 - 1e-9
+        check_fits(route, e, 10)

@@ -1,4 +1,5 @@
-"""A synthetic stop-and-go leader like the paper's Table 3 scenario.
+"""Synthetic leaders: the stop-and-go leader of the paper's Table 3 scenario, and random
+hard-braking leaders for training.
 
 The leader cruises near 25 m/s, brakes hard (-5 m/s²) to near standstill (1 m/s), waits, recovers
 at +1.5 m/s², and does so ``cycles`` times. The followers start at 25 m/s with a 40 m gap (close to
@@ -30,8 +31,38 @@ def stop_and_go_event(cycles: int = 3, cruise_mps: float = 25.0, low_mps: float 
         hold(wait_s, 0.0)
         hold((cruise_mps - low_mps) / recover_mps2, recover_mps2)
     hold(cruise_s, 0.0)
+    return _event(STOP_AND_GO_ID, "carl_sumo_synthetic", accel, cruise_mps, low_mps, gap_m)
+
+
+def _event(event_id: str, source: str, accel: list[float], cruise_mps: float, low_mps: float,
+           gap_m: float) -> Event:
     speed = np.clip(cruise_mps + np.concatenate([[0.0], np.cumsum(accel)]) * DT_S, low_mps,
                     cruise_mps)
     pos = np.concatenate([[0.0], np.cumsum(speed[1:]) * DT_S])
-    return Event(STOP_AND_GO_ID, "carl_sumo_synthetic", "synthetic", pos, speed, 5.0,
+    return Event(event_id, source, "synthetic", pos, speed, 5.0,
                  np.full_like(speed, cruise_mps), np.full_like(speed, gap_m))
+
+
+BRAKING_SOURCE = "carl_sumo_braking"
+"""The ``source`` of :func:`braking_events`."""
+
+
+def braking_events(n: int, seed: int = 0) -> list[Event]:
+    """``n`` hard-braking leaders for training, drawn with ``seed``: cruise at 15-30 m/s for
+    5-15 s, brake at -3 to -6 m/s² down to 0.5-8 m/s, wait 1-6 s, recover at 1-2.5 m/s², cruise
+    10 s; the followers start at the cruise speed with a gap of 1.5 s. Freeway speeds and hard
+    braking, which the NGSIM I-80 events (about 8 m/s) lack; none is the Table 3 leader (three
+    brakings from 25 m/s at -5 m/s² to 1 m/s)."""
+    rng = np.random.default_rng(seed)
+    events = []
+    for k in range(n):
+        cruise, low = rng.uniform(15.0, 30.0), rng.uniform(0.5, 8.0)
+        brake, recover = rng.uniform(-6.0, -3.0), rng.uniform(1.0, 2.5)
+        accel: list[float] = []
+        for seconds, value in ((rng.uniform(5.0, 15.0), 0.0), ((cruise - low) / -brake, brake),
+                               (rng.uniform(1.0, 6.0), 0.0), ((cruise - low) / recover, recover),
+                               (10.0, 0.0)):
+            accel.extend([value] * int(round(seconds / DT_S)))
+        events.append(_event(f"braking_{seed}_{k:03d}", BRAKING_SOURCE, accel, cruise, low,
+                             1.5 * cruise))
+    return events
