@@ -2,7 +2,7 @@
 
 One run each, seed 0, back to back in this process (300 s warm-up + 100 s measured, full
 demand), and their ratio. Usage:
-    python benchmarks/study_speed.py [--controller policies/ca_td3_10.pt] [--duration 100]
+    python benchmarks/study_speed.py [--controller policies/ca_td3_ploeg_10.pt] [--duration 100]
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from carl_sumo.study import StudyConfig, run_one
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--controller", default="policies/ca_td3_10.pt")
+    parser.add_argument("--controller", default="policies/ca_td3_ploeg_10.pt")
     parser.add_argument("--duration", type=float, default=100.0, help="measured seconds")
     args = parser.parse_args()
     cfg = StudyConfig(controller=args.controller, duration_s=args.duration)
