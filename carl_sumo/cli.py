@@ -14,6 +14,10 @@ import sys
 import time
 from pathlib import Path
 
+from carl_sumo.cli_common import add_common, fmt, positive
+from carl_sumo.cli_policies import (_export_parser, _policy_info_parser, _rank_parser,
+                                    _train_parser, _tune_parser, cmd_export, cmd_policy_info,
+                                    cmd_rank, cmd_train, cmd_tune)
 from carl_sumo.errors import InputError
 from carl_sumo.files import check_output_dir, check_output_file, write_text_atomic
 
@@ -27,32 +31,12 @@ class _Parser(argparse.ArgumentParser):
         raise InputError(f"{message} (see `{self.prog} --help`)")
 
 
-def _add_common(p: argparse.ArgumentParser, split_default: str = "test") -> None:
-    p.add_argument("--net", default="networks/i80.net.xml", help="SUMO network (.net.xml)")
-    p.add_argument("--data", default="default",
-                   help="default | stop-and-go | PATH of an event table or a raw NGSIM CSV")
-    p.add_argument("--split", default=split_default, help="test | train | us101 | all")
-    p.add_argument("--vehicles", type=int, default=10, help="number of CACC followers")
-
-
-def _positive(value: int, name: str) -> int:
-    if value < 1:
-        raise InputError(f"{name} must be at least 1, got {value}")
-    return value
-
-
-def _fmt(value: float) -> str:
-    if isinstance(value, int):
-        return str(value)
-    return "nan" if math.isnan(value) else f"{value:.3f}"
-
-
 def format_table(results: list[dict]) -> str:
     from carl_sumo.metrics import METRIC_KEYS
 
     header = ["controller", "followers", "events", *METRIC_KEYS]
     rows = [[r["controller"], str(r["followers"]), str(len(r["events"])),
-             *(_fmt(r["metrics"][k]) for k in METRIC_KEYS)] for r in results]
+             *(fmt(r["metrics"][k]) for k in METRIC_KEYS)] for r in results]
     widths = [max(len(h), *(len(row[i]) for row in rows)) for i, h in enumerate(header)]
     line = lambda cells: "  ".join(c.rjust(w) for c, w in zip(cells, widths))  # noqa: E731
     return "\n".join([line(header), line(["-" * w for w in widths]), *map(line, rows)])
@@ -60,7 +44,7 @@ def format_table(results: list[dict]) -> str:
 
 def _simulate_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="run controllers on the events of a split; print metrics")
-    _add_common(p)
+    add_common(p)
     p.add_argument("--controller", default="idm",
                    help="idm | krauss | sumo-cacc | idm-external | ploeg[:h=H:kp=KP:kd=KD] | "
                         "ploeg-tuned:h=H | human | POLICY.pt; several with commas")
@@ -74,11 +58,11 @@ def cmd_simulate(args: argparse.Namespace) -> None:
     from carl_sumo.data import load_events
     from carl_sumo.simulate import resolve_controller, simulate
 
-    _positive(args.vehicles, "--vehicles")
+    positive(args.vehicles, "--vehicles")
     if args.json is not None:
         check_output_file(args.json, "--json")
     if args.events is not None:
-        _positive(args.events, "--events")
+        positive(args.events, "--events")
     names = [c.strip() for c in args.controller.split(",") if c.strip()]
     for name in names:  # fail on a bad controller or platoon length before any simulation runs
         _, controller = resolve_controller(name)
@@ -86,7 +70,7 @@ def cmd_simulate(args: argparse.Namespace) -> None:
             controller.reset(args.vehicles)
     events = load_events(args.data, args.split, limit=args.events)
     start = time.perf_counter()
-    workers = _positive(args.workers, "--workers")
+    workers = positive(args.workers, "--workers")
     results = [simulate(name, events, args.vehicles, args.net, progress=sys.stderr.isatty(),
                         workers=workers) for name in names]
     print(format_table(results))
@@ -100,7 +84,7 @@ def cmd_simulate(args: argparse.Namespace) -> None:
 
 def _replay_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("replay", help="run one event and write SUMO FCD output")
-    _add_common(p, split_default="all")
+    add_common(p, split_default="all")
     p.add_argument("--controller", default="idm",
                    help="idm | krauss | sumo-cacc | idm-external | ploeg[:h=H:kp=KP:kd=KD] | "
                         "ploeg-tuned:h=H | POLICY.pt")
@@ -116,7 +100,7 @@ def cmd_replay(args: argparse.Namespace) -> None:
 
     from carl_sumo.sumo import has_display, use_gui
 
-    _positive(args.vehicles, "--vehicles")
+    positive(args.vehicles, "--vehicles")
     check_output_file(args.fcd, "--fcd")
     if args.gui and not has_display():
         use_gui(True)  # raises the one-line "no display" error before anything runs
@@ -124,7 +108,7 @@ def cmd_replay(args: argparse.Namespace) -> None:
     metrics = replay(args.controller, event, args.vehicles, args.fcd, args.net, gui=args.gui)
     print(f"wrote {args.fcd}: event {event.event_id}, {args.vehicles} followers, "
           f"{event.duration_s:.1f} s, controller {args.controller}")
-    print(", ".join(f"{k}={_fmt(v)}" for k, v in metrics.items() if not k.startswith("n_")
+    print(", ".join(f"{k}={fmt(v)}" for k, v in metrics.items() if not k.startswith("n_")
                     and k != "event_id"))
 
 
@@ -155,7 +139,7 @@ def _evaluate_parser(sub: argparse._SubParsersAction) -> None:
 def cmd_evaluate(args: argparse.Namespace) -> None:
     from carl_sumo.evaluate import evaluate
 
-    workers = _positive(args.workers, "--workers")
+    workers = positive(args.workers, "--workers")
     check_output_dir(args.out, "--out")
     result = evaluate(args.suite, args.out, args.data, args.quick, args.events, args.policies,
                       args.net, workers, progress=sys.stderr.isatty(),
@@ -166,217 +150,6 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
     print(f"wrote {args.out / 'README.md'}, per_event.csv, timing.csv and "
           f"{len(result['figures'])} figures; wall time {result['wall_time_s']:.0f} s "
           f"({result['tasks']} tasks, {workers} workers)")
-
-
-def _train_parser(sub: argparse._SubParsersAction) -> None:
-    # train options
-    p = sub.add_parser("train", help="train a CA-RL (or baseline) agent inside SUMO")
-    _add_common(p, split_default="train")
-    p.add_argument("--algo", default="ca-td3", help="ca-td3 | ca-ddpg | td3 | ddpg | maddpg")
-    p.add_argument("--steps", type=int, default=20_000, help="vector steps (all envs at once)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--envs", type=int, default=2, help="parallel SUMO worker processes")
-    p.add_argument("--learning-starts", type=int, default=1_000)
-    p.add_argument("--eval-every", type=int, default=2_000)
-    p.add_argument("--checkpoint-every", type=int, default=5_000)
-    p.add_argument("--out", type=Path, default=None, help="policy file (default policies/ALGO.pt)")
-    p.add_argument("--resume", type=Path, default=None, help="checkpoint (.ckpt) to continue")
-    p.add_argument("--select", default=None, choices=("margin", "comfort", "metrics", "reward"),
-                   help="how the best validation checkpoint is kept: margin (default: the "
-                        "largest smallest z of the improvement over the base on jerk, dampening "
-                        "and speed), comfort (the same on jerk and dampening only, at most 5 %% "
-                        "above the base's headway), metrics (jerk and dampening relative to the "
-                        "base, speed at least the base's) or reward")
-    p.add_argument("--braking-events", type=int, default=None, metavar="N",
-                   help="add N synthetic hard-braking leaders (15-30 m/s, -3 to -6 m/s²) to the "
-                        "training events, a quarter of them to the validation events (default 0)")
-    p.add_argument("--critic-burn-in", type=int, default=None, metavar="STEPS",
-                   help="steps after --learning-starts that train the critics only, the actor "
-                        "staying as it is (residual policy learning's burn-in; default 0)")
-    p.add_argument("--base", default=None,
-                   help="base model under the learned adjustment: idm (default, the paper's) or "
-                        "a classical CACC such as ploeg-tuned:h=1 (the actor starts at a_adj = 0)")
-    p.add_argument("--w-gap", type=float, default=None, help="reward weight of the headway term")
-    p.add_argument("--w-safe", type=float, default=None, help="reward weight of the TTC term")
-    p.add_argument("--w-comfort", type=float, default=None, help="reward weight of the jerk term")
-    p.add_argument("--w-accel", type=float, default=None,
-                   help="weight of the optional control-effort term -w·a² (default 0: off)")
-    p.add_argument("--jerk-scale", type=float, default=None,
-                   help="jerk that normalises the comfort term (m/s³)")
-    p.add_argument("--message-dim", type=int, default=None, help="V2V message width (CA models)")
-    p.add_argument("--hidden", type=int, default=None, help="hidden layer width")
-    p.add_argument("--actor-lr", type=float, default=None, help="actor learning rate")
-    p.add_argument("--critic-lr", type=float, default=None, help="critic learning rate")
-    p.add_argument("--noise", type=float, default=None,
-                   help="exploration noise std as a fraction of the a_adj bound")
-    p.add_argument("--noise-correlation", type=float, default=None,
-                   help="AR(1) coefficient of the exploration noise per step (0 = white)")
-    p.add_argument("--gamma", type=float, default=None, help="discount per 0.1 s step (0.98)")
-    p.add_argument("--adj-max", type=float, default=None,
-                   help="bound of the learned adjustment |a_adj| (m/s², default 3)")
-    p.add_argument("--smooth-jerk", type=float, default=None,
-                   help="actor loss weight on the policy's jerk, per (m/s³)² (default 0)")
-    p.add_argument("--smooth-accel", type=float, default=None,
-                   help="actor loss weight on the policy's acceleration, per (m/s²)² (default 0)")
-    p.add_argument("--eval-events", type=int, default=None,
-                   help="held-out training events used for validation (default 8)")
-    p.add_argument("--val-seed", type=int, default=None,
-                   help="seed choosing the held-out events (default: --seed); give runs of "
-                        "several seeds one --val-seed to compare them on the same events")
-    p.add_argument("--val-source", default=None,
-                   help="hold the validation events out of this event source only (the data "
-                        "file's `source` column), e.g. the one most like the test set")
-
-
-TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_scale", "message_dim",
-                   "hidden", "actor_lr", "critic_lr", "noise", "noise_correlation", "smooth_jerk",
-                   "smooth_accel", "eval_events", "val_seed", "val_source", "gamma",
-                   "adj_max", "base", "critic_burn_in", "braking_events")
-"""Training options that, when given, override the defaults of TrainConfig."""
-
-
-def cmd_train(args: argparse.Namespace) -> None:
-    from carl_sumo.agents import ALGOS
-    from carl_sumo.data import load_events
-    from carl_sumo.train import TrainConfig, train
-
-    if args.algo not in ALGOS:
-        raise InputError(f"unknown algorithm {args.algo!r}; choose one of {', '.join(ALGOS)}")
-    for name in ("vehicles", "steps", "envs", "eval_every", "checkpoint_every"):
-        _positive(getattr(args, name), "--" + name.replace("_", "-"))
-    if args.base is not None:
-        from carl_sumo.controllers import check_base
-
-        check_base(args.base)
-    out = check_output_file(args.out or Path("policies") / f"{args.algo.replace('-', '_')}.pt",
-                            "--out")
-    events = load_events(args.data, args.split)
-    cfg = TrainConfig(algo=args.algo, n_vehicles=args.vehicles, steps=args.steps, seed=args.seed,
-                      num_envs=args.envs, learning_starts=args.learning_starts,
-                      eval_every=args.eval_every, checkpoint_every=args.checkpoint_every,
-                      net=args.net, data=args.data, split=args.split, out=str(out),
-                      command="carl-sumo " + " ".join(sys.argv[1:]),
-                      **{k: getattr(args, k) for k in TRAIN_OVERRIDES if getattr(args, k) is not None})
-    result = train(cfg, events, resume=args.resume, progress=sys.stderr.isatty())
-    val = result["validation"]
-    print(f"wrote {out} (best validation score {result['best_score']:.4f}); "
-          f"wall time {result['wall_time_s']:.0f} s; last validation: "
-          + ", ".join(f"{k}={_fmt(v)}" for k, v in val.items()))
-
-
-def _tune_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("tune", help="tune a classical CACC's gains on the training events")
-    p.add_argument("controller", choices=("ploeg",), help="which controller (ploeg)")
-    _add_common(p, split_default="train")
-    p.add_argument("--gaps", default="0.6,0.8,1.0,1.2", help="time gaps h to tune (s), commas")
-    p.add_argument("--kp", default="0.1,0.15,0.2,0.3,0.45,0.675,1.0125",
-                   help="starting grid of kp (1/s²)")
-    p.add_argument("--kd", default="0.5,0.7,1.0,1.4,2.1,3.15,4.725",
-                   help="starting grid of kd (1/s)")
-    p.add_argument("--reuse", type=Path, default=None,
-                   help="an earlier result file on the same events: its gains are not run again")
-    p.add_argument("--headway-tolerance", type=float, default=0.05,
-                   help="safe: mean headway at most this fraction above the textbook gains' "
-                        "(default 0.05)")
-    p.add_argument("--max-extensions", type=int, default=3,
-                   help="times the grid may grow beyond an edge where the best point lies")
-    p.add_argument("--events", type=int, default=None, metavar="K", help="only the first K events")
-    p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
-                   help="parallel SUMO processes")
-    p.add_argument("--out", type=Path, default=None,
-                   help="result file (default policies/ploeg_tuned.json)")
-
-
-def cmd_tune(args: argparse.Namespace) -> None:
-    from carl_sumo.cacc import TUNED_FILE
-    from carl_sumo.tune import TuneConfig, format_result, grid_figure, parse_values, tune_ploeg
-
-    _positive(args.vehicles, "--vehicles")
-    _positive(args.workers, "--workers")
-    if args.events is not None:
-        _positive(args.events, "--events")
-    if args.max_extensions < 0:
-        raise InputError("--max-extensions must not be negative")
-    if not (math.isfinite(args.headway_tolerance) and args.headway_tolerance >= 0):
-        raise InputError(f"--headway-tolerance must be a non-negative fraction, got "
-                         f"{args.headway_tolerance}")
-    out = args.out or TUNED_FILE
-    check_output_file(out, "--out")
-    cfg = TuneConfig(gaps_s=parse_values(args.gaps, "--gaps"), kp=parse_values(args.kp, "--kp"),
-                     kd=parse_values(args.kd, "--kd"), n_followers=args.vehicles,
-                     headway_tolerance=args.headway_tolerance,
-                     max_extensions=args.max_extensions, data=args.data, split=args.split,
-                     net=str(args.net), workers=args.workers,
-                     command="carl-sumo " + " ".join(sys.argv[1:]))
-    from carl_sumo.sumo import lane_route
-
-    lane_route(args.net)  # a missing or broken network fails before any worker starts
-    payload = tune_ploeg(cfg, Path(out), args.events, progress=sys.stderr.isatty(),
-                         log=lambda line: print(line, file=sys.stderr, flush=True),
-                         reuse=args.reuse)
-    figure = grid_figure(payload, Path(out).with_suffix(".png"))
-    print(format_result(payload))
-    print(f"wrote {out} and {figure}: {len(payload['grid'])} gains on {payload['events']} events "
-          f"of split {cfg.split}, {payload['wall_time_s']:.0f} s")
-
-
-def _export_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("export", help="write the current actor of a training checkpoint as a policy")
-    p.add_argument("checkpoint", type=Path)
-    p.add_argument("--out", type=Path, required=True)
-
-
-def cmd_export(args: argparse.Namespace) -> None:
-    from carl_sumo.train import export_policy
-
-    check_output_file(args.out, "--out")
-    meta = export_policy(args.checkpoint, args.out)
-    print(f"wrote {args.out} ({meta['exported_from']})")
-
-
-def _policy_info_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("policy-info", help="print the Markdown card of policy files")
-    p.add_argument("paths", nargs="+", type=Path)
-    p.add_argument("--table", action="store_true",
-                   help="one Markdown table row per file (with its seed files in seeds/) "
-                        "instead of a card each")
-
-
-def cmd_policy_info(args: argparse.Namespace) -> None:
-    from carl_sumo.policy import policy_card, policy_table
-
-    if args.table:
-        print(policy_table(args.paths))
-        return
-    cards = [policy_card(path) for path in args.paths]  # all checked before anything is printed
-    print("\n".join(cards))
-
-
-def _rank_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("rank", help="rank runs of one model (several seeds) by their stored "
-                       "validation score, best first")
-    p.add_argument("paths", nargs="+", type=Path, help="policy files of one algorithm")
-    p.add_argument("--select", default="margin", choices=("margin", "comfort", "metrics", "reward"),
-                   help="the rule of `train --select` (default margin)")
-    p.add_argument("--best-only", action="store_true",
-                   help="print only the path of the best run (for scripts)")
-
-
-def cmd_rank(args: argparse.Namespace) -> None:
-    from carl_sumo.train import rank_runs
-
-    rows = rank_runs(args.paths, args.select)
-    if args.best_only:
-        print(rows[0]["path"])
-        return
-    inputs = [k for k in rows[0] if k not in ("path", "seed", "score", "unsafe")]
-    print("| rank | file | seed | score | unsafe | " + " | ".join(inputs) + " |")
-    print("|---" * (5 + len(inputs)) + "|")
-    for i, r in enumerate(rows, 1):
-        print(f"| {i} | `{Path(r['path']).name}` | {r['seed']} | {r['score']:.3f} | "
-              f"{'yes' if r['unsafe'] else 'no'} | " + " | ".join(f"{r[k]:.3f}" for k in inputs)
-              + " |")
-    print(f"best: {rows[0]['path']}")
 
 
 def _bench_parser(sub: argparse._SubParsersAction) -> None:
@@ -406,21 +179,21 @@ def cmd_bench(args: argparse.Namespace) -> None:
         if args.algo not in ALGOS:
             raise InputError(f"unknown algorithm {args.algo!r}; choose one of {', '.join(ALGOS)}")
         try:
-            sizes = tuple(_positive(int(s), "--vehicles") for s in args.vehicles.split(","))
+            sizes = tuple(positive(int(s), "--vehicles") for s in args.vehicles.split(","))
         except ValueError:
             raise InputError(f"--vehicles must be integers separated by commas, got "
                              f"{args.vehicles!r}")
-        rows = run_training_bench(args.algo, sizes, _positive(args.envs, "--envs"),
-                                  _positive(args.steps, "--steps"), args.net, args.smooth_jerk,
+        rows = run_training_bench(args.algo, sizes, positive(args.envs, "--envs"),
+                                  positive(args.steps, "--steps"), args.net, args.smooth_jerk,
                                   args.smooth_accel)
         print(format_training_bench(rows))
         return
 
     try:
-        sizes = tuple(_positive(int(s), "--sizes") for s in args.sizes.split(","))
+        sizes = tuple(positive(int(s), "--sizes") for s in args.sizes.split(","))
     except ValueError:
         raise InputError(f"--sizes must be integers separated by commas, got {args.sizes!r}")
-    rows = run_bench(sizes, _positive(args.steps, "--steps"), _positive(args.rounds, "--rounds"),
+    rows = run_bench(sizes, positive(args.steps, "--steps"), positive(args.rounds, "--rounds"),
                      args.net)
     print(format_bench(rows))
 
@@ -482,8 +255,8 @@ def cmd_study(args: argparse.Namespace) -> None:
             raise InputError(f"{name} must be a positive number, got {value}")
     if not (math.isfinite(args.warmup) and args.warmup >= 0):
         raise InputError(f"--warmup must be a non-negative number of seconds, got {args.warmup}")
-    _positive(args.seeds, "--seeds")
-    _positive(args.workers, "--workers")
+    positive(args.seeds, "--seeds")
+    positive(args.workers, "--workers")
     check_output_dir(args.out, "--out")
     lane_route(args.net, args.heatmap_lane)  # checks the network and the lane
     if not 0.0 <= args.detector_pos:
@@ -565,7 +338,7 @@ def cmd_data(args: argparse.Namespace) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The parser of ``carl-sumo``: each subcommand's options are defined beside the command
-    (``_<command>_parser`` above ``cmd_<command>``)."""
+    (``_<command>_parser`` above ``cmd_<command>``, here or in :mod:`carl_sumo.cli_policies`)."""
     parser = _Parser(prog="carl-sumo", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     for add in (_simulate_parser, _replay_parser, _evaluate_parser, _train_parser, _tune_parser,

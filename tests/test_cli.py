@@ -191,22 +191,29 @@ def test_each_subcommand_has_a_small_parser_function_beside_its_command():
     import ast
     import inspect
 
-    from carl_sumo import cli
+    from carl_sumo import cli, cli_common, cli_policies
 
     parser = cli.build_parser()
     (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
     assert set(sub.choices) == set(cli.COMMANDS)
-    source = inspect.getsource(cli)
-    functions = [n for n in ast.parse(source).body if isinstance(n, ast.FunctionDef)]
-    names = [f.name for f in functions]
-    for f in functions:
-        assert f.end_lineno - f.lineno < 80, f"{f.name} is {f.end_lineno - f.lineno + 1} lines"
-    build = functions[names.index("build_parser")]
-    assert build.end_lineno - build.lineno < 15
+    where = {}
+    for module in (cli, cli_common, cli_policies):
+        source = inspect.getsource(module)
+        assert len(source.splitlines()) <= 500, f"{module.__name__} is over 500 lines"
+        functions = [n for n in ast.parse(source).body if isinstance(n, ast.FunctionDef)]
+        for f in functions:
+            assert f.end_lineno - f.lineno < 80, f"{f.name} is {f.end_lineno - f.lineno + 1} lines"
+        for i, f in enumerate(functions):
+            where[f.name] = (module.__name__, i)
+        if module is cli:
+            build = functions[[f.name for f in functions].index("build_parser")]
+            assert build.end_lineno - build.lineno < 15
+        if module is cli_policies:
+            lines = source.splitlines()
+            marker = lines.index("    # train options")
+            assert lines[marker + 1].startswith('    p = sub.add_parser("train"')
     for command in sub.choices:
         key = command.replace("-", "_")
-        options, run = names.index(f"_{key}_parser"), names.index(f"cmd_{key}")
-        assert 0 < run - options <= 2, f"the options of {command} are not beside cmd_{key}"
-    lines = source.splitlines()
-    marker = lines.index("    # train options")
-    assert lines[marker + 1].startswith('    p = sub.add_parser("train"')
+        (m1, options), (m2, run) = where[f"_{key}_parser"], where[f"cmd_{key}"]
+        assert m1 == m2 and 0 < run - options <= 2, \
+            f"the options of {command} are not beside cmd_{key}"
