@@ -324,7 +324,9 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
           progress: bool = True, log=print) -> dict[str, Any]:
     """Train an agent; writes the best policy to ``cfg.out``, checkpoints and a CSV log beside it.
 
-    Returns the final validation metrics and timing.
+    Returns the final validation metrics and timing. Long on purpose: the whole algorithm loop
+    (act, step, store, update, validate, keep, checkpoint) reads top to bottom in one place, as in
+    CleanRL; its parts that stand alone (validation, selection, checkpoints) are functions above.
     """
     from carl_sumo.vec_env import VecPlatoon
 
