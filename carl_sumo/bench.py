@@ -90,17 +90,19 @@ def format_bench(rows: list[dict[str, float]]) -> str:
 
 def run_training_bench(algo: str = "ca-td3", sizes: tuple[int, ...] = (10, 20), num_envs: int = 2,
                        steps: int = 500, net_path=DEFAULT_NET, smooth_jerk: float = 0.0,
-                       smooth_accel: float = 0.0) -> list[dict[str, float]]:
+                       smooth_accel: float = 0.0, update_every: int = 1,
+                       batch_size: int = 128) -> list[dict[str, float]]:
     """Training throughput per platoon size: env steps/s in the parallel SUMO workers with
-    batched policy inference, without and with one gradient update per vector step (with the
-    actor smoothness terms of training when given), and the mean time of one update (sampling
-    the batch included, ms)."""
-    return [_training_rates(algo, n, num_envs, steps, net_path, smooth_jerk, smooth_accel)
-            for n in sizes]
+    batched policy inference, without and with one gradient update (of ``batch_size``
+    transitions) every ``update_every`` vector steps (with the actor smoothness terms of training
+    when given), and the mean time of one update (sampling the batch included, ms)."""
+    return [_training_rates(algo, n, num_envs, steps, net_path, smooth_jerk, smooth_accel,
+                            update_every, batch_size) for n in sizes]
 
 
 def _training_rates(algo: str, n: int, num_envs: int, steps: int, net_path, smooth_jerk: float,
-                    smooth_accel: float) -> dict[str, float]:
+                    smooth_accel: float, update_every: int = 1, batch_size: int = 128
+                    ) -> dict[str, float]:
     import torch
 
     from carl_sumo.agents import Agent, AgentConfig, ColoredNoise
@@ -114,44 +116,48 @@ def _training_rates(algo: str, n: int, num_envs: int, steps: int, net_path, smoo
     except ImportError:
         pass
     agent = Agent(AgentConfig(algo=algo, n_vehicles=n, smooth_jerk=smooth_jerk,
-                              smooth_accel=smooth_accel))
+                              smooth_accel=smooth_accel, batch_size=batch_size))
     buffer = ReplayBuffer(50_000, n)
     rng = np.random.default_rng(0)
     vec = VecPlatoon([cruise_event(400)], n, net_path, num_envs, seed=0)
     noise = ColoredNoise((num_envs, n), 0.45, 0.98, rng)
-    row: dict[str, float] = {"algo": algo, "followers": n, "envs": num_envs}
+    row: dict[str, float] = {"algo": algo, "followers": n, "envs": num_envs,
+                             "update_every": update_every, "batch_size": batch_size}
     try:
         obs = vec.reset(0)
         for phase in ("warm-up", "none", "updates"):
             updates = phase != "none"
             update_s, start = 0.0, time.perf_counter()
-            for _ in range(min(steps, 20) if phase == "warm-up" else steps):
+            n_updates = 0
+            for k in range(min(steps, 20) if phase == "warm-up" else steps):
                 action = agent.act(obs, noise.sample())
                 next_obs, reward, term, _, final = vec.step(action)
                 buffer.add(obs, action, reward, final, term.astype(np.float32))
                 obs = next_obs
-                if updates:
+                if updates and k % update_every == 0:
                     t0 = time.perf_counter()
                     agent.update(buffer.sample(agent.cfg.batch_size, rng))
                     update_s += time.perf_counter() - t0
+                    n_updates += 1
             wall = time.perf_counter() - start
             if phase == "none":
                 row["env_steps_per_s"] = steps * num_envs / wall
             elif phase == "updates":
                 row["env_steps_per_s_updates"] = steps * num_envs / wall
-                row["update_ms"] = 1000.0 * update_s / steps
+                row["update_ms"] = 1000.0 * update_s / max(n_updates, 1)
     finally:
         vec.close()
     return row
 
 
 def format_training_bench(rows: list[dict[str, float]]) -> str:
-    lines = ["algo     followers  envs  env steps/s, no updates  env steps/s, 1 update/step"
-             "  update (ms)",
-             "-------  ---------  ----  -----------------------  ---------------------------"
-             "  -----------"]
+    lines = ["algo     followers  envs  env steps/s, no updates  env steps/s, with updates"
+             "  update every  batch  update (ms)",
+             "-------  ---------  ----  -----------------------  --------------------------"
+             "  ------------  -----  -----------"]
     for r in rows:
         lines.append(f"{r['algo']:<7}  {r['followers']:>9}  {r['envs']:>4}  "
-                     f"{r['env_steps_per_s']:>23.0f}  {r['env_steps_per_s_updates']:>27.0f}"
+                     f"{r['env_steps_per_s']:>23.0f}  {r['env_steps_per_s_updates']:>26.0f}"
+                     f"  {r.get('update_every', 1):>12}  {r.get('batch_size', 128):>5}"
                      f"  {r['update_ms']:>11.2f}")
     return "\n".join(lines)

@@ -168,6 +168,10 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
                    help="with --training: the actor smoothness terms of `train` (default 0), "
                         "which add one actor pass per update")
     p.add_argument("--smooth-accel", type=float, default=0.0, help="with --training: see above")
+    p.add_argument("--update-every", type=int, default=1, metavar="K",
+                   help="with --training: one update every K steps (default 1), as train's")
+    p.add_argument("--batch-size", type=int, default=128,
+                   help="with --training: transitions per update (default 128), as train's")
 
 
 def cmd_bench(args: argparse.Namespace) -> None:
@@ -185,7 +189,8 @@ def cmd_bench(args: argparse.Namespace) -> None:
                              f"{args.vehicles!r}")
         rows = run_training_bench(args.algo, sizes, positive(args.envs, "--envs"),
                                   positive(args.steps, "--steps"), args.net, args.smooth_jerk,
-                                  args.smooth_accel)
+                                  args.smooth_accel, positive(args.update_every, "--update-every"),
+                                  positive(args.batch_size, "--batch-size"))
         print(format_training_bench(rows))
         return
 

@@ -36,6 +36,11 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
                         "and speed), comfort (the same on jerk and dampening only, at most 5 %% "
                         "above the base's headway), metrics (jerk and dampening relative to the "
                         "base, speed at least the base's) or reward")
+    p.add_argument("--update-every", type=int, default=None, metavar="K",
+                   help="one round of updates every K steps instead of every step (default 1); "
+                        "fewer, larger updates with --batch-size")
+    p.add_argument("--batch-size", type=int, default=None,
+                   help="transitions per gradient update (default 128)")
     p.add_argument("--braking-events", type=int, default=None, metavar="N",
                    help="add N synthetic hard-braking leaders (15-30 m/s, -3 to -6 m/s²) to the "
                         "training events, a quarter of them to the validation events (default 0)")
@@ -80,7 +85,8 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
 TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_scale", "message_dim",
                    "hidden", "actor_lr", "critic_lr", "noise", "noise_correlation", "smooth_jerk",
                    "smooth_accel", "eval_events", "val_seed", "val_source", "gamma",
-                   "adj_max", "base", "critic_burn_in", "braking_events")
+                   "adj_max", "base", "critic_burn_in", "braking_events", "update_every",
+                   "batch_size")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 
@@ -93,6 +99,9 @@ def cmd_train(args: argparse.Namespace) -> None:
         raise InputError(f"unknown algorithm {args.algo!r}; choose one of {', '.join(ALGOS)}")
     for name in ("vehicles", "steps", "envs", "eval_every", "checkpoint_every"):
         positive(getattr(args, name), "--" + name.replace("_", "-"))
+    for name in ("update_every", "batch_size"):
+        if getattr(args, name) is not None:
+            positive(getattr(args, name), "--" + name.replace("_", "-"))
     if args.base is not None:
         from carl_sumo.controllers import check_base
 

@@ -49,6 +49,8 @@ class TrainConfig:
     learning_starts: int = 1_000   # vector steps of pure exploration noise before updates
     critic_burn_in: int = 0        # vector steps after learning_starts that train the critics only
     updates_per_step: int = 1
+    update_every: int = 1          # vector steps between update rounds (1: every step)
+    batch_size: int = AgentConfig.batch_size  # transitions per gradient update
     buffer_size: int = 200_000     # platoon transitions
     eval_every: int = 2_000        # vector steps between validations
     eval_events: int = 8           # held-out training events used for validation
@@ -344,7 +346,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                               exploration_noise=cfg.noise,
                               noise_correlation=cfg.noise_correlation,
                               smooth_jerk=cfg.smooth_jerk, smooth_accel=cfg.smooth_accel,
-                              gamma=cfg.gamma, adj_max=cfg.adj_max, base=cfg.base))
+                              gamma=cfg.gamma, adj_max=cfg.adj_max, base=cfg.base,
+                              batch_size=cfg.batch_size))
     buffer = ReplayBuffer(cfg.buffer_size, n, agent.cfg.obs_dim)
     rng = np.random.default_rng(cfg.seed)
     start_step, best, wall_before = 0, -np.inf, 0.0
@@ -412,7 +415,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
             buffer.add(obs, action, reward, final, term.astype(np.float32))
             recent.append(float(reward.mean()))
             obs = next_obs
-            if step >= cfg.learning_starts:
+            if step >= cfg.learning_starts and (step - cfg.learning_starts) % cfg.update_every == 0:
                 train_actor = step >= cfg.learning_starts + cfg.critic_burn_in
                 for _ in range(cfg.updates_per_step):
                     agent.update(buffer.sample(agent.cfg.batch_size, rng), train_actor)

@@ -299,3 +299,16 @@ def test_braking_events_join_training_and_a_quarter_validates():
         v = e.leader_speed_mps
         assert 15.0 <= v[0] <= 30.0 and v.min() <= 8.0 and np.diff(v).min() / 0.1 >= -6.0 - 1e-9
         check_fits(route, e, 10)
+
+
+def test_update_every_k_steps_with_a_larger_batch(tmp_path):
+    from carl_sumo.policy import load_torch
+
+    events = [cruise_event(200, 15.0, 30.0)]
+    cfg = TrainConfig(algo="td3", n_vehicles=1, steps=240, seed=0, num_envs=2, learning_starts=40,
+                      eval_every=240, eval_events=1, checkpoint_every=240, update_every=4,
+                      batch_size=64, net=str(NET), out=str(tmp_path / "t.pt"))
+    train(cfg, events, progress=False)
+    state = load_torch(tmp_path / "t.ckpt", "checkpoint")
+    assert state["updates"] == 200 // 4
+    assert load_policy(tmp_path / "t.pt")[0].cfg.batch_size == 64
