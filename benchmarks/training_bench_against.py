@@ -4,8 +4,10 @@
     git worktree add /tmp/before <commit>
     PYTHONPATH=/tmp/before python benchmarks/training_bench_against.py 10,20 500   # older code
     python benchmarks/training_bench_against.py 10,20 500                          # this code
+    python benchmarks/training_bench_against.py 10 500 3        # this code, an update every 3 steps
 
-Arguments: platoon sizes (comma-separated) and vector steps per phase. The older package needs
+Arguments: platoon sizes (comma-separated), vector steps per phase, and vector steps per update
+(default 1). The older package needs
 ``Agent``, ``AgentConfig``, ``ColoredNoise``, ``train.ReplayBuffer`` and ``vec_env.VecPlatoon``
 with today's signatures (true since the first training bench).
 """
@@ -23,5 +25,7 @@ if __name__ == "__main__":  # the SUMO workers are spawned: they re-import this 
     spec.loader.exec_module(bench)
     sizes = tuple(int(s) for s in (sys.argv[1] if len(sys.argv) > 1 else "10,20").split(","))
     steps = int(sys.argv[2]) if len(sys.argv) > 2 else 500
+    every = int(sys.argv[3]) if len(sys.argv) > 3 else 1
     print(f"package: {Path(carl_sumo.__file__).parent}")
-    print(bench.format_training_bench(bench.run_training_bench("ca-td3", sizes, 2, steps)))
+    print(bench.format_training_bench(bench.run_training_bench("ca-td3", sizes, 2, steps,
+                                                               update_every=every)))
