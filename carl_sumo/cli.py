@@ -20,6 +20,7 @@ from carl_sumo.cli_policies import (_export_parser, _policy_info_parser, _rank_p
                                     cmd_rank, cmd_train, cmd_tune)
 from carl_sumo.errors import InputError
 from carl_sumo.files import check_output_dir, check_output_file, write_text_atomic
+from carl_sumo.workers import WorkerError
 
 EXIT_BAD_INPUT = 2
 
@@ -367,6 +368,9 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as exc:
         print(f"carl-sumo: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except WorkerError as exc:  # a worker process died twice on the same task
+        print(f"carl-sumo: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("carl-sumo: interrupted", file=sys.stderr)
         return 130

@@ -121,21 +121,27 @@ def plan_tasks(suite: Suite, net: str) -> list[dict]:
     return tasks
 
 
-def run_tasks(tasks: list[dict], pool=None, progress: bool = False) -> dict[tuple, JobResult]:
-    """Run tasks (longest first) in a worker pool, or in this process; results merged per job."""
+def run_tasks(tasks: list[dict], workers: int | None = None, progress: bool = False
+              ) -> dict[tuple, JobResult]:
+    """Run tasks (longest first) in ``workers`` spawned processes (None: in this process);
+    results merged per job."""
     parts: dict[tuple, list[dict]] = {}
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=len(tasks), desc="evaluate", unit="task", leave=False)
-    if pool is None:
-        from carl_sumo.simulate import _worker_init
+    if workers is None:
+        from carl_sumo.workers import worker_init
 
-        _worker_init()  # one torch thread: several fight over the cores for these small networks
+        worker_init()  # one torch thread: several fight over the cores for these small networks
         outputs = map(run_task, tasks)
     else:
-        outputs = pool.imap_unordered(run_task, tasks)
+        from carl_sumo.workers import run_parallel
+
+        outputs = run_parallel(run_task, [(t,) for t in tasks], workers, ordered=False,
+                               describe=lambda a: f"task {a[0]['job']} (events chunk "
+                                                  f"{a[0]['index']})")
     try:
         for out in outputs:
             parts.setdefault(out["job"], []).append(out)
@@ -163,26 +169,25 @@ def run_suite(suite: Suite, out_dir: Path, workers: int = 2, net: str | Path =
               "networks/i80.net.xml", progress: bool = False, command: str = "") -> dict:
     """Run a planned suite and write its tables, figures and README into ``out_dir``."""
     from carl_sumo import figures
-    from carl_sumo.simulate import worker_pool
 
     start = time.perf_counter()
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"--out {out_dir} is a file; give a directory")
     tasks = plan_tasks(suite, str(net))
-    pool = worker_pool(workers) if workers > 1 else None
-    try:
-        results = run_tasks(tasks, pool, progress)
-        simulated = time.perf_counter() - start
-        out_dir.mkdir(parents=True, exist_ok=True)
-        jobs = figures.figure_jobs(suite, results, out_dir)
-        drawing = pool.map_async(figures.render, jobs) if pool is not None else None
-        all_rows, sections = write_tables(suite, results, out_dir)  # while the figures draw
-        figure_files = drawing.get() if drawing is not None else [figures.render(j) for j in jobs]
-    finally:
-        if pool is not None:
-            pool.terminate()
-            pool.join()
+    parallel = workers if workers > 1 else None
+    results = run_tasks(tasks, parallel, progress)
+    simulated = time.perf_counter() - start
+    out_dir.mkdir(parents=True, exist_ok=True)
+    jobs = figures.figure_jobs(suite, results, out_dir)
+    all_rows, sections = write_tables(suite, results, out_dir)
+    if parallel is not None:
+        from carl_sumo.workers import run_parallel
+
+        figure_files = list(run_parallel(figures.render, [(j,) for j in jobs], parallel,
+                                         describe=lambda a: "a figure"))
+    else:
+        figure_files = [figures.render(j) for j in jobs]
     wall = time.perf_counter() - start
     cpu = sum(r.cpu_seconds for r in results.values())
     readme = suite_readme(suite, sections, figure_files, wall, simulated, cpu, workers,

@@ -27,6 +27,7 @@ from carl_sumo.errors import InputError
 from carl_sumo.files import atomic_output
 from carl_sumo.metrics import PlatoonTrajectory, aggregate, score_event
 from carl_sumo.sumo import DEFAULT_NET, PlatoonSim, close_sumo, use_gui
+from carl_sumo.workers import run_parallel
 
 NATIVE_CONTROLLERS = {"idm": "idm", "krauss": "krauss", "sumo-cacc": "sumo-cacc"}
 BUILTIN_CONTROLLERS = ("idm", "krauss", "sumo-cacc", "idm-external", "ploeg[:h=H:kp=KP:kd=KD]",
@@ -124,19 +125,6 @@ def _score_events(controller_name: str, events: Sequence[Event], n_followers: in
             event_trajectories(controller_name, events, n_followers, net_path, progress)]
 
 
-def _worker_init() -> None:
-    import torch
-
-    torch.set_num_threads(1)
-
-
-def worker_pool(workers: int):
-    """A pool of ``workers`` spawned processes (one libsumo and one torch thread each)."""
-    import multiprocessing as mp
-
-    return mp.get_context("spawn").Pool(workers, initializer=_worker_init)
-
-
 def simulate(controller_name: str, events: Sequence[Event], n_followers: int,
              net_path: str | Path = DEFAULT_NET, progress: bool = False, workers: int = 1) -> dict:
     """Metrics of one controller over events: ``{"metrics": {...}, "events": [...]}``.
@@ -150,9 +138,10 @@ def simulate(controller_name: str, events: Sequence[Event], n_followers: int,
         per_event = _score_events(controller_name, events, n_followers, str(net_path), progress)
     else:
         chunks = [list(events[i::workers]) for i in range(workers)]
-        with worker_pool(workers) as pool:
-            parts = pool.starmap(_score_events, [(controller_name, chunk, n_followers,
-                                                  str(net_path)) for chunk in chunks])
+        parts = run_parallel(_score_events, [(controller_name, chunk, n_followers, str(net_path))
+                                             for chunk in chunks], workers,
+                             describe=lambda a: f"{a[0]} on {len(a[1])} events from "
+                                                f"{a[1][0].event_id}")
         order = {e.event_id: i for i, e in enumerate(events)}
         per_event = sorted((m for part in parts for m in part), key=lambda m: order[m["event_id"]])
     return {"controller": controller_name, "followers": 1 if follower_model == "human"

@@ -425,24 +425,24 @@ def run_study(cfg: StudyConfig, out_dir: Path, progress: bool = False) -> list[R
                    key=lambda t: (-t[0], t[1]))  # heaviest (most CACC vehicles) first
     workers = max(1, min(cfg.workers, len(tasks)))
     if workers == 1:
-        from carl_sumo.simulate import _worker_init
+        from carl_sumo.workers import worker_init
 
-        _worker_init()  # one torch thread: the batches are small, threads only contend
+        worker_init()  # one torch thread: the batches are small, threads only contend
         results = []
         for p, s in tasks:
             results.append(run_one(cfg, p, s, out_dir))
             if progress:
                 print(f"  done {run_name(p, s)}", flush=True)
     else:
-        from carl_sumo.simulate import worker_pool
+        from carl_sumo.workers import run_parallel
 
-        with worker_pool(workers) as pool:
-            pending = [pool.apply_async(_worker, (cfg, p, s, str(out_dir))) for p, s in tasks]
-            results = []
-            for (p, s), job in zip(tasks, pending):
-                results.append(job.get())
-                if progress:
-                    print(f"  done {run_name(p, s)}", flush=True)
+        results = []
+        for result in run_parallel(_worker, [(cfg, p, s, str(out_dir)) for p, s in tasks],
+                                   workers, describe=lambda a: f"run {run_name(a[1], a[2])}",
+                                   ordered=False):
+            results.append(result)
+            if progress:
+                print(f"  done {run_name(result.penetration, result.seed)}", flush=True)
     return sorted(results, key=lambda r: (r.penetration, r.seed))
 
 

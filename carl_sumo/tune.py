@@ -81,7 +81,7 @@ _EVENTS: list = []
 
 def _worker_init(data: str, split: str, limit: int | None) -> None:
     from carl_sumo.data import load_events
-    from carl_sumo.simulate import _worker_init as torch_threads
+    from carl_sumo.workers import worker_init as torch_threads
 
     torch_threads()
     global _EVENTS

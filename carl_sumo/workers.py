@@ -1,0 +1,101 @@
+"""Worker processes for SUMO jobs: one libsumo and one torch thread each, and what happens when
+one dies.
+
+libsumo runs one simulation per process, so ``simulate``, ``evaluate`` and ``study`` spread their
+tasks over spawned processes. :func:`run_parallel` runs a function on every item in such a pool
+(``concurrent.futures``, whose pool notices a worker that dies, where ``multiprocessing.Pool``
+waits for its result forever). If a worker dies (killed, out of memory, a crash inside SUMO), the
+tasks that had not finished run again in a fresh pool, and those lost again one at a time; every
+task is deterministic given its arguments, so the results are the same as without the fault. A
+task whose worker dies when it runs alone stops the job with :class:`WorkerError`, one line
+naming it.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any, Callable, Iterator, Sequence
+
+
+class WorkerError(RuntimeError):
+    """A worker process died again while running the same task."""
+
+
+def worker_init() -> None:
+    """Each worker: one torch thread (the networks are small; threads only contend)."""
+    import torch
+
+    torch.set_num_threads(1)
+
+
+def _pool(workers: int) -> ProcessPoolExecutor:
+    return ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"),
+                               initializer=worker_init)
+
+
+def _run_pool(fn: Callable[..., Any], items: Sequence[tuple], indices: Sequence[int],
+              workers: int, lost: list[int]) -> Iterator[tuple[int, Any]]:
+    """(index, result) of ``fn(*items[i])`` for ``indices`` in one fresh pool, as they finish;
+    the indices of tasks lost with a dead worker are appended to ``lost``."""
+    executor = _pool(workers)
+    futures = {executor.submit(fn, *items[i]): i for i in indices}
+    try:
+        while futures:
+            finished, _ = wait(futures, return_when=FIRST_COMPLETED)
+            for future in finished:
+                i = futures.pop(future)
+                try:
+                    result = future.result()
+                except BrokenProcessPool:
+                    lost.append(i)
+                    continue
+                yield i, result
+    finally:
+        executor.shutdown(wait=not lost, cancel_futures=True)
+
+
+def run_parallel(fn: Callable[..., Any], items: Sequence[tuple], workers: int,
+                 describe: Callable[[tuple], str] = repr, ordered: bool = True
+                 ) -> Iterator[Any]:
+    """``fn(*item)`` for every item in ``workers`` spawned processes: results in the order of
+    ``items`` (``ordered``) or as they finish. The tasks lost with a dead worker run again in a
+    fresh pool; those lost a second time run one at a time, each in a fresh worker, and a task
+    whose worker dies then raises :class:`WorkerError` naming it (``describe``). Exceptions
+    raised by ``fn`` itself propagate."""
+    done: dict[int, Any] = {}
+    next_out = 0
+    todo: list[int] = list(range(len(items)))
+    for round_workers in (workers, workers, 1):
+        lost: list[int] = []
+        if round_workers == 1 and todo:  # the third round: alone, so a killer task is named
+            for i in sorted(todo):
+                again: list[int] = []
+                for j, result in _run_pool(fn, items, [i], 1, again):
+                    done[j] = result
+                if again:
+                    raise WorkerError(f"a worker process died three times while running "
+                                      f"{describe(items[i])}; run it again, or with --workers 1 "
+                                      "to see its error")
+                if not ordered:
+                    yield done.pop(i)
+                while ordered and next_out in done:
+                    yield done.pop(next_out)
+                    next_out += 1
+            todo = []
+            break
+        for i, result in _run_pool(fn, items, sorted(todo), round_workers, lost):
+            if ordered:
+                done[i] = result
+            else:
+                yield result
+            while ordered and next_out in done:
+                yield done.pop(next_out)
+                next_out += 1
+        todo = lost
+        if not todo:
+            break
+    while ordered and next_out in done:
+        yield done.pop(next_out)
+        next_out += 1
