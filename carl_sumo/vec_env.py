@@ -16,6 +16,7 @@ import numpy as np
 
 from carl_sumo.config import REWARD, RewardConfig
 from carl_sumo.data.events import Event
+from carl_sumo.workers import WorkerError
 
 
 def _worker(conn, events: Sequence[Event], n: int, net_path: str, seed: int,
@@ -59,16 +60,27 @@ class VecPlatoon:
             self._conns.append(parent)
             self._procs.append(proc)
 
+    def _exchange(self, messages: list[tuple]) -> list:
+        """Send one message to each worker and return their answers; WorkerError (one line) if
+        a worker process has died."""
+        try:
+            for conn, message in zip(self._conns, messages):
+                conn.send(message)
+            return [conn.recv() for conn in self._conns]
+        except (EOFError, BrokenPipeError, ConnectionResetError):
+            dead = [i for i, proc in enumerate(self._procs) if not proc.is_alive()]
+            raise WorkerError(f"SUMO environment worker(s) {dead or '?'} died (exit code "
+                              f"{[self._procs[i].exitcode for i in dead]}); the training stops "
+                              "here: continue it from its last checkpoint with --resume") from None
+
     def reset(self, seed: int) -> np.ndarray:
-        for i, conn in enumerate(self._conns):
-            conn.send(("reset", seed * 1000 + i))
-        return np.stack([conn.recv() for conn in self._conns])
+        return np.stack(self._exchange([("reset", seed * 1000 + i)
+                                        for i in range(self.num_envs)]))
 
     def step(self, actions: np.ndarray):
         """Step every env; (obs, rewards, terminated, truncated, final_obs) stacked over envs."""
-        for conn, action in zip(self._conns, actions):
-            conn.send(("step", np.asarray(action, dtype=np.float64)))
-        results = [conn.recv() for conn in self._conns]
+        results = self._exchange([("step", np.asarray(action, dtype=np.float64))
+                                  for action in actions])
         obs, reward, term, trunc, final = zip(*results)
         return (np.stack(obs), np.stack(reward), np.array(term), np.array(trunc),
                 np.stack(final))

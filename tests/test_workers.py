@@ -79,3 +79,23 @@ def test_simulate_survives_a_killed_worker_with_the_same_metrics(tmp_path):
     assert run(tmp_path / "killed.json", kill=True) == 0
     ref, killed = (json.loads((tmp_path / f).read_text()) for f in ("ref.json", "killed.json"))
     assert killed == ref
+
+
+def test_training_envs_report_a_dead_worker_in_one_line():
+    import numpy as np
+
+    from carl_sumo.bench import cruise_event
+    from carl_sumo.vec_env import VecPlatoon
+    from conftest import NET
+
+    vec = VecPlatoon([cruise_event(100)], 2, NET, num_envs=2, seed=0)
+    try:
+        vec.reset(0)
+        vec.step(np.zeros((2, 2)))
+        os.kill(vec._procs[1].pid, signal.SIGKILL)
+        vec._procs[1].join(timeout=10)
+        with pytest.raises(WorkerError, match=r"worker\(s\) \[1\] died.*--resume") as info:
+            vec.step(np.zeros((2, 2)))
+        assert "\n" not in str(info.value)
+    finally:
+        vec.close()
