@@ -130,11 +130,6 @@ class PloegController:
                            DT_S, b.acc_min_mps2, b.acc_max_mps2, IDM.desired_speed_mps,
                            CRUISE_GAIN_PER_S)
 
-    @property
-    def adjustment_gain(self) -> float:
-        """da/da_adj of one step, dt/h (-): how much of a_adj reaches this step's a."""
-        return DT_S / self.params.time_gap_s
-
 
 # ------------------------------------------------------------------------------------ names
 def _parse_options(name: str, allowed: tuple[str, ...]) -> dict[str, float]:

@@ -49,7 +49,7 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
                         "staying as it is (residual policy learning's burn-in; default 0)")
     p.add_argument("--base", default=None,
                    help="base model under the learned adjustment: idm (default, the paper's) or "
-                        "a classical CACC such as ploeg-tuned:h=1 (the actor starts at a_adj = 0)")
+                        "a classical CACC such as ploeg-tuned:h=0.8 (the actor starts at a_adj = 0)")
     p.add_argument("--w-gap", type=float, default=None, help="reward weight of the headway term")
     p.add_argument("--w-safe", type=float, default=None, help="reward weight of the TTC term")
     p.add_argument("--w-comfort", type=float, default=None, help="reward weight of the jerk term")

@@ -76,21 +76,22 @@ def total_acceleration(obs: np.ndarray, adjustment: np.ndarray, p: IDMParams = I
     return _total_acceleration(obs, np.asarray(adjustment, dtype=np.float64), *_params(p, bounds))
 
 
-def check_base(name: str) -> str:
-    """``name`` if it names a base model (``idm`` or a Ploeg controller name); InputError if not."""
+def base_controller(name: str) -> PloegController | None:
+    """The controller giving a_base for a base name: None for IDM (computed from o alone by
+    :func:`total_acceleration`), a fresh :class:`PloegController` (it has state) for a Ploeg
+    name; InputError for anything else, or a bad option or missing tuned gains."""
     if name == IDM_BASE:
-        return name
+        return None
     if is_ploeg_name(name):
-        ploeg_controller(name)  # a bad option or missing tuned gains fail here, with one line
-        return name
+        return ploeg_controller(name)
     raise InputError(f"unknown base model {name!r}; choose idm or a Ploeg CACC "
                      "(ploeg, ploeg:h=H:kp=KP:kd=KD, ploeg-tuned:h=H)")
 
 
-def base_controller(name: str) -> PloegController | None:
-    """The controller giving a_base for a base name: None for IDM (computed from o alone by
-    :func:`total_acceleration`), a fresh :class:`PloegController` (it has state) otherwise."""
-    return None if check_base(name) == IDM_BASE else ploeg_controller(name)
+def check_base(name: str) -> str:
+    """``name`` if it names a base model (``idm`` or a Ploeg controller name); InputError if not."""
+    base_controller(name)
+    return name
 
 
 class Controller(Protocol):

@@ -3,8 +3,9 @@
 Each agent observes o_i = [v_i, a_i, d_i, Δv_i] (m/s, m/s², m, m/s) and acts with its acceleration
 adjustment a_adj (m/s², bounded by ``ControlBounds.adj_max_mps2``); it applies
 a = clip(a_IDM + a_adj) on the paper's IDM base, or a_adj enters the law of a classical CACC base
-such as ``ploeg-tuned:h=1`` (:func:`carl_sumo.controllers.base_controller`). Episodes replay one event each; a collision terminates every agent,
-the end of the event truncates them. :meth:`PlatoonEnv.step_array` is the same step on arrays,
+such as ``ploeg-tuned:h=0.8`` (:func:`carl_sumo.controllers.base_controller`), whose command
+a_base is then a fifth observation. Episodes replay one event each; a collision terminates every
+agent, the end of the event truncates them. :meth:`PlatoonEnv.step_array` is the same step on arrays,
 for batched (communication-aware) controllers.
 """
 
@@ -42,7 +43,7 @@ class PlatoonEnv(ParallelEnv):
             check_fits(self.sim.route, event, n_followers, scenario)
         self.n_followers = n_followers
         self.reward_cfg, self.idm, self.bounds = reward, idm, bounds
-        self.base = controllers.check_base(base)
+        self.base = base
         self._base = controllers.base_controller(base)  # None: IDM, in the compiled kernel
         # kernels and their parameters, bound once: step_array runs every 0.1 s simulated
         self._control = controllers._total_acceleration

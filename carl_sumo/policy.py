@@ -132,7 +132,7 @@ class ResidualPolicyController(PolicyController):
 def load_controller(path: Path) -> PolicyController:
     """The controller of a policy file: on IDM, or on the classical base it was trained on."""
     agent, _ = load_policy(path)
-    if agent.cfg.base != "idm":
+    if agent.cfg.residual:
         return ResidualPolicyController(agent, str(path))
     return PolicyController(agent, str(path))
 

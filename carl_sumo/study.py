@@ -79,8 +79,8 @@ def insertion_tau_s() -> float:
     enters the road alike and what the road then carries is decided by the controller. SUMO
     keeps a vehicle at its entry until the gap ahead is safe for its vType's tau: with the
     ``cacc`` type's IDM tau of 1.5 s the entries, not the controllers, set the throughput
-    (measured at demand x1.5, p = 1: ``ploeg-tuned:h=1`` carried 10,821 veh/h with tau 1.5 s
-    and 16,128 with 0.6 s, in free flow both times)."""
+    (measured at demand x1.5, p = 1, seeds 0-1: ``ploeg-tuned:h=0.8`` carries 18,567 veh/h with
+    0.6 s; ``ploeg-tuned:h=1`` carried 10,821 with 1.5 s, in free flow)."""
     for vtype in ET.parse(VTYPES_FILE).getroot().iter("vType"):
         if vtype.get("id") == CACC_TYPES["sumo"]:
             return float(vtype.get("tau"))
@@ -135,7 +135,7 @@ class ChainController:
 
             self.agent = agent
             self.compiled = CompiledActor(agent)
-            if agent.cfg.base != "idm":
+            if agent.cfg.residual:
                 self.base = PloegChains(parse_ploeg(agent.cfg.base), agent.cfg.base)
 
     def acceleration(self, obs: np.ndarray, chains: list[list[int]], ids: list[str],

@@ -313,7 +313,9 @@ def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: flo
     return {"algo": cfg.algo, "base": cfg.base, "trained_vehicles": cfg.n_vehicles,
             "seed": cfg.seed,
             "data": cfg.data, "split": cfg.split, "steps": cfg.steps,
-            "observation": "[v m/s, a m/s^2, d m, dv m/s]", "reward": asdict(cfg.reward),
+            "observation": "[v m/s, a m/s^2, d m, dv m/s" + (", a_base m/s^2]"
+                                                              if agent.cfg.residual else "]"),
+            "reward": asdict(cfg.reward),
             "validation": {k: float(v) for k, v in val.items()},
             "validation_base": {k: float(v) for k, v in (baseline or {}).items()},
             "validation_events": [e.event_id for e in val_events],
