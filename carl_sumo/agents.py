@@ -36,7 +36,8 @@ GAP_CLIP_M = 150.0
 """Gaps above this are seen as this (m): beyond it a follower is effectively free."""
 
 BASE_SCALE = 3.0
-"""On a classical base the observation has a fifth column, a_base (m/s²), divided by this."""
+"""A fifth observation column, an acceleration (a_base on a classical base, or a_ahead), is
+divided by this (m/s²)."""
 
 
 @dataclass(frozen=True)
@@ -63,10 +64,14 @@ class AgentConfig:
     smooth_jerk: float = 0.0      # actor loss weight on the policy's jerk, per (m/s³)² (CAPS-style)
     smooth_accel: float = 0.0     # actor loss weight on the policy's acceleration, per (m/s²)²
     base: str = "idm"             # base model under a_adj: idm, or a classical CACC name
+    observe_ahead: bool = False   # o has a fifth column a_ahead (IDM base; controllers.AheadAcceleration)
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
             raise InputError(f"unknown algorithm {self.algo!r}; choose one of {', '.join(ALGOS)}")
+        if self.observe_ahead and self.base != "idm":
+            raise InputError("--observe-ahead is for the IDM base; a classical base's command "
+                             "a_base already carries its predecessor's acceleration")
 
     @property
     def residual(self) -> bool:
@@ -87,8 +92,9 @@ class AgentConfig:
     def obs_dim(self) -> int:
         """4: o = [v, a, d, Δv]; 5 on a classical base, whose command a_base (m/s²) the vehicle
         knows (it computes it) and sees as a fifth column: the adjustment has to know what it
-        adjusts, since a_base has a state and is not a function of o."""
-        return 5 if self.residual else 4
+        adjusts, since a_base has a state and is not a function of o. 5 as well with
+        ``observe_ahead``: the acceleration a_ahead of the vehicle ahead (m/s²)."""
+        return 5 if self.residual or self.observe_ahead else 4
 
     @property
     def communication_aware(self) -> bool:
@@ -213,6 +219,29 @@ class Agent(nn.Module):
         return action[0] if single else action
 
     # ---------------------------------------------------------------------------- learning
+    def imitate(self, obs: torch.Tensor, target: torch.Tensor, updates: int, lr: float,
+                batch_size: int, rng: np.random.Generator) -> float:
+        """Behaviour cloning: fit the actor to target a_adj (m/s², (N, n)) on platoon
+        observations (N, n, obs_dim) by mean squared error (plus the usual small penalty on the
+        tanh inputs), with its own Adam optimiser; the target actor is set to the result.
+        Returns the last batch's mean squared error (m²/s⁴)."""
+        x = normalise(obs)
+        opt = torch.optim.Adam(self.actor.parameters(), lr=lr)
+        mask = torch.ones(min(batch_size, len(x)), x.shape[1], dtype=torch.bool)
+        mse = float("nan")
+        for _ in range(updates):
+            idx = torch.from_numpy(rng.integers(0, len(x), size=len(mask)))
+            action, pre = self._act_normalised(self.actor, x[idx], mask, True)
+            error = ((action - target[idx]) ** 2).mean()
+            loss = error + self.cfg.preactivation_l2 * (pre ** 2).mean()
+            opt.zero_grad()
+            loss.backward()
+            nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.max_grad_norm)
+            opt.step()
+            mse = float(error.detach())
+        self.actor_target.load_state_dict(self.actor.state_dict())
+        return mse
+
     def update(self, batch: dict[str, torch.Tensor], train_actor: bool = True
                ) -> dict[str, float]:
         """One gradient step on a replay batch: obs, action, reward, next_obs, done, mask

@@ -47,6 +47,16 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--critic-burn-in", type=int, default=None, metavar="STEPS",
                    help="steps after --learning-starts that train the critics only, the actor "
                         "staying as it is (residual policy learning's burn-in; default 0)")
+    p.add_argument("--observe-ahead", action="store_true", default=None,
+                   help="IDM base: each vehicle also observes the acceleration of the vehicle "
+                        "ahead over the last step, as its own radar measures it (what Ploeg's "
+                        "CACC feeds forward); the head's is the NGSIM leader's")
+    p.add_argument("--imitate", default=None, metavar="PLOEG",
+                   help="warm start (IDM base only): the platoons drive with this Ploeg CACC plus "
+                        "exploration noise for --learning-starts steps, then the actor is fitted "
+                        "to it before RL, e.g. ploeg:h=1.1:kp=2.278:kd=10.6313")
+    p.add_argument("--imitate-updates", type=int, default=None,
+                   help="behaviour-cloning gradient steps of --imitate (default 4000)")
     p.add_argument("--base", default=None,
                    help="base model under the learned adjustment: idm (default, the paper's) or "
                         "a classical CACC such as ploeg-tuned:h=0.8 (the actor starts at a_adj = 0)")
@@ -86,7 +96,7 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_sc
                    "hidden", "actor_lr", "critic_lr", "noise", "noise_correlation", "smooth_jerk",
                    "smooth_accel", "eval_events", "val_seed", "val_source", "gamma",
                    "adj_max", "base", "critic_burn_in", "braking_events", "update_every",
-                   "batch_size")
+                   "batch_size", "imitate", "imitate_updates", "observe_ahead")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 
@@ -99,13 +109,20 @@ def cmd_train(args: argparse.Namespace) -> None:
         raise InputError(f"unknown algorithm {args.algo!r}; choose one of {', '.join(ALGOS)}")
     for name in ("vehicles", "steps", "envs", "eval_every", "checkpoint_every"):
         positive(getattr(args, name), "--" + name.replace("_", "-"))
-    for name in ("update_every", "batch_size"):
+    for name in ("update_every", "batch_size", "imitate_updates"):
         if getattr(args, name) is not None:
             positive(getattr(args, name), "--" + name.replace("_", "-"))
     if args.base is not None:
         from carl_sumo.controllers import check_base
 
         check_base(args.base)
+    if args.imitate is not None:
+        from carl_sumo.imitation import teacher
+
+        teacher(args.imitate)
+        if args.base not in (None, "idm"):
+            raise InputError("--imitate warm-starts the paper's IDM-based adjustment; a run on "
+                             "a classical --base starts on that base already: leave one out")
     out = check_output_file(args.out or Path("policies") / f"{args.algo.replace('-', '_')}.pt",
                             "--out")
     events = load_events(args.data, args.split)

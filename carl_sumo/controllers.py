@@ -13,6 +13,7 @@ millions of times, where NumPy's per-call overhead on 10-element arrays would do
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from functools import lru_cache
 from typing import Protocol
 
@@ -20,7 +21,7 @@ import numpy as np
 from numba import njit
 
 from carl_sumo.cacc import PloegController, is_ploeg_name, ploeg_controller
-from carl_sumo.config import BOUNDS, IDM, ControlBounds, IDMParams
+from carl_sumo.config import BOUNDS, DT_S, IDM, ControlBounds, IDMParams
 from carl_sumo.errors import InputError
 
 IDM_BASE = "idm"
@@ -76,6 +77,13 @@ def total_acceleration(obs: np.ndarray, adjustment: np.ndarray, p: IDMParams = I
     return _total_acceleration(obs, np.asarray(adjustment, dtype=np.float64), *_params(p, bounds))
 
 
+def adjustment_bounds(adj_max: float) -> ControlBounds:
+    """The vehicle bounds with the learned adjustment bounded by ``adj_max`` (m/s²) instead of
+    the default: a policy's own bound (its tanh output never exceeds it), so that a policy
+    trained with ``--adj-max`` above 3 m/s² is applied as it was trained."""
+    return replace(BOUNDS, adj_max_mps2=max(float(adj_max), BOUNDS.adj_max_mps2))
+
+
 def base_controller(name: str) -> PloegController | None:
     """The controller giving a_base for a base name: None for IDM (computed from o alone by
     :func:`total_acceleration`), a fresh :class:`PloegController` (it has state) for a Ploeg
@@ -92,6 +100,27 @@ def check_base(name: str) -> str:
     """``name`` if it names a base model (``idm`` or a Ploeg controller name); InputError if not."""
     base_controller(name)
     return name
+
+
+class AheadAcceleration:
+    """a_ahead (m/s², shape (n,)): the acceleration of the vehicle directly ahead of each
+    follower over the last step, as the follower measures it itself (the change of v + Δv, its
+    radar's speed of the vehicle ahead): for a follower behind another follower that is the
+    predecessor's a (o's second column), for the head the NGSIM leader's (0 at the first step).
+    It is what a single-predecessor CACC such as Ploeg's feeds forward (``--observe-ahead``).
+    Call it exactly once per observation, in order; :meth:`reset` at every episode start."""
+
+    def __init__(self) -> None:
+        self._leader_speed: float | None = None
+
+    def reset(self) -> None:
+        self._leader_speed = None
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        leader_speed = float(obs[0, 0] + obs[0, 3])
+        a_lead = 0.0 if self._leader_speed is None else (leader_speed - self._leader_speed) / DT_S
+        self._leader_speed = leader_speed
+        return np.concatenate([[a_lead], obs[:-1, 1]])
 
 
 class Controller(Protocol):
@@ -122,10 +151,13 @@ class AccelerationController(Protocol):
 def applied_acceleration(controller: Controller | AccelerationController,
                          obs: np.ndarray) -> np.ndarray:
     """The acceleration (m/s², shape (n,)) a controller makes the followers apply this step:
-    its own for an :class:`AccelerationController`, a_IDM + a_adj for a :class:`Controller`."""
+    its own for an :class:`AccelerationController`, a_IDM + a_adj for a :class:`Controller`
+    (within the controller's ``bounds`` when it has them, e.g. a policy trained with a larger
+    adjustment bound, else :data:`carl_sumo.config.BOUNDS`)."""
     if hasattr(controller, "acceleration"):
         return controller.acceleration(obs)
-    return total_acceleration(obs, controller.adjustment(obs))
+    return total_acceleration(obs, controller.adjustment(obs),
+                              bounds=getattr(controller, "bounds", BOUNDS))
 
 
 class ZeroAdjustment:

@@ -34,7 +34,8 @@ class PlatoonEnv(ParallelEnv):
     def __init__(self, events: Sequence[Event], n_followers: int = 10,
                  net_path: str | Path = DEFAULT_NET, reward: RewardConfig = REWARD,
                  idm: IDMParams = IDM, bounds: ControlBounds = BOUNDS,
-                 scenario: ScenarioConfig = SCENARIO, base: str = "idm"):
+                 scenario: ScenarioConfig = SCENARIO, base: str = "idm",
+                 observe_ahead: bool = False):
         if not events:
             raise InputError("the environment needs at least one event")
         self.events = list(events)
@@ -45,6 +46,10 @@ class PlatoonEnv(ParallelEnv):
         self.reward_cfg, self.idm, self.bounds = reward, idm, bounds
         self.base = base
         self._base = controllers.base_controller(base)  # None: IDM, in the compiled kernel
+        if observe_ahead and self._base is not None:
+            raise InputError("observe_ahead is for the IDM base (a classical base's a_base "
+                             "already carries the predecessor's acceleration)")
+        self._ahead = controllers.AheadAcceleration() if observe_ahead else None
         # kernels and their parameters, bound once: step_array runs every 0.1 s simulated
         self._control = controllers._total_acceleration
         self._control_params = controllers._params(idm, bounds)
@@ -54,7 +59,8 @@ class PlatoonEnv(ParallelEnv):
         self.agents: list[str] = []
         high = np.float32(bounds.adj_max_mps2)
         self._action_space = spaces.Box(-high, high, shape=(1,), dtype=np.float32)
-        obs_dim = 4 if self._base is None else 5  # a classical base adds its command a_base
+        # a classical base adds its command a_base, observe_ahead the acceleration ahead
+        obs_dim = 4 if self._base is None and self._ahead is None else 5
         self._observation_space = spaces.Box(-np.inf, np.inf, shape=(obs_dim,), dtype=np.float32)
         self._rng = np.random.default_rng()
         self.event: Event | None = None
@@ -75,14 +81,19 @@ class PlatoonEnv(ParallelEnv):
         self.sim.reset(self.event, self.n_followers)
         if self._base is not None:
             self._base.reset(self.n_followers)
+        if self._ahead is not None:
+            self._ahead.reset()
         self._obs = self._observe()
         self._first_step = True
         return self._obs
 
     def _observe(self) -> np.ndarray:
         """o = [v, a, d, Δv] per follower; on a classical base also a_base (m/s²), what the
-        base alone would apply at the coming step (a preview: its state moves in the step)."""
+        base alone would apply at the coming step (a preview: its state moves in the step); with
+        observe_ahead also a_ahead (m/s², :class:`carl_sumo.controllers.AheadAcceleration`)."""
         obs = self.sim.observation()
+        if self._ahead is not None:
+            return np.column_stack([obs, self._ahead(obs)])
         if self._base is None:
             return obs
         return np.column_stack([obs, self._base.acceleration(obs, commit=False)])

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from carl_sumo.agents import AgentConfig, Agent
-from carl_sumo.controllers import base_controller
+from carl_sumo.controllers import AheadAcceleration, adjustment_bounds, base_controller
 from carl_sumo.errors import InputError
 from carl_sumo.inference import CompiledActor
 from carl_sumo.files import atomic_output
@@ -100,12 +100,19 @@ class PolicyController:
     def __init__(self, agent: Agent, name: str):
         self.agent, self.name = agent, name
         self._actor = CompiledActor(agent)
+        self._ahead = AheadAcceleration() if agent.cfg.observe_ahead else None
+        self.bounds = adjustment_bounds(agent.cfg.adj_max)
 
     def reset(self, n_followers: int) -> None:
         self.agent.check_length(n_followers)
+        if self._ahead is not None:
+            self._ahead.reset()
 
     def adjustment(self, obs: np.ndarray) -> np.ndarray:
-        """a_adj (m/s², shape (n,)) for one platoon observation (n, 4)."""
+        """a_adj (m/s², shape (n,)) for one platoon observation (n, 4) of a step; a policy that
+        observes the acceleration ahead measures it here (once per step)."""
+        if self._ahead is not None:
+            obs = np.column_stack([obs[:, :4], self._ahead(obs)])
         return self._actor(obs)
 
 

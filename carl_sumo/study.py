@@ -54,7 +54,8 @@ import numpy as np
 
 from carl_sumo.config import DT_S, HEADWAY_MIN_SPEED_MPS
 from carl_sumo.cacc import PloegChains, is_ploeg_name, parse_ploeg
-from carl_sumo.controllers import total_acceleration
+from carl_sumo.config import BOUNDS
+from carl_sumo.controllers import adjustment_bounds, total_acceleration
 from carl_sumo.errors import InputError
 from carl_sumo.files import write_text_atomic
 from carl_sumo.study_chains import cacc_observations, form_chains, merging_lanes, zipper_ahead
@@ -145,7 +146,15 @@ class ChainController:
         a classical base (the interface of
         :class:`carl_sumo.cacc.PloegChains`; ids, ahead and last_acc serve a classical base)."""
         if self.base is None:
-            return total_acceleration(obs, self.adjustment(obs, chains))
+            if self.agent is not None and self.agent.cfg.observe_ahead:
+                # the acceleration of the vehicle ahead over the last step (as the policy's
+                # AheadAcceleration measures it in a platoon); 0 with no vehicle ahead
+                a_ahead = [last_acc.get(a[0], 0.0) if a is not None else 0.0 for a in ahead]
+                adj = self.adjustment(np.column_stack([obs, a_ahead]), chains)
+            else:
+                adj = self.adjustment(obs, chains)
+            bounds = adjustment_bounds(self.agent.cfg.adj_max) if self.agent else BOUNDS
+            return total_acceleration(obs, adj, bounds=bounds)
         preview = self.base.acceleration(obs, chains, ids, ahead, last_acc, commit=False)
         adj = self.adjustment(np.column_stack([obs, preview]), chains)
         return self.base.acceleration(obs, chains, ids, ahead, last_acc, adj)

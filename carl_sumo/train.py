@@ -20,12 +20,14 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
-from carl_sumo import __version__
+from carl_sumo import __version__, imitation
 from carl_sumo.agents import Agent, AgentConfig, ColoredNoise
 from carl_sumo.ca_scan import keep_heap_memory
 from carl_sumo.config import REWARD, RewardConfig
 from carl_sumo.data.events import Event
+from carl_sumo.controllers import adjustment_bounds
 from carl_sumo.env import PlatoonEnv
+from carl_sumo.imitation import teacher_adjustment
 from carl_sumo.errors import InputError
 from carl_sumo.metrics import (BETTER, PlatoonTrajectory, aggregate, event_weights,
                                score_event)
@@ -80,6 +82,10 @@ class TrainConfig:
     smooth_jerk: float = AgentConfig.smooth_jerk          # actor smoothness terms (agents.py)
     smooth_accel: float = AgentConfig.smooth_accel
     base: str = AgentConfig.base          # base model under a_adj: idm or a classical CACC name
+    observe_ahead: bool = False    # o has a fifth column a_ahead (controllers.AheadAcceleration)
+    imitate: str | None = None     # a Ploeg CACC the actor copies first (carl_sumo.imitation)
+    imitate_updates: int = 4_000   # behaviour-cloning gradient steps at learning_starts
+    imitate_lr: float = 1e-3       # their Adam learning rate
 
     @property
     def reward(self) -> RewardConfig:
@@ -313,8 +319,9 @@ def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: flo
     return {"algo": cfg.algo, "base": cfg.base, "trained_vehicles": cfg.n_vehicles,
             "seed": cfg.seed,
             "data": cfg.data, "split": cfg.split, "steps": cfg.steps,
-            "observation": "[v m/s, a m/s^2, d m, dv m/s" + (", a_base m/s^2]"
-                                                              if agent.cfg.residual else "]"),
+            "observation": "[v m/s, a m/s^2, d m, dv m/s" + (
+                ", a_base m/s^2]" if agent.cfg.residual else
+                ", a_ahead m/s^2]" if agent.cfg.observe_ahead else "]"),
             "reward": asdict(cfg.reward),
             "validation": {k: float(v) for k, v in val.items()},
             "validation_base": {k: float(v) for k, v in (baseline or {}).items()},
@@ -335,6 +342,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     from carl_sumo.vec_env import VecPlatoon
 
     train_events, val_events = held_out_split(events, cfg)  # InputError before any file
+    teacher = _teacher(cfg)  # InputError before any file
     out = Path(cfg.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     ckpt_path = out.with_suffix(".ckpt")
@@ -349,7 +357,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                               noise_correlation=cfg.noise_correlation,
                               smooth_jerk=cfg.smooth_jerk, smooth_accel=cfg.smooth_accel,
                               gamma=cfg.gamma, adj_max=cfg.adj_max, base=cfg.base,
-                              batch_size=cfg.batch_size))
+                              batch_size=cfg.batch_size, observe_ahead=cfg.observe_ahead))
     buffer = ReplayBuffer(cfg.buffer_size, n, agent.cfg.obs_dim)
     rng = np.random.default_rng(cfg.seed)
     start_step, best, wall_before = 0, -np.inf, 0.0
@@ -371,7 +379,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
         start_step, best = int(state["step"]), float(state["best"])
         wall_before = float(state["wall_s"])
         log(f"resumed {resume} at step {start_step}")
-    val_env = PlatoonEnv(val_events, n, cfg.net, reward=cfg.reward, base=cfg.base)
+    val_env = PlatoonEnv(val_events, n, cfg.net, reward=cfg.reward, base=cfg.base,
+                         bounds=adjustment_bounds(cfg.adj_max), observe_ahead=cfg.observe_ahead)
     for event in train_events:  # fail here, not in a worker, when an event does not fit the net
         check_fits(val_env.sim.route, event, n)
     base_reward, baseline_events = validate_events(_BaseOnly(), val_env, val_events)  # same events
@@ -385,7 +394,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
         best = selection_score(start, cfg.select, baseline)
         save_policy(agent, out, _metadata(cfg, agent, start, 0.0, baseline, val_events))
     vec = VecPlatoon(train_events, n, cfg.net, cfg.num_envs, cfg.seed + start_step, cfg.reward,
-                     cfg.base)
+                     cfg.base, cfg.observe_ahead, adjustment_bounds(cfg.adj_max))
     obs = vec.reset(cfg.seed + start_step)
     new_log = not (resume is not None and log_path.exists())
     if not new_log:
@@ -408,8 +417,15 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                          agent.cfg.noise_correlation, rng)
     try:
         for step in range(start_step, cfg.steps):
-            if step < cfg.learning_starts:  # the base plus exploration noise only
-                action = np.clip(noise.sample(), -agent.cfg.adj_max, agent.cfg.adj_max)
+            if step == cfg.learning_starts and teacher is not None:
+                best = _clone_teacher(cfg, agent, teacher, buffer, rng, val_env, val_events,
+                                      baseline, baseline_events, out, log)
+            if step < cfg.learning_starts:  # the base (or the teacher) plus exploration noise
+                action = noise.sample()
+                if teacher is not None:
+                    action = action + teacher_adjustment(teacher, obs, agent.cfg.adj_max,
+                                                         cfg.observe_ahead)
+                action = np.clip(action, -agent.cfg.adj_max, agent.cfg.adj_max)
             else:
                 action = agent.act(obs, noise.sample())
             next_obs, reward, term, trunc, final = vec.step(action)
@@ -466,6 +482,36 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
             "best_score": best}
 
 
+def _teacher(cfg: TrainConfig):
+    """The controller a run imitates (None without ``--imitate``); InputError when it cannot."""
+    if cfg.imitate is None:
+        return None
+    if cfg.base != "idm":
+        raise InputError("--imitate warm-starts the paper's IDM-based adjustment; a run on a "
+                         "classical --base starts on that base already: leave one of them out")
+    if cfg.learning_starts < 1:
+        raise InputError("--imitate needs --learning-starts steps of teacher driving to copy")
+    return imitation.teacher(cfg.imitate)
+
+
+def _clone_teacher(cfg: TrainConfig, agent: Agent, teacher, buffer: ReplayBuffer,
+                   rng: np.random.Generator, val_env: PlatoonEnv, val_events: Sequence[Event],
+                   baseline: dict[str, float], baseline_events: list[dict], out: Path,
+                   log) -> float:
+    """Fit the actor to the teacher on every stored state, validate it and keep it as the first
+    candidate; returns its selection score (see :mod:`carl_sumo.imitation`)."""
+    obs, target = imitation.dataset(teacher, buffer.obs[:buffer.size], agent.cfg.adj_max,
+                                    cfg.observe_ahead)
+    mse = agent.imitate(obs, target, cfg.imitate_updates, cfg.imitate_lr, 256, rng)
+    val_reward, per_event = validate_events(agent, val_env, val_events)
+    val = {"val_reward": val_reward, **aggregate(per_event),
+           **improvement_z(per_event, baseline_events)}
+    log(f"imitated {cfg.imitate} on {len(obs)} platoon states (mse {mse:.4f} m²/s⁴): "
+        + ", ".join(f"{k}={v:.3f}" for k, v in val.items()))
+    save_policy(agent, out, _metadata(cfg, agent, val, 0.0, baseline, val_events))
+    return selection_score(val, cfg.select, baseline)
+
+
 def _tensorboard(logdir: Path):
     """A TensorBoard writer when the tensorboard package is installed, else None."""
     try:
@@ -499,7 +545,8 @@ def export_policy(checkpoint: Path, out: Path) -> dict[str, Any]:
     cfg = TrainConfig(**state["train_config"])
     agent = Agent(AgentConfig(algo=cfg.algo, n_vehicles=cfg.n_vehicles,
                               message_dim=cfg.message_dim, hidden=cfg.hidden,
-                              gamma=cfg.gamma, adj_max=cfg.adj_max, base=cfg.base))
+                              gamma=cfg.gamma, adj_max=cfg.adj_max, base=cfg.base,
+                              observe_ahead=cfg.observe_ahead))
     agent.load_state_dict(state["agent"])
     meta = _metadata(cfg, agent, {}, float(state["wall_s"]))
     meta["exported_from"] = f"{Path(checkpoint).name} at step {int(state['step'])}"

@@ -14,16 +14,17 @@ from typing import Sequence
 
 import numpy as np
 
-from carl_sumo.config import REWARD, RewardConfig
+from carl_sumo.config import BOUNDS, REWARD, ControlBounds, RewardConfig
 from carl_sumo.data.events import Event
 from carl_sumo.workers import WorkerError
 
 
 def _worker(conn, events: Sequence[Event], n: int, net_path: str, seed: int,
-            reward: RewardConfig, base: str) -> None:
+            reward: RewardConfig, base: str, observe_ahead: bool, bounds: ControlBounds) -> None:
     from carl_sumo.env import PlatoonEnv
 
-    env = PlatoonEnv(events, n, net_path, reward=reward, base=base)
+    env = PlatoonEnv(events, n, net_path, reward=reward, base=base, bounds=bounds,
+                     observe_ahead=observe_ahead)
     rng_seed = seed
     env.reset_array(seed=rng_seed)
     while True:
@@ -42,18 +43,21 @@ def _worker(conn, events: Sequence[Event], n: int, net_path: str, seed: int,
 
 
 class VecPlatoon:
-    """``num_envs`` platoon environments in worker processes (``base``: their base model)."""
+    """``num_envs`` platoon environments in worker processes (``base``: their base model;
+    ``observe_ahead``: observations with a_ahead, see :class:`carl_sumo.env.PlatoonEnv`)."""
 
     def __init__(self, events: Sequence[Event], n_followers: int, net_path: str | Path,
                  num_envs: int = 2, seed: int = 0, reward: RewardConfig = REWARD,
-                 base: str = "idm"):
+                 base: str = "idm", observe_ahead: bool = False,
+                 bounds: ControlBounds = BOUNDS):
         ctx = mp.get_context("spawn")
         self.num_envs, self.n = num_envs, n_followers
         self._conns, self._procs = [], []
         for i in range(num_envs):
             parent, child = ctx.Pipe()
             proc = ctx.Process(target=_worker, args=(child, list(events), n_followers,
-                                                     str(net_path), seed * 1000 + i, reward, base),
+                                                     str(net_path), seed * 1000 + i, reward, base,
+                                                     observe_ahead, bounds),
                                daemon=True)
             proc.start()
             child.close()
