@@ -65,6 +65,7 @@ class AgentConfig:
     smooth_accel: float = 0.0     # actor loss weight on the policy's acceleration, per (m/s²)²
     base: str = "idm"             # base model under a_adj: idm, or a classical CACC name
     observe_ahead: bool = False   # o has a fifth column a_ahead (IDM base; controllers.AheadAcceleration)
+    shield_ttc_s: float = 0.0     # no a_adj > 0 while closing in below this TTC (s; 0: off)
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:

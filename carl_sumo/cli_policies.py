@@ -51,6 +51,11 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
                    help="IDM base: each vehicle also observes the acceleration of the vehicle "
                         "ahead over the last step, as its own radar measures it (what Ploeg's "
                         "CACC feeds forward); the head's is the NGSIM leader's")
+    p.add_argument("--shield-ttc", type=float, default=None, metavar="S",
+                   help="safety shield: a follower closing in with a time to collision below S "
+                        "seconds gets no positive adjustment (the learned term may only brake "
+                        "more there); part of the policy, in training and wherever it runs "
+                        "(default 0: off)")
     p.add_argument("--imitate", default=None, metavar="PLOEG",
                    help="warm start (IDM base only): the platoons drive with this Ploeg CACC plus "
                         "exploration noise for --learning-starts steps, then the actor is fitted "
@@ -96,7 +101,8 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_sc
                    "hidden", "actor_lr", "critic_lr", "noise", "noise_correlation", "smooth_jerk",
                    "smooth_accel", "eval_events", "val_seed", "val_source", "gamma",
                    "adj_max", "base", "critic_burn_in", "braking_events", "update_every",
-                   "batch_size", "imitate", "imitate_updates", "observe_ahead")
+                   "batch_size", "imitate", "imitate_updates", "observe_ahead",
+                   "shield_ttc")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 
@@ -116,6 +122,10 @@ def cmd_train(args: argparse.Namespace) -> None:
         from carl_sumo.controllers import check_base
 
         check_base(args.base)
+    if args.shield_ttc is not None and not (math.isfinite(args.shield_ttc)
+                                            and args.shield_ttc >= 0):
+        raise InputError(f"--shield-ttc must be a time to collision of 0 s or more (0: off), "
+                         f"got {args.shield_ttc}")
     if args.imitate is not None:
         from carl_sumo.imitation import teacher
 

@@ -84,6 +84,27 @@ def adjustment_bounds(adj_max: float) -> ControlBounds:
     return replace(BOUNDS, adj_max_mps2=max(float(adj_max), BOUNDS.adj_max_mps2))
 
 
+@njit(cache=True)
+def _shield(obs, adj, ttc_s):
+    out = adj.copy()
+    for i in range(obs.shape[0]):
+        closing = -obs[i, 3]  # v_i - v_pred (m/s)
+        if closing > 0.0 and obs[i, 2] < ttc_s * closing and out[i] > 0.0:
+            out[i] = 0.0
+    return out
+
+
+def shield_adjustment(obs: np.ndarray, adjustment: np.ndarray, ttc_s: float) -> np.ndarray:
+    """The learned adjustment with a safety shield: a follower closing in on the vehicle ahead
+    with a time to collision d/(v - v_pred) below ``ttc_s`` (s) may not be pushed forward by it
+    (a_adj > 0 becomes 0); it may still brake more. ``ttc_s`` 0: no shield. ``obs`` rows
+    [v, a, d, Δv, ...] (m/s, m/s², m, m/s), ``adjustment`` (m/s², shape (n,))."""
+    adjustment = np.asarray(adjustment, dtype=np.float64)
+    if ttc_s <= 0.0:
+        return adjustment
+    return _shield(np.ascontiguousarray(obs, dtype=np.float64), adjustment, float(ttc_s))
+
+
 def base_controller(name: str) -> PloegController | None:
     """The controller giving a_base for a base name: None for IDM (computed from o alone by
     :func:`total_acceleration`), a fresh :class:`PloegController` (it has state) for a Ploeg

@@ -35,7 +35,7 @@ class PlatoonEnv(ParallelEnv):
                  net_path: str | Path = DEFAULT_NET, reward: RewardConfig = REWARD,
                  idm: IDMParams = IDM, bounds: ControlBounds = BOUNDS,
                  scenario: ScenarioConfig = SCENARIO, base: str = "idm",
-                 observe_ahead: bool = False):
+                 observe_ahead: bool = False, shield_ttc_s: float = 0.0):
         if not events:
             raise InputError("the environment needs at least one event")
         self.events = list(events)
@@ -50,6 +50,7 @@ class PlatoonEnv(ParallelEnv):
             raise InputError("observe_ahead is for the IDM base (a classical base's a_base "
                              "already carries the predecessor's acceleration)")
         self._ahead = controllers.AheadAcceleration() if observe_ahead else None
+        self.shield_ttc_s = shield_ttc_s  # the policy's safety shield (controllers.shield_adjustment)
         # kernels and their parameters, bound once: step_array runs every 0.1 s simulated
         self._control = controllers._total_acceleration
         self._control_params = controllers._params(idm, bounds)
@@ -103,6 +104,8 @@ class PlatoonEnv(ParallelEnv):
         """Apply a_adj (m/s², shape (n,)); returns obs, rewards, terminated, truncated, a."""
         if adjustment.dtype != np.float64:
             adjustment = adjustment.astype(np.float64)
+        if self.shield_ttc_s > 0:
+            adjustment = controllers.shield_adjustment(self._obs, adjustment, self.shield_ttc_s)
         if self._base is None:
             accel = self._control(self._obs, adjustment, *self._control_params)
         else:

@@ -17,7 +17,8 @@ import numpy as np
 import torch
 
 from carl_sumo.agents import AgentConfig, Agent
-from carl_sumo.controllers import AheadAcceleration, adjustment_bounds, base_controller
+from carl_sumo.controllers import AheadAcceleration, adjustment_bounds, base_controller, \
+    shield_adjustment
 from carl_sumo.errors import InputError
 from carl_sumo.inference import CompiledActor
 from carl_sumo.files import atomic_output
@@ -110,10 +111,11 @@ class PolicyController:
 
     def adjustment(self, obs: np.ndarray) -> np.ndarray:
         """a_adj (m/s², shape (n,)) for one platoon observation (n, 4) of a step; a policy that
-        observes the acceleration ahead measures it here (once per step)."""
+        observes the acceleration ahead measures it here (once per step); the policy's safety
+        shield, if it has one, applies here."""
         if self._ahead is not None:
             obs = np.column_stack([obs[:, :4], self._ahead(obs)])
-        return self._actor(obs)
+        return shield_adjustment(obs, self._actor(obs), self.agent.cfg.shield_ttc_s)
 
 
 class ResidualPolicyController(PolicyController):

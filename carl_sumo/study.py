@@ -55,7 +55,7 @@ import numpy as np
 from carl_sumo.config import DT_S, HEADWAY_MIN_SPEED_MPS
 from carl_sumo.cacc import PloegChains, is_ploeg_name, parse_ploeg
 from carl_sumo.config import BOUNDS
-from carl_sumo.controllers import adjustment_bounds, total_acceleration
+from carl_sumo.controllers import adjustment_bounds, shield_adjustment, total_acceleration
 from carl_sumo.errors import InputError
 from carl_sumo.files import write_text_atomic
 from carl_sumo.study_chains import cacc_observations, form_chains, merging_lanes, zipper_ahead
@@ -167,7 +167,7 @@ class ChainController:
         out = np.empty(m)
         for chain in chains:  # one chain at a time: the cost grows with the vehicles, not the chains
             out[chain] = self.compiled(np.ascontiguousarray(obs[chain]))
-        return out
+        return shield_adjustment(obs, out, self.agent.cfg.shield_ttc_s)
 
 
 def resolve_study_controller(name: str) -> tuple[str, ChainController | PloegChains | None]:

@@ -83,6 +83,7 @@ class TrainConfig:
     smooth_accel: float = AgentConfig.smooth_accel
     base: str = AgentConfig.base          # base model under a_adj: idm or a classical CACC name
     observe_ahead: bool = False    # o has a fifth column a_ahead (controllers.AheadAcceleration)
+    shield_ttc: float = 0.0        # safety shield of the policy (s; controllers.shield_adjustment)
     imitate: str | None = None     # a Ploeg CACC the actor copies first (carl_sumo.imitation)
     imitate_updates: int = 4_000   # behaviour-cloning gradient steps at learning_starts
     imitate_lr: float = 1e-3       # their Adam learning rate
@@ -357,7 +358,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                               noise_correlation=cfg.noise_correlation,
                               smooth_jerk=cfg.smooth_jerk, smooth_accel=cfg.smooth_accel,
                               gamma=cfg.gamma, adj_max=cfg.adj_max, base=cfg.base,
-                              batch_size=cfg.batch_size, observe_ahead=cfg.observe_ahead))
+                              batch_size=cfg.batch_size, observe_ahead=cfg.observe_ahead,
+                              shield_ttc_s=cfg.shield_ttc))
     buffer = ReplayBuffer(cfg.buffer_size, n, agent.cfg.obs_dim)
     rng = np.random.default_rng(cfg.seed)
     start_step, best, wall_before = 0, -np.inf, 0.0
@@ -380,7 +382,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
         wall_before = float(state["wall_s"])
         log(f"resumed {resume} at step {start_step}")
     val_env = PlatoonEnv(val_events, n, cfg.net, reward=cfg.reward, base=cfg.base,
-                         bounds=adjustment_bounds(cfg.adj_max), observe_ahead=cfg.observe_ahead)
+                         bounds=adjustment_bounds(cfg.adj_max), observe_ahead=cfg.observe_ahead,
+                         shield_ttc_s=cfg.shield_ttc)
     for event in train_events:  # fail here, not in a worker, when an event does not fit the net
         check_fits(val_env.sim.route, event, n)
     base_reward, baseline_events = validate_events(_BaseOnly(), val_env, val_events)  # same events
@@ -394,7 +397,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
         best = selection_score(start, cfg.select, baseline)
         save_policy(agent, out, _metadata(cfg, agent, start, 0.0, baseline, val_events))
     vec = VecPlatoon(train_events, n, cfg.net, cfg.num_envs, cfg.seed + start_step, cfg.reward,
-                     cfg.base, cfg.observe_ahead, adjustment_bounds(cfg.adj_max))
+                     cfg.base, cfg.observe_ahead, adjustment_bounds(cfg.adj_max), cfg.shield_ttc)
     obs = vec.reset(cfg.seed + start_step)
     new_log = not (resume is not None and log_path.exists())
     if not new_log:
@@ -546,7 +549,7 @@ def export_policy(checkpoint: Path, out: Path) -> dict[str, Any]:
     agent = Agent(AgentConfig(algo=cfg.algo, n_vehicles=cfg.n_vehicles,
                               message_dim=cfg.message_dim, hidden=cfg.hidden,
                               gamma=cfg.gamma, adj_max=cfg.adj_max, base=cfg.base,
-                              observe_ahead=cfg.observe_ahead))
+                              observe_ahead=cfg.observe_ahead, shield_ttc_s=cfg.shield_ttc))
     agent.load_state_dict(state["agent"])
     meta = _metadata(cfg, agent, {}, float(state["wall_s"]))
     meta["exported_from"] = f"{Path(checkpoint).name} at step {int(state['step'])}"

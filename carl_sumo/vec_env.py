@@ -20,11 +20,12 @@ from carl_sumo.workers import WorkerError
 
 
 def _worker(conn, events: Sequence[Event], n: int, net_path: str, seed: int,
-            reward: RewardConfig, base: str, observe_ahead: bool, bounds: ControlBounds) -> None:
+            reward: RewardConfig, base: str, observe_ahead: bool, bounds: ControlBounds,
+            shield_ttc_s: float) -> None:
     from carl_sumo.env import PlatoonEnv
 
     env = PlatoonEnv(events, n, net_path, reward=reward, base=base, bounds=bounds,
-                     observe_ahead=observe_ahead)
+                     observe_ahead=observe_ahead, shield_ttc_s=shield_ttc_s)
     rng_seed = seed
     env.reset_array(seed=rng_seed)
     while True:
@@ -44,12 +45,12 @@ def _worker(conn, events: Sequence[Event], n: int, net_path: str, seed: int,
 
 class VecPlatoon:
     """``num_envs`` platoon environments in worker processes (``base``: their base model;
-    ``observe_ahead``: observations with a_ahead, see :class:`carl_sumo.env.PlatoonEnv`)."""
+    ``observe_ahead``, ``bounds``, ``shield_ttc_s``: see :class:`carl_sumo.env.PlatoonEnv`)."""
 
     def __init__(self, events: Sequence[Event], n_followers: int, net_path: str | Path,
                  num_envs: int = 2, seed: int = 0, reward: RewardConfig = REWARD,
                  base: str = "idm", observe_ahead: bool = False,
-                 bounds: ControlBounds = BOUNDS):
+                 bounds: ControlBounds = BOUNDS, shield_ttc_s: float = 0.0):
         ctx = mp.get_context("spawn")
         self.num_envs, self.n = num_envs, n_followers
         self._conns, self._procs = [], []
@@ -57,7 +58,7 @@ class VecPlatoon:
             parent, child = ctx.Pipe()
             proc = ctx.Process(target=_worker, args=(child, list(events), n_followers,
                                                      str(net_path), seed * 1000 + i, reward, base,
-                                                     observe_ahead, bounds),
+                                                     observe_ahead, bounds, shield_ttc_s),
                                daemon=True)
             proc.start()
             child.close()
