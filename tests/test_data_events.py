@@ -56,19 +56,20 @@ def _one_event(small_table_path, tmp_path, rows=None, **columns):
     return path
 
 
-@pytest.mark.parametrize("rows", [1, 2])
-def test_an_event_too_short_for_a_jerk_is_refused_with_exit_2(capsys, tmp_path, small_table_path,
-                                                              rows):
+@pytest.mark.parametrize("rows", [1, 2, 50])
+def test_an_event_shorter_than_5_s_is_refused_with_exit_2(capsys, tmp_path, small_table_path,
+                                                          rows):
     from carl_sumo.cli import main
 
     path = _one_event(small_table_path, tmp_path, rows)
-    with pytest.raises(InputError, match=f"ev_test_0 has {rows} sample.*at least 3 samples"):
+    with pytest.raises(InputError, match=f"ev_test_0 lasts .* s \\({rows} samples\\); an event "
+                                         "needs at least 5 s"):
         load_events(path, "all")
     assert main(["simulate", "--data", str(path), "--split", "all", "--vehicles", "2"]) == 2
     out, err = capsys.readouterr()
-    assert out == "" and err.count("\n") == 1 and "at least 3 samples" in err
-    (event,) = load_events(_one_event(small_table_path, tmp_path, 3), "all")  # 3 is enough
-    assert event.n_samples == 3
+    assert out == "" and err.count("\n") == 1 and "at least 5 s" in err
+    (event,) = load_events(_one_event(small_table_path, tmp_path, 51), "all")  # 5.0 s is enough
+    assert event.n_samples == 51
 
 
 @pytest.mark.parametrize("column", ["leader_speed_mps", "follower_speed_mps"])
@@ -87,6 +88,26 @@ def test_an_implausible_speed_is_named_as_such(capsys, tmp_path, small_table_pat
     assert err.count("\n") == 1 and "implausible speed" in err and "too short" not in err
     table.loc[7, column] = 70.0  # the bound itself is plausible
     table.to_csv(path, index=False)
+    assert load_events(path, "all")[0].n_samples == len(table)
+
+
+@pytest.mark.parametrize("column, value, quantity", [
+    ("leader_acc_mps2", -15.5, "acceleration"), ("follower_acc_mps2", 40.0, "acceleration"),
+    ("gap_m", 600.0, "gap"), ("gap_m", -1.0, "gap"), ("leader_speed_mps", -2.0, "speed")])
+def test_implausible_accelerations_gaps_and_speeds_are_named_with_their_row(
+        tmp_path, small_table_path, column, value, quantity):
+    path = _one_event(small_table_path, tmp_path)
+    table = pd.read_csv(path)
+    if column not in table:
+        table[column] = 0.0
+    table.loc[12, column] = value
+    table.to_csv(path, index=False)
+    with pytest.raises(InputError, match=f"ev_test_0 has an implausible {quantity} in column "
+                                         f"{column}: {value:g} .* at t_s = 1.2 s \\(row 12, "
+                                         "sample 12 of the event\\)"):
+        load_events(path, "all")
+    table.loc[12, column] = {"gap_m": 500.0, "leader_speed_mps": 0.0}.get(column, 15.0)
+    table.to_csv(path, index=False)  # the bounds themselves are plausible
     assert load_events(path, "all")[0].n_samples == len(table)
 
 

@@ -24,13 +24,28 @@ DEFAULT_VEHICLE_LENGTH_M = 5.0
 MIN_EVENT_SAMPLES = 151
 """Shortest event that the extractors of raw trajectories keep: 151 samples = 15.0 s."""
 
-MIN_SCORED_SAMPLES = 3
-"""Shortest event that a table may hold: 3 samples = 0.2 s, the fewest that give every follower a
-jerk (j_k = (a_{k+1} - a_k)/dt needs three speeds); a shorter event is refused, not scored nan."""
+MIN_EVENT_S = 5.0
+"""Shortest event that a table may hold (s): 51 samples. A platoon needs a few seconds to show a
+dampening ratio or a headway at all (the real NGSIM events are 15 s or longer); a shorter event is
+refused with its name, not scored."""
+
+MIN_SCORED_SAMPLES = int(round(MIN_EVENT_S / DT_S)) + 1
+""":data:`MIN_EVENT_S` in samples (51)."""
 
 MAX_SPEED_MPS = 70.0
 """Highest plausible speed of a leader or follower (m/s, 252 km/h); a higher one is refused as
 implausible (wrong units, a broken record) before anything is simulated."""
+
+MAX_ABS_ACC_MPS2 = 15.0
+"""Largest plausible recorded acceleration of a leader or follower (m/s², about 1.5 g): the
+``leader_acc_mps2`` / ``follower_acc_mps2`` columns, where a table has them (the real NGSIM
+records stay within ±4.9). Accelerations derived from the speeds are not checked: the US-101
+speed records move in steps of up to 7.4 m/s between 0.1 s samples (recorded as ±3.4 m/s²), which
+is how NGSIM quantised them, not a broken record."""
+
+MAX_GAP_M = 500.0
+"""Largest plausible bumper gap of a car-following event (m); a gap must also be positive (the
+real NGSIM events: 0.05-99 m). Beyond it a follower follows nothing."""
 
 EVENT_COLUMNS: tuple[str, ...] = (
     "event_id", "source", "site", "period", "split_in_source", "follower_id", "leader_id", "lane",
@@ -146,18 +161,34 @@ def select_split(table: pd.DataFrame, split: str) -> pd.DataFrame:
     return table[mask]
 
 
-def _check_plausible_speeds(rows: pd.DataFrame, event_id, name: str) -> None:
-    """InputError naming the event, the time and the column of the first speed above
-    :data:`MAX_SPEED_MPS`."""
-    for column in ("leader_speed_mps", "follower_speed_mps"):
+PLAUSIBLE: tuple[tuple[str, str, float, float, str], ...] = (
+    ("leader_speed_mps", "speed", 0.0, MAX_SPEED_MPS, "m/s"),
+    ("follower_speed_mps", "speed", 0.0, MAX_SPEED_MPS, "m/s"),
+    ("leader_acc_mps2", "acceleration", -MAX_ABS_ACC_MPS2, MAX_ABS_ACC_MPS2, "m/s²"),
+    ("follower_acc_mps2", "acceleration", -MAX_ABS_ACC_MPS2, MAX_ABS_ACC_MPS2, "m/s²"),
+    ("gap_m", "gap", 0.0, MAX_GAP_M, "m"),
+)
+"""(column, quantity, lowest, highest, unit) of the plausibility checks; a missing optional column
+or a NaN in one is not checked (speeds and gaps are required and never NaN)."""
+
+
+def _check_plausible(rows: pd.DataFrame, event_id, name: str) -> None:
+    """InputError naming the event, the column, the row (its t_s and sample) and the value of
+    the first value outside :data:`PLAUSIBLE`'s range (a gap must be above 0)."""
+    for column, quantity, low, high, unit in PLAUSIBLE:
+        if column not in rows.columns:
+            continue
         values = rows[column].to_numpy(float)
-        above = np.flatnonzero(values > MAX_SPEED_MPS)
-        if above.size:
-            k = int(above[0])
-            raise InputError(f"{name}: event {event_id} has an implausible speed in column "
-                             f"{column}: {values[k]:g} m/s at t_s = {rows['t_s'].iloc[k]:g} s "
-                             f"(sample {k}); speeds above {MAX_SPEED_MPS:g} m/s are not road "
-                             "traffic: check the units (m/s) or drop that event")
+        outside = (values > high) | ((values <= low) if column == "gap_m" else (values < low))
+        bad = np.flatnonzero(outside & np.isfinite(values))
+        if bad.size:
+            k = int(bad[0])
+            bound = f"above 0 and at most {high:g}" if column == "gap_m" else \
+                f"from {low:g} to {high:g}"
+            raise InputError(f"{name}: event {event_id} has an implausible {quantity} in column "
+                             f"{column}: {values[k]:g} {unit} at t_s = {rows['t_s'].iloc[k]:g} s "
+                             f"(row {rows.index[k]}, sample {k} of the event); a {quantity} must be "
+                             f"{bound} {unit}: check the units or drop that event")
 
 
 def events_from_table(table: pd.DataFrame, name: str = "event table") -> list[Event]:
@@ -173,18 +204,16 @@ def events_from_table(table: pd.DataFrame, name: str = "event table") -> list[Ev
     for event_id, rows in table.groupby("event_id", sort=False):
         t = rows["t_s"].to_numpy(float)
         if len(t) < MIN_SCORED_SAMPLES:
-            raise InputError(f"{name}: event {event_id} has {len(t)} sample(s); an event needs at "
-                             f"least {MIN_SCORED_SAMPLES} samples {DT_S} s apart (its jerk is "
-                             "not defined otherwise); drop that event or give a longer one")
+            raise InputError(f"{name}: event {event_id} lasts {(len(t) - 1) * DT_S:.1f} s "
+                             f"({len(t)} samples); an event needs at least {MIN_EVENT_S:g} s "
+                             f"({MIN_SCORED_SAMPLES} samples {DT_S} s apart): drop that event or "
+                             "give a longer one")
         steps = np.diff(t)
         if not np.allclose(steps, DT_S, atol=1e-3):
             raise InputError(f"{name}: event {event_id} is not sampled every {DT_S} s in column "
                              "t_s (rows must be contiguous and ordered by time)")
         leader_speed = rows["leader_speed_mps"].to_numpy(float)
-        if (leader_speed < 0).any() or (rows["follower_speed_mps"].to_numpy(float) < 0).any():
-            raise InputError(f"{name}: event {event_id} has a negative speed; speeds are in m/s "
-                             "and must be >= 0")
-        _check_plausible_speeds(rows, event_id, name)
+        _check_plausible(rows, event_id, name)
         pos = rows["leader_pos_m"].to_numpy(float) if has_pos else None
         if pos is None or np.isnan(pos).any():
             pos = np.concatenate([[0.0], np.cumsum(leader_speed[1:]) * DT_S])

@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from carl_sumo.data.events import DT_S, EVENT_COLUMNS, MIN_EVENT_SAMPLES
+from carl_sumo.data.events import DT_S, EVENT_COLUMNS, MAX_ABS_ACC_MPS2, MAX_GAP_M, \
+    MAX_SPEED_MPS, MIN_EVENT_SAMPLES
 from carl_sumo.errors import InputError
 
 FT_TO_M = 0.3048
@@ -185,6 +186,16 @@ def smooth_trajectories(traj: pd.DataFrame) -> pd.DataFrame:
     return out[list(TRAJ_COLUMNS)]
 
 
+def _implausible(pairs: pd.DataFrame) -> np.ndarray:
+    """Per follower-leader sample: a value that an event table may not hold (speed above
+    MAX_SPEED_MPS, |acceleration| above MAX_ABS_ACC_MPS2 or a gap above MAX_GAP_M, see
+    :mod:`carl_sumo.data.events`)."""
+    speed = pairs[["speed_mps", "leader_speed_mps"]].to_numpy(float)
+    acc = pairs[["acc_mps2", "leader_acc_mps2"]].to_numpy(float)
+    return ((speed > MAX_SPEED_MPS).any(axis=1) | (np.abs(acc) > MAX_ABS_ACC_MPS2).any(axis=1)
+            | (pairs["gap_m"].to_numpy(float) > MAX_GAP_M))
+
+
 def extract_events(traj: pd.DataFrame, source: str, site: str, period: str = "unknown",
                    id_prefix: str | None = None,
                    min_samples: int = MIN_EVENT_SAMPLES) -> pd.DataFrame:
@@ -193,7 +204,8 @@ def extract_events(traj: pd.DataFrame, source: str, site: str, period: str = "un
     An event is a maximal run of consecutive frames in which the follower keeps the same non-zero
     leader and the same lane, the leader is present in the same frame and lane, and the bumper gap
     ``leader pos - leader length - follower pos`` is > 0 m. Runs shorter than ``min_samples``
-    samples (151 = 15 s) are dropped. Returns an event table with exactly :data:`EVENT_COLUMNS`
+    samples (151 = 15 s) are dropped, and so are runs with a value an event table may not hold (a
+    broken record: a speed above 70 m/s, an |acceleration| above 15 m/s², a gap above 500 m). Returns an event table with exactly :data:`EVENT_COLUMNS`
     (``t_s`` = 0, 0.1, ... s; ``event_id`` = ``{id_prefix}_f{follower}_l{leader}_fr{first frame}``,
     ``id_prefix`` defaulting to ``source``), ordered by follower and first frame.
     """
@@ -227,7 +239,9 @@ def extract_events(traj: pd.DataFrame, source: str, site: str, period: str = "un
     run = np.cumsum(start) - 1
     starts = np.flatnonzero(start)
     lengths = np.diff(np.append(starts, len(pairs)))
-    keep = lengths[run] >= min_samples
+    implausible = np.zeros(len(lengths), dtype=bool)  # a run with a broken record is dropped
+    np.logical_or.at(implausible, run, _implausible(pairs))
+    keep = (lengths[run] >= min_samples) & ~implausible[run]
     pairs = pairs[keep].reset_index(drop=True)
     run = run[keep]
     if pairs.empty:
