@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
+from carl_sumo.channel import Channel, Impairments
 from carl_sumo.config import BOUNDS, DT_S, IDM, ControlBounds
 from carl_sumo.errors import InputError
 from carl_sumo.sumo import REPO_ROOT
@@ -71,17 +72,25 @@ CRUISE_GAIN_PER_S = 0.4
 
 
 @njit(cache=True)
-def _ploeg_step(obs, u, u_lead, adj, h, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc):
+def _ploeg_step(obs, u, u_lead, adj, h, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc,
+                pred_mode, pred_held):
     """One step of every follower (head first): updates ``u`` in place, returns a (m/s²);
-    ``adj`` (m/s², shape (n,)) is the learned feed-forward term (zeros for the plain law)."""
+    ``adj`` (m/s², shape (n,)) is the learned feed-forward term (zeros for the plain law).
+    ``pred_mode`` / ``pred_held`` (shape (n,)): how follower i > 0 hears its predecessor's
+    message (carl_sumo.channel: 0 this step's, 1 the held value, 2 none: no feed-forward)."""
     n = obs.shape[0]
     out = np.empty(n)
     u_pred = u_lead
     for i in range(n):
         e = obs[i, 2] - s0 - h * obs[i, 0]
         e_dot = obs[i, 3] - h * obs[i, 1]
+        u_in = u_pred
+        if i > 0 and pred_mode[i] == 1:
+            u_in = pred_held[i]
+        elif i > 0 and pred_mode[i] == 2:
+            u_in = 0.0
         u_old = u[i]
-        u[i] = min(u_old + (dt / h) * (-u_old + kp * e + kd * e_dot + u_pred + adj[i]),
+        u[i] = min(u_old + (dt / h) * (-u_old + kp * e + kd * e_dot + u_in + adj[i]),
                    k_cc * (v0 - obs[i, 0]))
         u_pred = u_old  # the message of vehicle i is its state at step k
         out[i] = min(max(u[i], acc_min), acc_max)
@@ -101,10 +110,20 @@ class PloegController:
         self.bounds = bounds
         self.u = np.zeros(0)
         self._leader_speed: float | None = None
+        self.channel: Channel | None = None
+        self._k = 0
 
     def reset(self, n_followers: int) -> None:
         self.u = np.zeros(n_followers)
         self._leader_speed = None
+        self.channel, self._k = None, 0
+
+    def connect(self, impairments: Impairments, event_id: str) -> None:
+        """Carry this episode's predecessor messages over an impaired channel (one link per
+        follower, :mod:`carl_sumo.channel`, link stream 1 of the event). Call after
+        :meth:`reset`."""
+        self.channel = Channel(len(self.u), 1, impairments, impairments.rng(event_id, 1))
+        self._k = 0
 
     def acceleration(self, obs: np.ndarray, adjustment: np.ndarray | None = None,
                      commit: bool = True) -> np.ndarray:
@@ -113,22 +132,37 @@ class PloegController:
         ``commit=False``: what the law would apply, the state left as it is (a preview)."""
         leader_speed = float(obs[0, 0] + obs[0, 3])
         a_lead = 0.0 if self._leader_speed is None else (leader_speed - self._leader_speed) / DT_S
+        mode = held = None
+        if self.channel is not None:
+            mode, held = self.channel.receive(self._k)
+            held = held[:, 0]
         if not commit:
-            return self.step(obs, self.u.copy(), a_lead)
+            return self.step(obs, self.u.copy(), a_lead, None, mode, held)
         self._leader_speed = leader_speed
-        return self.step(obs, self.u, a_lead, adjustment)
+        messages = np.concatenate([[0.0], self.u[:-1]])  # follower j hears u_{j-1} of step k
+        out = self.step(obs, self.u, a_lead, adjustment, mode, held)
+        if self.channel is not None:
+            self.channel.send(self._k, messages[:, None])
+            self._k += 1
+        return out
 
     def step(self, obs: np.ndarray, u: np.ndarray, u_lead: float,
-             adjustment: np.ndarray | None = None) -> np.ndarray:
+             adjustment: np.ndarray | None = None, pred_mode: np.ndarray | None = None,
+             pred_held: np.ndarray | None = None) -> np.ndarray:
         """One step of the law on a chain (head first): updates the states ``u`` in place; the
-        head hears ``u_lead`` (m/s²); ``adjustment``: the learned feed-forward term (m/s²).
-        Returns a (m/s²)."""
+        head hears ``u_lead`` (m/s²); ``adjustment``: the learned feed-forward term (m/s²);
+        ``pred_mode`` / ``pred_held``: how each follower hears its predecessor (default: this
+        step's message). Returns a (m/s²)."""
         p, b = self.params, self.bounds
-        adj = np.zeros(obs.shape[0]) if adjustment is None else \
+        n = obs.shape[0]
+        adj = np.zeros(n) if adjustment is None else \
             np.ascontiguousarray(adjustment, dtype=np.float64)
+        if pred_mode is None:
+            pred_mode, pred_held = np.zeros(n, dtype=np.int64), np.zeros(n)
         return _ploeg_step(obs, u, u_lead, adj, p.time_gap_s, p.kp, p.kd, p.standstill_gap_m,
                            DT_S, b.acc_min_mps2, b.acc_max_mps2, IDM.desired_speed_mps,
-                           CRUISE_GAIN_PER_S)
+                           CRUISE_GAIN_PER_S, np.ascontiguousarray(pred_mode, dtype=np.int64),
+                           np.ascontiguousarray(pred_held, dtype=np.float64))
 
 
 # ------------------------------------------------------------------------------------ names

@@ -14,7 +14,7 @@ import sys
 import time
 from pathlib import Path
 
-from carl_sumo.cli_common import add_common, fmt, positive
+from carl_sumo.cli_common import add_common, add_impairments, fmt, impairments_from, positive
 from carl_sumo.cli_policies import (_export_parser, _policy_info_parser, _rank_parser,
                                     _train_parser, _tune_parser, cmd_export, cmd_policy_info,
                                     cmd_rank, cmd_train, cmd_tune)
@@ -53,13 +53,15 @@ def _simulate_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", type=Path, default=None, metavar="OUT", help="write metrics as JSON")
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                    help="parallel SUMO processes (default: 2, or the number of cores if fewer)")
+    add_impairments(p)
 
 
 def cmd_simulate(args: argparse.Namespace) -> None:
     from carl_sumo.data import load_events
-    from carl_sumo.simulate import resolve_controller, simulate
+    from carl_sumo.simulate import check_impairable, resolve_controller, simulate
 
     positive(args.vehicles, "--vehicles")
+    impairments = impairments_from(args)
     if args.json is not None:
         check_output_file(args.json, "--json")
     if args.events is not None:
@@ -69,11 +71,12 @@ def cmd_simulate(args: argparse.Namespace) -> None:
         _, controller = resolve_controller(name)
         if controller is not None:
             controller.reset(args.vehicles)
+        check_impairable(name, impairments)
     events = load_events(args.data, args.split, limit=args.events)
     start = time.perf_counter()
     workers = positive(args.workers, "--workers")
     results = [simulate(name, events, args.vehicles, args.net, progress=sys.stderr.isatty(),
-                        workers=workers) for name in names]
+                        workers=workers, impairments=impairments) for name in names]
     print(format_table(results))
     print(f"{len(events)} events of split {args.split} of {args.data}, "
           f"{time.perf_counter() - start:.1f} s")
@@ -93,6 +96,7 @@ def _replay_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fcd", type=Path, required=True, help="FCD output file (.xml)")
     p.add_argument("--gui", action="store_true",
                    help="show the run in sumo-gui (needs a display; closes when you close it)")
+    add_impairments(p)
 
 
 def cmd_replay(args: argparse.Namespace) -> None:
@@ -102,11 +106,13 @@ def cmd_replay(args: argparse.Namespace) -> None:
     from carl_sumo.sumo import has_display, use_gui
 
     positive(args.vehicles, "--vehicles")
+    impairments = impairments_from(args)
     check_output_file(args.fcd, "--fcd")
     if args.gui and not has_display():
         use_gui(True)  # raises the one-line "no display" error before anything runs
     (event,) = load_events(args.data, args.split, event_ids=[args.event])
-    metrics = replay(args.controller, event, args.vehicles, args.fcd, args.net, gui=args.gui)
+    metrics = replay(args.controller, event, args.vehicles, args.fcd, args.net, gui=args.gui,
+                     impairments=impairments)
     print(f"wrote {args.fcd}: event {event.event_id}, {args.vehicles} followers, "
           f"{event.duration_s:.1f} s, controller {args.controller}")
     print(", ".join(f"{k}={fmt(v)}" for k, v in metrics.items() if not k.startswith("n_")

@@ -18,6 +18,7 @@ from numba import njit
 from torch import nn
 
 from carl_sumo.agents import BASE_SCALE, GAP_CLIP_M, OBS_SCALE, Agent
+from carl_sumo.channel import Channel
 from carl_sumo.models import CommunicationAware, PerAgentActors, PerVehicle
 
 _OBS_SCALE = np.array(OBS_SCALE, dtype=np.float64)
@@ -87,6 +88,45 @@ def _communication_aware_act(obs, adj_max, forward_boundary, backward_boundary,
 
 
 @njit(cache=True)
+def _communication_aware_act_channel(obs, adj_max, f_mode, f_held, b_mode, b_held,
+                                     forward_boundary, backward_boundary,
+                                     fw1, fb1, fw2, fb2, fw3, fb3, bw1, bb1, bw2, bb2, bw3, bb3):
+    """The CommunicationAware actor when each message crosses a link (carl_sumo.channel):
+    follower i hears i+1's forward and i-1's backward message as ``f_mode[i]`` / ``b_mode[i]``
+    say (0 this step's, 1 the held ``f_held[i]`` / ``b_held[i]``, 2 none: the learned boundary
+    message, as at a chain end). Returns (a_adj (n,), forward messages (n, m), backward messages
+    (n, m)) of this step; with every mode 0 it is :func:`_communication_aware_act`."""
+    x = _normalised(obs)
+    n, n_in, m = x.shape[0], x.shape[1], forward_boundary.shape[0]
+    forward_messages = np.empty((n, m))
+    inp = np.empty(n_in + m)
+    for i in range(n - 1, -1, -1):  # tail -> head
+        inp[:n_in] = x[i]
+        if i == n - 1 or f_mode[i] == 2:
+            inp[n_in:] = forward_boundary
+        elif f_mode[i] == 1:
+            inp[n_in:] = f_held[i]
+        else:
+            inp[n_in:] = forward_messages[i + 1]
+        forward_messages[i] = np.tanh(_mlp(inp, fw1, fb1, fw2, fb2, fw3, fb3))
+    action = np.empty(n)
+    backward_messages = np.empty((n, m))
+    inp = np.empty(2 * m)
+    for i in range(n):  # head -> tail
+        inp[:m] = forward_messages[i]
+        if i == 0 or b_mode[i] == 2:
+            inp[m:] = backward_boundary
+        elif b_mode[i] == 1:
+            inp[m:] = b_held[i]
+        else:
+            inp[m:] = backward_messages[i - 1]
+        out = _mlp(inp, bw1, bb1, bw2, bb2, bw3, bb3)
+        backward_messages[i] = np.tanh(out[:m])
+        action[i] = adj_max * math.tanh(out[m])
+    return action, forward_messages, backward_messages
+
+
+@njit(cache=True)
 def _per_vehicle_act(obs, adj_max, w1, b1, w2, b2, w3, b3):
     """a_adj (m/s², shape (n,)) of per-vehicle MLPs stacked on axis 0: one shared by all vehicles
     (TD3/DDPG) or one per vehicle (MADDPG)."""
@@ -138,6 +178,26 @@ class CompiledActor:
             self._weights = _stacked([_mlp_weights(net) for net in actor.nets])
         else:
             raise TypeError(f"cannot compile an actor of type {type(actor).__name__}")
+
+    @property
+    def message_dim(self) -> int:
+        """Width of a V2V message (0: an actor without communication)."""
+        return int(self._weights[0].shape[0]) if self._act is _communication_aware_act else 0
+
+    def act_over(self, obs: np.ndarray, forward: Channel, backward: Channel, k: int
+                 ) -> np.ndarray:
+        """a_adj (m/s², shape (n,)) of a CA actor at step k when its messages cross the links
+        ``forward`` (i+1 → i) and ``backward`` (i-1 → i); sends this step's messages."""
+        obs = np.ascontiguousarray(obs, dtype=np.float64)
+        f_mode, f_held = forward.receive(k)
+        b_mode, b_held = backward.receive(k)
+        action, f_out, b_out = _communication_aware_act_channel(
+            obs, self.adj_max, f_mode.astype(np.int64), f_held, b_mode.astype(np.int64), b_held,
+            *self._weights)
+        n = len(obs)
+        forward.send(k, np.vstack([f_out[1:], np.zeros((1, f_out.shape[1]))]))  # to i from i+1
+        backward.send(k, np.vstack([np.zeros((1, b_out.shape[1])), b_out[:n - 1]]))
+        return action
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         """a_adj (m/s², shape (n,)) for one platoon observation (n, 4) [v, a, d, Δv]."""

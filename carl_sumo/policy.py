@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from carl_sumo.agents import AgentConfig, Agent
+from carl_sumo.channel import Channel, Impairments
 from carl_sumo.controllers import AheadAcceleration, adjustment_bounds, base_controller, \
     shield_adjustment
 from carl_sumo.errors import InputError
@@ -103,11 +104,25 @@ class PolicyController:
         self._actor = CompiledActor(agent)
         self._ahead = AheadAcceleration() if agent.cfg.observe_ahead else None
         self.bounds = adjustment_bounds(agent.cfg.adj_max)
+        self._links: tuple[Channel, Channel] | None = None
+        self._n, self._k = agent.cfg.n_vehicles, 0
 
     def reset(self, n_followers: int) -> None:
         self.agent.check_length(n_followers)
         if self._ahead is not None:
             self._ahead.reset()
+        self._links: tuple[Channel, Channel] | None = None
+        self._n, self._k = n_followers, 0
+
+    def connect(self, impairments: Impairments, event_id: str) -> None:
+        """Carry this episode's CA messages over impaired links (:mod:`carl_sumo.channel`:
+        forward and backward, link streams 2 and 3 of the event); a policy without messages
+        (DDPG, TD3, MADDPG) has nothing to send. Call after :meth:`reset`."""
+        m = self._actor.message_dim
+        if m:
+            self._links = (Channel(self._n, m, impairments, impairments.rng(event_id, 2)),
+                           Channel(self._n, m, impairments, impairments.rng(event_id, 3)))
+            self._k = 0
 
     def adjustment(self, obs: np.ndarray) -> np.ndarray:
         """a_adj (m/s², shape (n,)) for one platoon observation (n, 4) of a step; a policy that
@@ -115,7 +130,12 @@ class PolicyController:
         shield, if it has one, applies here."""
         if self._ahead is not None:
             obs = np.column_stack([obs[:, :4], self._ahead(obs)])
-        return shield_adjustment(obs, self._actor(obs), self.agent.cfg.shield_ttc_s)
+        if self._links is None:
+            action = self._actor(obs)
+        else:
+            action = self._actor.act_over(obs, *self._links, self._k)
+            self._k += 1
+        return shield_adjustment(obs, action, self.agent.cfg.shield_ttc_s)
 
 
 class ResidualPolicyController(PolicyController):
@@ -129,6 +149,11 @@ class ResidualPolicyController(PolicyController):
     def reset(self, n_followers: int) -> None:
         super().reset(n_followers)
         self.base.reset(n_followers)
+
+    def connect(self, impairments: Impairments, event_id: str) -> None:
+        """The CA messages and the base's predecessor messages both cross impaired links."""
+        super().connect(impairments, event_id)
+        self.base.connect(impairments, event_id)
 
     def acceleration(self, obs: np.ndarray) -> np.ndarray:
         """a (m/s², shape (n,)) for one platoon observation (n, 4), head first; the actor sees

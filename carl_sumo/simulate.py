@@ -20,6 +20,7 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from carl_sumo.cacc import is_ploeg_name, ploeg_controller
+from carl_sumo.channel import Impairments, Sensors
 from carl_sumo.controllers import AccelerationController, Controller, ZeroAdjustment, \
     applied_acceleration
 from carl_sumo.data.events import Event
@@ -64,17 +65,27 @@ def human_trajectory(event: Event) -> PlatoonTrajectory:
 
 def run_event(sim: PlatoonSim, event: Event, n_followers: int,
               controller: Controller | AccelerationController | None,
-              fcd_path: Path | None = None) -> PlatoonTrajectory:
-    """Run one event in SUMO to its end or to the first collision; the trajectory."""
+              fcd_path: Path | None = None,
+              impairments: Impairments | None = None) -> PlatoonTrajectory:
+    """Run one event in SUMO to its end or to the first collision; the trajectory. With
+    ``impairments`` (:mod:`carl_sumo.channel`) the controller's V2V messages cross impaired links
+    and it sees noisy own measurements; the trajectory is the true one."""
     if controller is not None:
         controller.reset(n_followers)
+    sensors = None
+    if impairments is not None and controller is not None:
+        if not impairments.perfect_channel and hasattr(controller, "connect"):
+            controller.connect(impairments, event.event_id)
+        if impairments.sensor_noise:
+            sensors = Sensors(impairments.rng(event.event_id, 0))
     sim.reset(event, n_followers, fcd_path)
     obs = sim.observation()
     leader, speeds, gaps = [sim.leader_speed], [obs[:, 0]], [obs[:, 2]]
     collisions = 0
     while not sim.done:
         if controller is not None:
-            sim.step(applied_acceleration(controller, obs))
+            seen = obs if sensors is None else sensors.measure(obs)
+            sim.step(applied_acceleration(controller, seen))
         else:
             sim.step()
         obs = sim.observation()
@@ -100,9 +111,11 @@ def cached_sim(net_path: str | Path, follower_model: str) -> PlatoonSim:
 
 
 def event_trajectories(controller_name: str, events: Sequence[Event], n_followers: int,
-                       net_path: str | Path = DEFAULT_NET, progress: bool = False
+                       net_path: str | Path = DEFAULT_NET, progress: bool = False,
+                       impairments: Impairments | None = None
                        ) -> Iterator[tuple[Event, PlatoonTrajectory]]:
     """(event, trajectory) of one controller on each event, in this process, in order."""
+    check_impairable(controller_name, impairments)
     follower_model, controller = resolve_controller(controller_name)
     iterator = events
     if progress:
@@ -115,30 +128,49 @@ def event_trajectories(controller_name: str, events: Sequence[Event], n_follower
         return
     sim = cached_sim(net_path, follower_model)
     for e in iterator:
-        yield e, run_event(sim, e, n_followers, controller)
+        yield e, run_event(sim, e, n_followers, controller, impairments=impairments)
+
+
+def check_impairable(controller_name: str, impairments: Impairments | None) -> None:
+    """InputError for impairments on a controller that cannot have them: SUMO's native models
+    (their V2V and sensing are inside SUMO) and the recorded human follower."""
+    if impairments is None or not impairments.active:
+        return
+    follower_model, _ = resolve_controller(controller_name)
+    if follower_model != "external":
+        raise InputError(f"{controller_name}: impairments (--comm-*, --sensor-noise) apply to "
+                         "controllers that run in carl-sumo (idm-external, ploeg, a policy "
+                         "file), not to SUMO's native models or the recorded follower")
 
 
 def _score_events(controller_name: str, events: Sequence[Event], n_followers: int,
-                  net_path: str, progress: bool = False) -> list[dict]:
+                  net_path: str, progress: bool = False,
+                  impairments: Impairments | None = None) -> list[dict]:
     """Per-event metrics of one controller, in this process."""
     return [score_event(traj) for _, traj in
-            event_trajectories(controller_name, events, n_followers, net_path, progress)]
+            event_trajectories(controller_name, events, n_followers, net_path, progress,
+                               impairments)]
 
 
 def simulate(controller_name: str, events: Sequence[Event], n_followers: int,
-             net_path: str | Path = DEFAULT_NET, progress: bool = False, workers: int = 1) -> dict:
+             net_path: str | Path = DEFAULT_NET, progress: bool = False, workers: int = 1,
+             impairments: Impairments | None = None) -> dict:
     """Metrics of one controller over events: ``{"metrics": {...}, "events": [...]}``.
 
     With ``workers`` > 1 the events are split over that many spawned processes (one libsumo each),
-    at least 20 events per worker.
+    at least 20 events per worker. ``impairments``: V2V delay and loss, sensor noise
+    (:mod:`carl_sumo.channel`; the same draws on an event whichever worker runs it).
     """
     follower_model, _ = resolve_controller(controller_name)
+    check_impairable(controller_name, impairments)
     workers = max(1, min(workers, len(events) // 20))  # a spawned worker costs seconds to start
     if workers == 1 or follower_model == "human":
-        per_event = _score_events(controller_name, events, n_followers, str(net_path), progress)
+        per_event = _score_events(controller_name, events, n_followers, str(net_path), progress,
+                                  impairments)
     else:
         chunks = [list(events[i::workers]) for i in range(workers)]
-        parts = run_parallel(_score_events, [(controller_name, chunk, n_followers, str(net_path))
+        parts = run_parallel(_score_events, [(controller_name, chunk, n_followers, str(net_path),
+                                              False, impairments)
                                              for chunk in chunks], workers,
                              describe=lambda a: f"{a[0]} on {len(a[1])} events from "
                                                 f"{a[1][0].event_id}")
@@ -149,7 +181,8 @@ def simulate(controller_name: str, events: Sequence[Event], n_followers: int,
 
 
 def replay(controller_name: str, event: Event, n_followers: int, fcd_path: Path,
-           net_path: str | Path = DEFAULT_NET, gui: bool = False) -> dict:
+           net_path: str | Path = DEFAULT_NET, gui: bool = False,
+           impairments: Impairments | None = None) -> dict:
     """Run one event and write SUMO's FCD output (with acceleration and leader fields).
 
     With ``gui`` the same run is shown in sumo-gui (through TraCI; InputError without a display).
@@ -158,6 +191,7 @@ def replay(controller_name: str, event: Event, n_followers: int, fcd_path: Path,
     if follower_model == "human":
         raise InputError("the recorded human follower is not simulated, so it has no FCD output; "
                          "choose idm, krauss, sumo-cacc, idm-external, ploeg or a policy file")
+    check_impairable(controller_name, impairments)
     if controller is not None:
         controller.reset(n_followers)  # a MADDPG policy refuses another length before SUMO starts
     fcd_path = Path(fcd_path)
@@ -166,7 +200,8 @@ def replay(controller_name: str, event: Event, n_followers: int, fcd_path: Path,
     tmp = atomic_output(fcd_path)
     try:
         try:
-            traj = run_event(sim, event, n_followers, controller, fcd_path=tmp)
+            traj = run_event(sim, event, n_followers, controller, fcd_path=tmp,
+                             impairments=impairments)
         finally:
             close_sumo()  # SUMO finishes the FCD file when the simulation closes
             if gui:

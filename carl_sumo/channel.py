@@ -1,0 +1,181 @@
+"""Imperfect V2V communication and sensing: message delay, loss (with bursts) and sensor noise.
+
+**Channel.** Every V2V quantity travels on a link from one follower to a neighbour: the CA
+module's forward messages (follower i+1 → i) and backward messages (i-1 → i), and the Ploeg
+controller's predecessor input u_{i-1} (i-1 → i). Each link, every 0.1 s step k:
+
+- the message sent at step k is lost with the link's loss process (below), else it arrives at
+  step k + d, d = ``delay_s`` / 0.1 s (a whole number of steps: another delay is refused);
+- the receiver holds the last message that arrived and knows its age, k - (the step it was sent);
+  with d = 0 a message that is not lost is used in the step it is sent (today's behaviour);
+- a held message older than ``timeout_s`` is not used: the receiver falls back (the CA module
+  takes its learned boundary message, as the last vehicle of a chain does; the Ploeg controller
+  drops the feed-forward and acts as an ACC on its own sensors); so does a receiver that has
+  heard nothing yet.
+
+**Loss.** ``burst`` = 1: every message is lost independently with probability P = ``loss``. With
+``burst`` = L > 1 a two-state Gilbert-Elliott channel per link: in the bad state every message is
+lost, in the good state none; bad → good with probability 1/L per step (bursts of mean length L
+steps) and good → bad with probability P / (L·(1 - P)), so that the long-run loss rate is P. The
+first state is drawn from that long-run distribution. P = 1 loses everything.
+
+**Sensor noise** (``sensor_noise``): the gap and the relative speed a follower measures itself get
+Gaussian noise with standard deviations :data:`GAP_NOISE_M` and :data:`REL_SPEED_NOISE_MPS`, drawn
+anew every step; the metrics stay on the true state.
+
+All draws come from ``seed`` and the event's ID, so the same seed gives the same losses and noise
+on an event whichever worker runs it.
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from carl_sumo.config import DT_S
+from carl_sumo.errors import InputError
+
+GAP_NOISE_M = 0.1
+"""σ of the measured bumper gap (m): the order of the range accuracy of automotive long-range
+radars (about ±0.1 m)."""
+
+REL_SPEED_NOISE_MPS = 0.1
+"""σ of the measured relative speed (m/s): the order of their range-rate accuracy (about ±0.1 m/s)."""
+
+LIVE, HELD, FALLBACK = 0, 1, 2
+"""How a receiver gets its message this step: the one sent this step, the last one held, none."""
+
+
+@dataclass(frozen=True)
+class Impairments:
+    """What ``--comm-delay``, ``--comm-loss``, ``--comm-burst``, ``--comm-timeout`` and
+    ``--sensor-noise`` ask for (units in the names); the defaults are a perfect channel."""
+
+    delay_s: float = 0.0
+    loss: float = 0.0
+    burst: float = 1.0
+    timeout_s: float = 1.0
+    sensor_noise: bool = False
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.delay_s) and self.delay_s >= 0):
+            raise InputError(f"--comm-delay must be 0 s or more, got {self.delay_s}")
+        if abs(self.delay_s / DT_S - round(self.delay_s / DT_S)) > 1e-9:
+            raise InputError(f"--comm-delay {self.delay_s:g} s is not a multiple of the "
+                             f"{DT_S} s step; give 0, 0.1, 0.2, ... s")
+        if not (math.isfinite(self.loss) and 0 <= self.loss <= 1):
+            raise InputError(f"--comm-loss is a probability from 0 to 1, got {self.loss}")
+        if not (math.isfinite(self.burst) and self.burst >= 1):
+            raise InputError(f"--comm-burst is a mean burst length of 1 step or more, "
+                             f"got {self.burst}")
+        if not (math.isfinite(self.timeout_s) and self.timeout_s >= DT_S - 1e-12):
+            raise InputError(f"--comm-timeout must be at least one step ({DT_S} s), "
+                             f"got {self.timeout_s}")
+
+    @property
+    def delay_steps(self) -> int:
+        return int(round(self.delay_s / DT_S))
+
+    @property
+    def timeout_steps(self) -> int:
+        """The oldest usable message, in steps (a message exactly this old is still used)."""
+        return int(math.floor(self.timeout_s / DT_S + 1e-9))
+
+    @property
+    def perfect_channel(self) -> bool:
+        return self.delay_s == 0 and self.loss == 0
+
+    @property
+    def active(self) -> bool:
+        return not self.perfect_channel or self.sensor_noise
+
+    def rng(self, event_id: str, stream: int) -> np.random.Generator:
+        """The generator of one event and one stream (0: sensors, 1, 2, ...: links)."""
+        return np.random.default_rng([self.seed, zlib.crc32(event_id.encode()), stream])
+
+
+class LossProcess:
+    """Which of ``n`` links lose their message at each step (see the module docstring)."""
+
+    def __init__(self, n: int, loss: float, burst: float, rng: np.random.Generator):
+        self.n, self.loss, self.burst, self.rng = n, loss, burst, rng
+        self.bad = rng.random(n) < loss if burst > 1 else np.zeros(n, dtype=bool)
+        self.to_good = 1.0 / burst
+        self.to_bad = loss / (burst * (1.0 - loss)) if loss < 1 else 1.0
+
+    def draw(self) -> np.ndarray:
+        """Lost flags (n,) of the messages sent this step."""
+        if self.loss <= 0:
+            return np.zeros(self.n, dtype=bool)
+        if self.loss >= 1:
+            return np.ones(self.n, dtype=bool)
+        u = self.rng.random(self.n)
+        if self.burst <= 1:
+            return u < self.loss
+        self.bad = np.where(self.bad, u >= self.to_good, u < self.to_bad)
+        return self.bad.copy()
+
+
+class Channel:
+    """``n`` links of one direction, each carrying a message of ``dim`` numbers to receiver j.
+
+    Every step: :meth:`receive` (how each receiver gets its message, and the held values), then
+    the sender computes, then :meth:`send` with the messages sent this step. A step's
+    :meth:`receive` may be asked again (a preview): it draws once per step.
+    """
+
+    def __init__(self, n: int, dim: int, impairments: Impairments, rng: np.random.Generator):
+        self.cfg, self.n, self.dim = impairments, n, dim
+        self.losses = LossProcess(n, impairments.loss, impairments.burst, rng)
+        self.held = np.zeros((n, dim))
+        self.sent_at = np.full(n, -10 ** 9)  # step the held message was sent (none yet)
+        self.in_flight: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
+        self.k = -1
+        self._lost = np.zeros(n, dtype=bool)
+        self._mode = np.full(n, FALLBACK)
+
+    def receive(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """(mode (n,) of LIVE/HELD/FALLBACK, held messages (n, dim)) of step k."""
+        if k != self.k:
+            self.k = k
+            self._lost = self.losses.draw()
+            d = self.cfg.delay_steps
+            while self.in_flight and self.in_flight[0][0] <= k - d:
+                sent, messages, lost = self.in_flight.popleft()
+                arrived = ~lost
+                self.held[arrived] = messages[arrived]
+                self.sent_at[arrived] = sent
+            fresh = k - self.sent_at <= self.cfg.timeout_steps
+            mode = np.where(fresh, HELD, FALLBACK)
+            if d == 0:
+                mode = np.where(self._lost, mode, LIVE)
+            self._mode = mode
+        return self._mode, self.held
+
+    def send(self, k: int, messages: np.ndarray) -> None:
+        """The messages (n, dim) sent at step k (after :meth:`receive` of step k)."""
+        if self.cfg.delay_steps == 0:
+            arrived = ~self._lost
+            self.held[arrived] = messages[arrived]
+            self.sent_at[arrived] = k
+        else:
+            self.in_flight.append((k, np.array(messages, dtype=np.float64), self._lost.copy()))
+
+
+class Sensors:
+    """Noisy own measurements of one event: gap and relative speed (see the module docstring)."""
+
+    def __init__(self, rng: np.random.Generator):
+        self.rng = rng
+
+    def measure(self, obs: np.ndarray) -> np.ndarray:
+        """Observations [v, a, d, Δv, ...] with noise on d (kept ≥ 0.01 m) and Δv."""
+        out = np.array(obs, dtype=np.float64)
+        out[:, 2] = np.maximum(out[:, 2] + self.rng.normal(0.0, GAP_NOISE_M, len(out)), 0.01)
+        out[:, 3] += self.rng.normal(0.0, REL_SPEED_NOISE_MPS, len(out))
+        return out

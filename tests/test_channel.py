@@ -1,0 +1,147 @@
+"""The V2V channel and the sensors (carl_sumo.channel), and controllers driven over them."""
+
+import numpy as np
+import pytest
+
+from carl_sumo.channel import FALLBACK, HELD, LIVE, Channel, Impairments, LossProcess
+from carl_sumo.errors import InputError
+
+from conftest import NET, braking_event
+
+
+def _stream(imp: Impairments, steps: int, n: int = 3):
+    """(mode, held) at every step of a channel whose sender sends its step number + link/10."""
+    ch = Channel(n, 1, imp, imp.rng("e", 1))
+    out = []
+    for k in range(steps):
+        mode, held = ch.receive(k)
+        out.append((mode.copy(), held[:, 0].copy()))
+        ch.send(k, (k + np.arange(n) / 10)[:, None])
+    return out
+
+
+def test_the_delay_line_returns_exactly_the_message_of_s_seconds_ago():
+    out = _stream(Impairments(delay_s=0.3), 12)
+    for k, (mode, held) in enumerate(out):
+        if k < 3:
+            assert np.all(mode == FALLBACK)  # nothing has arrived yet
+        else:
+            assert np.all(mode == HELD)
+            np.testing.assert_allclose(held, k - 3 + np.arange(3) / 10)
+    assert all(np.all(m == LIVE) for m, _ in _stream(Impairments(loss=0.0), 5))
+
+
+def test_losses_are_reproducible_and_have_the_requested_rate_and_burst_length():
+    imp = Impairments(loss=0.3, seed=4)
+    a = LossProcess(10, 0.3, 1.0, imp.rng("ev", 1))
+    b = LossProcess(10, 0.3, 1.0, Impairments(loss=0.3, seed=4).rng("ev", 1))
+    draws = np.array([a.draw() for _ in range(10_000)])
+    assert np.array_equal(draws, np.array([b.draw() for _ in range(10_000)]))
+    assert abs(draws.mean() - 0.3) < 0.02 * 0.3 + 0.005  # 10^5 draws
+    other = LossProcess(10, 0.3, 1.0, Impairments(loss=0.3, seed=5).rng("ev", 1))
+    assert not np.array_equal(draws[:100], np.array([other.draw() for _ in range(100)]))
+    burst = LossProcess(10, 0.3, 5.0, np.random.default_rng(0))
+    lost = np.array([burst.draw() for _ in range(20_000)])
+    assert abs(lost.mean() - 0.3) < 0.02
+    lengths = []
+    for link in lost.T:
+        edges = np.diff(np.concatenate([[0], link.astype(int), [0]]))
+        lengths += list(np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1))
+    assert np.mean(lengths) == pytest.approx(5.0, rel=0.05)
+    assert LossProcess(3, 1.0, 2.0, np.random.default_rng(0)).draw().all()
+
+
+def test_a_receiver_past_its_timeout_falls_back_and_a_lost_message_is_held():
+    imp = Impairments(loss=1.0, timeout_s=0.3)
+    ch = Channel(2, 1, imp, imp.rng("e", 1))
+    ch.held[:] = 7.0
+    ch.sent_at[:] = 0
+    for k, expected in [(1, HELD), (2, HELD), (3, HELD), (4, FALLBACK)]:
+        mode, held = ch.receive(k)
+        assert np.all(mode == expected) and np.all(held == 7.0)
+        ch.send(k, np.full((2, 1), float(k)))
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"delay_s": -0.1}, "--comm-delay must be"), ({"delay_s": 0.25}, "not a multiple"),
+    ({"loss": 1.5}, "--comm-loss is a probability"), ({"loss": -0.1}, "--comm-loss"),
+    ({"burst": 0.5}, "--comm-burst"), ({"timeout_s": 0.05}, "at least one step")])
+def test_bad_values_are_refused(kwargs, message):
+    with pytest.raises(InputError, match=message):
+        Impairments(**kwargs)
+
+
+def test_bad_values_give_one_line_and_exit_2(capsys):
+    from carl_sumo.cli import main
+
+    assert main(["simulate", "--controller", "ploeg", "--comm-loss", "2"]) == 2
+    assert main(["simulate", "--controller", "idm", "--comm-loss", "0.2"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 2 and "--comm-loss is a probability" in err and "native" in err
+
+
+def _trajectory(controller, impairments=None, connect_perfect=False):
+    from carl_sumo.simulate import cached_sim, run_event
+
+    sim = cached_sim(NET, "external")
+    event = braking_event(v0=14.0)
+    if connect_perfect:  # the channel code path with a perfect channel
+        imp = Impairments()
+        orig = controller.reset
+
+        def reset(n):
+            orig(n)
+            controller.connect(imp, event.event_id)
+        controller.reset = reset
+    return run_event(sim, event, 4, controller, impairments=impairments)
+
+
+def _policy(tmp_path):
+    import torch
+
+    from carl_sumo.agents import Agent, AgentConfig
+    from carl_sumo.policy import load_controller, save_policy
+
+    torch.manual_seed(0)
+    save_policy(Agent(AgentConfig(algo="ca-td3", n_vehicles=4, adj_max=1.0)), tmp_path / "p.pt", {})
+    return lambda: load_controller(tmp_path / "p.pt")
+
+
+def test_a_perfect_channel_gives_todays_results_for_ploeg_and_ca(tmp_path):
+    from carl_sumo.cacc import ploeg_controller
+
+    for make in (lambda: ploeg_controller("ploeg:h=0.8"), _policy(tmp_path)):
+        today = _trajectory(make())
+        over = _trajectory(make(), connect_perfect=True)
+        np.testing.assert_array_equal(today.speed, over.speed)
+
+
+def test_impairments_change_the_run_and_the_same_seed_repeats_it(tmp_path):
+    from carl_sumo.cacc import ploeg_controller
+
+    imp = Impairments(delay_s=0.2, loss=0.3, burst=3.0, sensor_noise=True, seed=1)
+    for make in (lambda: ploeg_controller("ploeg:h=0.8"), _policy(tmp_path)):
+        clean = _trajectory(make())
+        a, b = _trajectory(make(), imp), _trajectory(make(), imp)
+        np.testing.assert_array_equal(a.speed, b.speed)
+        assert not np.array_equal(a.speed, clean.speed)
+        c = _trajectory(make(), Impairments(delay_s=0.2, loss=0.3, burst=3.0, seed=1))
+        assert not np.array_equal(c.speed, clean.speed)  # the channel alone changes it
+
+
+def test_every_message_lost_makes_ploeg_an_acc():
+    """With every message lost the predecessor feed-forward is gone: the followers behind the
+    head act as with u_{i-1} = 0."""
+    from carl_sumo.cacc import ploeg_controller
+
+    obs = np.array([[10.0, 0.5, 12.0, 0.0], [10.0, 0.5, 12.0, 0.0]])
+    lost = ploeg_controller("ploeg:h=1")
+    lost.reset(2)
+    lost.u[:] = 0.5
+    lost.connect(Impairments(loss=1.0), "e")
+    plain = ploeg_controller("ploeg:h=1")
+    plain.reset(2)
+    plain.u[:] = 0.5
+    a_lost, a_plain = lost.acceleration(obs), plain.acceleration(obs)
+    assert a_lost[0] == a_plain[0]  # the head hears its leader through its own sensors
+    assert a_plain[1] - a_lost[1] == pytest.approx(0.1 / 1.0 * 0.5)  # dt/h · u_pred
