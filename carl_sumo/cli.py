@@ -121,7 +121,9 @@ def cmd_replay(args: argparse.Namespace) -> None:
 
 def _evaluate_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("evaluate", help="the paper's tables and figures, written to --out")
-    p.add_argument("--suite", default="paper", choices=("paper",), help="which suite (paper)")
+    p.add_argument("--suite", default="paper", choices=("paper", "robustness"),
+                   help="paper (the paper's tables and figures) or robustness (controllers under "
+                        "V2V delay and loss and sensor noise, docs/robustness.md)")
     p.add_argument("--out", type=Path, default=Path("results"), help="output directory")
     p.add_argument("--data", default=None,
                    help="NGSIM event table (default: ../shared/data/ngsim/ngsim_cf_events.csv.gz;"
@@ -148,6 +150,18 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
 
     workers = positive(args.workers, "--workers")
     check_output_dir(args.out, "--out")
+    if args.suite == "robustness":
+        from carl_sumo.robustness import CONTROLLERS, run_robustness
+
+        policies = args.policies or Path("policies")
+        controllers = tuple(str(policies / Path(c).name) if c.endswith(".pt") else c
+                            for c in CONTROLLERS)
+        result = run_robustness(args.out, args.data, args.quick, args.events, args.net, workers,
+                                controllers, progress=sys.stderr.isatty(),
+                                command="carl-sumo " + " ".join(sys.argv[1:]))
+        print(f"wrote {args.out / 'robustness.md'}, robustness.csv ({len(result['rows'])} rows) "
+              f"and {len(result['figures'])} figures; wall time {result['wall_time_s']:.0f} s")
+        return
     result = evaluate(args.suite, args.out, args.data, args.quick, args.events, args.policies,
                       args.net, workers, progress=sys.stderr.isatty(),
                       command="carl-sumo " + " ".join(sys.argv[1:]), all_seeds=args.all_seeds,

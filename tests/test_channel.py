@@ -145,3 +145,22 @@ def test_every_message_lost_makes_ploeg_an_acc():
     a_lost, a_plain = lost.acceleration(obs), plain.acceleration(obs)
     assert a_lost[0] == a_plain[0]  # the head hears its leader through its own sensors
     assert a_plain[1] - a_lost[1] == pytest.approx(0.1 / 1.0 * 0.5)  # dt/h · u_pred
+
+
+def test_the_robustness_suite_writes_its_table_and_figures(tmp_path, capsys):
+    import csv
+
+    from carl_sumo.cli import main
+    from conftest import REPO_ROOT
+
+    out = tmp_path / "rob"
+    assert main(["evaluate", "--suite", "robustness", "--quick", "--out", str(out), "--net",
+                 str(NET), "--policies", str(REPO_ROOT / "policies")]) == 0
+    rows = list(csv.DictReader(open(out / "robustness.csv")))
+    settings = {r["setting"] for r in rows}
+    assert settings == {"perfect", "loss 0.3", "delay 0.2 s", "sensor noise"}
+    assert len(rows) == 4 * 5 - 2  # IDM sends no messages: not rerun on the channel settings
+    assert (out / "robustness_vs_loss.png").stat().st_size > 0
+    assert "| loss 0.3 | `" in (out / "robustness.md").read_text()
+    ploeg = {r["setting"]: r for r in rows if r["controller"] == "ploeg"}
+    assert ploeg["delay 0.2 s"]["jerk_mps3"] != ploeg["perfect"]["jerk_mps3"]
