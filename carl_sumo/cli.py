@@ -239,6 +239,10 @@ def _study_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seeds", type=int, default=3, help="number of seeds (0, 1, ...) per rate")
     p.add_argument("--v2v-range", type=float, default=300.0,
                    help="V2V range between consecutive CACC vehicles (m)")
+    p.add_argument("--human-sigma", type=float, default=0.0, metavar="SIGMA",
+                   help="human driver imperfection from 0 to 1: SUMO's sigma for the Krauss "
+                        "humans and a desired-speed spread (speedDev = 0.2·SIGMA) for all "
+                        "humans (default 0: deterministic humans)")
     p.add_argument("--demand-scale", type=float, default=1.0,
                    help="multiplies the default demand (2000 veh/h/lane, on-ramp 500 veh/h)")
     p.add_argument("--krauss-share", type=float, default=0.5,
@@ -275,6 +279,9 @@ def cmd_study(args: argparse.Namespace) -> None:
     from carl_sumo.traffic import DEFAULT_DEMAND
 
     rates = _rates(args.penetration)
+    if not (math.isfinite(args.human_sigma) and 0 <= args.human_sigma <= 1):
+        raise InputError(f"--human-sigma is SUMO's driver imperfection from 0 to 1, got "
+                         f"{args.human_sigma}")
     for name, value in (("--duration", args.duration), ("--v2v-range", args.v2v_range),
                         ("--demand-scale", args.demand_scale)):
         if not (math.isfinite(value) and value > 0):
@@ -292,7 +299,8 @@ def cmd_study(args: argparse.Namespace) -> None:
                       seeds=tuple(range(args.seeds)), duration_s=args.duration,
                       warmup_s=args.warmup, v2v_range_m=args.v2v_range,
                       detector_pos_m=args.detector_pos, heatmap_lane=args.heatmap_lane,
-                      net=str(args.net), demand=demand, fcd=args.fcd, workers=args.workers)
+                      net=str(args.net), demand=demand, fcd=args.fcd, workers=args.workers,
+                      human_sigma=args.human_sigma)
     resolve_study_controller(cfg.controller)
     _check_detector(cfg)
     start = time.perf_counter()

@@ -61,8 +61,8 @@ from carl_sumo.files import write_text_atomic
 from carl_sumo.study_chains import cacc_observations, form_chains, merging_lanes, zipper_ahead
 from carl_sumo.study_results import RunResult, markdown_table, run_name, summarise, write_csv
 from carl_sumo.sumo import DEFAULT_NET, VTYPES_FILE, close_sumo, lane_route, start_sumo
-from carl_sumo.traffic import (CACC_TYPES, DEFAULT_DEMAND, MAIN_EDGE, Demand, write_detectors,
-                               write_routes)
+from carl_sumo.traffic import (CACC_TYPES, DEFAULT_DEMAND, HUMAN_TYPES, MAIN_EDGE, Demand,
+                               write_detectors, write_routes)
 
 SENSOR_RANGE_M = 300.0
 """Range within which a CACC vehicle sees the vehicle ahead (radar), m; at least the V2V range."""
@@ -112,6 +112,7 @@ class StudyConfig:
     demand: Demand = DEFAULT_DEMAND
     fcd: bool = False                  # FCD output of the first seed of each rate
     workers: int = 2
+    human_sigma: float = 0.0           # human driver imperfection (see set_human_variability)
 
 
 class ChainController:
@@ -219,6 +220,24 @@ def _sumo_study_args(cfg: StudyConfig, routes: Path, additional: Path,
     return args
 
 
+HUMAN_SPEED_DEV_PER_SIGMA = 0.2
+"""speedDev of the human types per unit of ``--human-sigma``: SUMO's own defaults pair sigma 0.5
+with speedDev 0.1."""
+
+
+def set_human_variability(ls, sigma: float) -> None:
+    """Make the human drivers of the running simulation non-deterministic (``--human-sigma``):
+    SUMO's driver imperfection ``sigma`` (the Krauss humans' random dawdling; SUMO's IDM does not
+    use it) and a spread of desired speeds, speedDev = :data:`HUMAN_SPEED_DEV_PER_SIGMA`·sigma,
+    for both human types. Their draws come from SUMO's ``--seed`` (the run's seed). 0 changes
+    nothing: the humans of ``routes/vtypes.add.xml`` are deterministic."""
+    if sigma <= 0:
+        return
+    for vtype in HUMAN_TYPES:
+        ls.vehicletype.setImperfection(vtype, sigma)
+        ls.vehicletype.setSpeedDeviation(vtype, HUMAN_SPEED_DEV_PER_SIGMA * sigma)
+
+
 def run_one(cfg: StudyConfig, penetration: float, seed: int, out_dir: Path) -> RunResult:
     """Simulate one (p, seed) run in this process and score it; its SUMO files go to out_dir."""
     import libsumo as ls
@@ -240,6 +259,7 @@ def run_one(cfg: StudyConfig, penetration: float, seed: int, out_dir: Path) -> R
         start_sumo(_sumo_study_args(cfg, routes.path, work / "outputs.add.xml", fcd, seed))
         if kind == "external":
             ls.vehicletype.setTau(CACC_TYPES["external"], insertion_tau_s())
+        set_human_variability(ls, cfg.human_sigma)
         try:
             acc, heat, timing = _simulate(ls, cfg, kind, controller, routes.cacc_ids, lane_chain)
         finally:

@@ -174,6 +174,16 @@ def test_p0_is_exactly_the_human_only_run(tmp_path):
     assert with_policy.metrics["throughput_vph"] > 0 and with_policy.metrics["cacc_share"] == 0
 
 
+def test_human_sigma_makes_humans_random_and_repeatable(tmp_path):
+    cfg = StudyConfig(controller="idm-external", duration_s=30.0, warmup_s=60.0, demand=LOW,
+                      seeds=(1,), detector_pos_m=100.0)
+    plain = run_one(cfg, 0.0, 1, tmp_path / "plain")
+    noisy = run_one(replace(cfg, human_sigma=0.5), 0.0, 1, tmp_path / "noisy")
+    again = run_one(replace(cfg, human_sigma=0.5), 0.0, 1, tmp_path / "again")
+    assert _files(noisy.run_dir) == _files(again.run_dir)  # the run's seed draws them
+    assert _files(noisy.run_dir) != _files(plain.run_dir)
+
+
 def test_chain_controller_batches_chains_like_single_platoons():
     controller = ChainController(str(POLICY))
     rng = np.random.default_rng(0)
@@ -199,6 +209,7 @@ def test_maddpg_policy_is_refused(tmp_path, capsys):
     (["--duration", "0"], "--duration"),
     (["--demand-scale", "5"], "cannot be generated"),
     (["--detector-pos", "9000"], "beyond the end"),
+    (["--human-sigma", "1.5"], "--human-sigma"),
 ])
 def test_study_bad_input_is_one_line_exit_2(tmp_path, capsys, argv, message):
     code = main(["study", *argv, "--out", str(tmp_path / "o")])
