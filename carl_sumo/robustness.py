@@ -164,7 +164,9 @@ def _figures(out: Path, rows: list[dict]) -> list[str]:
                                  and r["burst"] == 1})
                     points = [(x, points[0][1]) for x in xs] if points else []
                 if points:
-                    ax.plot(*zip(*points), marker="o", label=Path(controller).stem)
+                    ax.plot(*zip(*points), marker="o",
+                            label=Path(controller).stem if controller.endswith(".pt")
+                            else controller)
             ax.set_xlabel(label)
             ax.set_ylabel(name)
             ax.grid(alpha=0.3)
