@@ -1,6 +1,6 @@
 # The training recipes of the shipped policies, sourced by the per-model scripts beside it.
 # paper_recipe: the paper's configuration (base IDM), every algorithm alike.
-# product_recipe: CA-TD3 on the tuned Ploeg CACC (h = 0.8 s).
+# product_recipe: CA-TD3 on the tuned Ploeg CACC (h = 0.8 s), with the safety shield below a 4 s TTC.
 # train_seeds STEM SEEDS... RECIPE_ARGS: trains each seed into policies/seeds/STEM_seedK.pt, two at
 # a time (the 2-core machine), then ships the run that validation ranks first (`carl-sumo rank`,
 # the recipe's --select rule: never a test-split number) as policies/STEM.pt with its curve.
@@ -9,7 +9,7 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 DATA=${DATA:-../shared/data/ngsim/ngsim_cf_events.csv.gz}
 COMMON="--net networks/i80.net.xml --data $DATA --split train --eval-every 500 --eval-events 64 --val-seed 0 --val-source zhu2020_pool_transfollower --checkpoint-every 2000"
 PAPER="--adj-max 1 --w-gap 0.3 --w-comfort 300 --smooth-jerk 0.05 --smooth-accel 0.1 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.05 --noise-correlation 0.99 --select margin"
-PRODUCT="--base ploeg-tuned:h=0.8 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
+PRODUCT="--base ploeg-tuned:h=0.8 --shield-ttc 4 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
 
 train_seeds() {  # STEM "SEEDS" TRAIN_ARGS...
   local stem=$1 seeds=$2; shift 2
