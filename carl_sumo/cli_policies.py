@@ -248,7 +248,7 @@ def _rank_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_rank(args: argparse.Namespace) -> None:
-    from carl_sumo.train import rank_runs
+    from carl_sumo.selection import rank_runs
 
     rows = rank_runs(args.paths, args.select)
     if args.best_only:

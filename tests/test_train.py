@@ -19,8 +19,8 @@ from carl_sumo.policy import load_policy
 from carl_sumo.agents import Agent, AgentConfig, idm_acceleration_torch
 from carl_sumo.controllers import idm_acceleration
 from carl_sumo.policy import save_policy
-from carl_sumo.train import (TrainConfig, export_policy, held_out_split, improvement_z,
-                             rank_runs, seed_everything, selection_score, train, validate)
+from carl_sumo.selection import improvement_z, rank_runs, selection_score, validate
+from carl_sumo.train import TrainConfig, export_policy, held_out_split, seed_everything, train
 
 from conftest import NET, REPO_ROOT, event_table
 
