@@ -43,7 +43,12 @@ def _run_pool(fn: Callable[..., Any], items: Sequence[tuple], indices: Sequence[
     futures = {executor.submit(fn, *items[i]): i for i in indices}
     try:
         while futures:
-            finished, _ = wait(futures, return_when=FIRST_COMPLETED)
+            finished, _ = wait(futures, timeout=WATCHDOG_S, return_when=FIRST_COMPLETED)
+            if not finished and _has_dead_worker(executor):
+                # a worker died and the pool has not said so (seen when one is killed while it
+                # starts, on a loaded machine): its tasks count as lost, as with a broken pool
+                lost.extend(futures.values())
+                futures.clear()
             for future in finished:
                 i = futures.pop(future)
                 try:
@@ -53,7 +58,22 @@ def _run_pool(fn: Callable[..., Any], items: Sequence[tuple], indices: Sequence[
                     continue
                 yield i, result
     finally:
+        processes = list((getattr(executor, "_processes", None) or {}).values())
         executor.shutdown(wait=not lost, cancel_futures=True)
+        if lost:  # a broken pool: no worker of it may outlive it (or block the exit)
+            for process in processes:
+                if process.is_alive():
+                    process.terminate()
+
+
+WATCHDOG_S = 10.0
+"""How often (s) a pool with nothing finished checks its worker processes itself."""
+
+
+def _has_dead_worker(executor: ProcessPoolExecutor) -> bool:
+    """Whether a worker process of the pool has exited (an idle worker never does)."""
+    processes = getattr(executor, "_processes", None) or {}
+    return any(p.exitcode is not None for p in list(processes.values()))
 
 
 def run_parallel(fn: Callable[..., Any], items: Sequence[tuple], workers: int,
