@@ -59,11 +59,27 @@ def _run_pool(fn: Callable[..., Any], items: Sequence[tuple], indices: Sequence[
                 yield i, result
     finally:
         processes = list((getattr(executor, "_processes", None) or {}).values())
+        call_queue = getattr(executor, "_call_queue", None)  # shutdown forgets it
         executor.shutdown(wait=not lost, cancel_futures=True)
         if lost:  # a broken pool: no worker of it may outlive it (or block the exit)
             for process in processes:
                 if process.is_alive():
                     process.terminate()
+            _unblock_feeder(call_queue)
+
+
+def _unblock_feeder(call_queue) -> None:
+    """Let a broken pool's queue feeder thread finish. When a worker dies while that thread is
+    writing a task into the pipe to the workers, the write blocks for ever (this process holds the
+    pipe's read end too), and the pool's manager thread, which joins the feeder, blocks the
+    interpreter's exit (CPython 3.11; seen with ``simulate``'s large event chunks). Closing this
+    process's read end makes the write fail, and the feeder hands that error to the lost task."""
+    reader = getattr(call_queue, "_reader", None)
+    if reader is not None:
+        try:
+            reader.close()
+        except OSError:
+            pass
 
 
 WATCHDOG_S = 10.0
