@@ -74,6 +74,11 @@ def _unblock_feeder(call_queue) -> None:
     pipe's read end too), and the pool's manager thread, which joins the feeder, blocks the
     interpreter's exit (CPython 3.11; seen with ``simulate``'s large event chunks). Closing this
     process's read end makes the write fail, and the feeder hands that error to the lost task."""
+    feeder = getattr(call_queue, "_thread", None)
+    if feeder is not None:
+        feeder.join(timeout=1.0)
+        if not feeder.is_alive():  # it finished by itself: nothing to unblock
+            return
     reader = getattr(call_queue, "_reader", None)
     if reader is not None:
         try:
