@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 import torch
@@ -26,6 +27,10 @@ from carl_sumo.ca_scan import ca_forward
 from carl_sumo.config import BOUNDS, DT_S, IDM
 from carl_sumo.errors import InputError
 from carl_sumo.models import CentralCritic, CommunicationAware, PerAgentActors, PerVehicle
+
+Links = tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]
+"""How a CA actor's incoming messages arrived: forward modes, held, backward modes, held
+(:meth:`carl_sumo.models.CommunicationAware.forward_over`)."""
 
 ALGOS = ("ca-td3", "ca-ddpg", "td3", "ddpg", "maddpg")
 
@@ -186,9 +191,11 @@ class Agent(nn.Module):
         return self._act_normalised(actor, normalise(obs), mask, with_preactivation)
 
     def _act_normalised(self, actor: nn.Module, x: torch.Tensor, mask: torch.Tensor | None,
-                        with_preactivation: bool = False):
-        """a_adj (m/s², (batch, n)) from normalised observations x (batch, n, 4)."""
-        pre = actor(x, mask).squeeze(-1)
+                        with_preactivation: bool = False, links: Links | None = None):
+        """a_adj (m/s², (batch, n)) from normalised observations x (batch, n, 4); ``links``: how
+        a CA actor's messages arrived (:meth:`carl_sumo.models.CommunicationAware.forward_over`;
+        None: all at once, unimpaired)."""
+        pre = (actor(x, mask) if links is None else actor.forward_over(x, links)[0]).squeeze(-1)
         action = self.cfg.adj_max * torch.tanh(pre)
         return (action, pre) if with_preactivation else action
 
@@ -219,6 +226,21 @@ class Agent(nn.Module):
                              self.cfg.adj_max)
         return action[0] if single else action
 
+    @torch.no_grad()
+    def act_over(self, obs: np.ndarray, links: Sequence[np.ndarray], noise: np.ndarray | None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A CA actor's a_adj (m/s², (b, n)) for a batch of platoon observations (b, n, d) whose
+        incoming messages arrive as ``links`` say ((b, n) modes and (b, n, M) held messages,
+        forward then backward; :class:`carl_sumo.channel.PlatoonLinks`), plus ``noise``; and the
+        forward and backward messages (b, n, M) the vehicles send."""
+        x = normalise(torch.as_tensor(obs, dtype=torch.float32))
+        pre, sent_f, sent_b = self.actor.forward_over(x, links_tensors(links))
+        action = (self.cfg.adj_max * torch.tanh(pre.squeeze(-1))).numpy().astype(np.float64)
+        if noise is not None:
+            action = np.clip(action + noise.reshape(action.shape), -self.cfg.adj_max,
+                             self.cfg.adj_max)
+        return action, sent_f.numpy().astype(np.float64), sent_b.numpy().astype(np.float64)
+
     # ---------------------------------------------------------------------------- learning
     def imitate(self, obs: torch.Tensor, target: torch.Tensor, updates: int, lr: float,
                 batch_size: int, rng: np.random.Generator) -> float:
@@ -245,16 +267,20 @@ class Agent(nn.Module):
 
     def update(self, batch: dict[str, torch.Tensor], train_actor: bool = True
                ) -> dict[str, float]:
-        """One gradient step on a replay batch: obs, action, reward, next_obs, done, mask
-        (``train_actor=False``: the critics only, as in a critic burn-in)."""
+        """One gradient step on a replay batch: obs, action, reward, next_obs, done, mask, and
+        with ``links`` / ``next_links`` how the actor's messages arrived at o and o' (randomised
+        impairments: the actor acts on those; the critics, a training device that sends nothing
+        at run time, see their own messages unimpaired). ``train_actor=False``: the critics only,
+        as in a critic burn-in."""
         cfg = self.cfg
+        links, next_links = batch.get("links"), batch.get("next_links")
         obs, action, reward = batch["obs"], batch["action"], batch["reward"]
         next_obs, done, mask = batch["next_obs"], batch["done"], batch["mask"]
         maskf = mask.float()
         x, next_x = normalise(obs), normalise(next_obs)
         critics = [self.critic1, self.critic2] if cfg.twin else [self.critic1]
         with torch.no_grad():
-            next_action = self._act_normalised(self.actor_target, next_x, mask)
+            next_action = self._act_normalised(self.actor_target, next_x, mask, links=next_links)
             if cfg.twin:
                 noise = (torch.randn_like(next_action) * cfg.target_noise * cfg.adj_max).clamp(
                     -cfg.target_noise_clip * cfg.adj_max, cfg.target_noise_clip * cfg.adj_max)
@@ -275,35 +301,38 @@ class Agent(nn.Module):
         self.updates += 1
         if train_actor and (not cfg.twin or self.updates % cfg.policy_delay == 0):
             stats["actor_loss"] = self._update_actor(x, next_x, obs, next_obs, mask, maskf,
-                                                     action)
+                                                     action, links, next_links)
             self._soft_update()
         return stats
 
     def _update_actor(self, x: torch.Tensor, next_x: torch.Tensor, obs: torch.Tensor,
                       next_obs: torch.Tensor, mask: torch.Tensor, maskf: torch.Tensor,
-                      stored_action: torch.Tensor) -> float:
+                      stored_action: torch.Tensor, links: Links | None = None,
+                      next_links: Links | None = None) -> float:
         """One actor step on -Q1 (+ penalties); the critic's weights get no gradient."""
         cfg = self.cfg
         if cfg.residual and (cfg.smooth_jerk > 0 or cfg.smooth_accel > 0):
-            action_now, pre = self._act_normalised(self.actor, x, mask, True)
+            action_now, pre = self._act_normalised(self.actor, x, mask, True, links)
             q = self._q([self.critic1], x, action_now, mask, detach_params=True)[0]
             per_vehicle = cfg.preactivation_l2 * pre ** 2 - q + self._residual_smoothness(
                 obs, next_obs, stored_action, action_now)
             return self._actor_step(per_vehicle, maskf)
         jerk = cfg.smooth_jerk > 0
         if jerk:  # the actor on o and o' in one pass (rows are independent)
+            both_links = None if links is None else \
+                tuple(torch.cat(pair) for pair in zip(links, next_links))
             both, pre_both = self._act_normalised(self.actor, torch.cat([x, next_x]),
-                                                  torch.cat([mask, mask]), True)
+                                                  torch.cat([mask, mask]), True, both_links)
             action_now, action_next = both.chunk(2)
             pre = pre_both.chunk(2)[0]
         else:
-            action_now, pre = self._act_normalised(self.actor, x, mask, True)
+            action_now, pre = self._act_normalised(self.actor, x, mask, True, links)
             action_next = None
         q = self._q([self.critic1], x, action_now, mask, detach_params=True)[0]
         per_vehicle = cfg.preactivation_l2 * pre ** 2 - q
         if jerk or cfg.smooth_accel > 0:
             per_vehicle = per_vehicle + self._smoothness(obs, next_obs, action_now, mask,
-                                                          action_next)
+                                                          action_next, next_links)
         return self._actor_step(per_vehicle, maskf)
 
     def _actor_step(self, per_vehicle: torch.Tensor, maskf: torch.Tensor) -> float:
@@ -316,8 +345,8 @@ class Agent(nn.Module):
         return float(actor_loss.detach())
 
     def _smoothness(self, obs: torch.Tensor, next_obs: torch.Tensor, action_now: torch.Tensor,
-                    mask: torch.Tensor | None,
-                    action_next: torch.Tensor | None = None) -> torch.Tensor:
+                    mask: torch.Tensor | None, action_next: torch.Tensor | None = None,
+                    next_links: Links | None = None) -> torch.Tensor:
         """Per-vehicle smoothness penalty of the total acceleration a = a_IDM + a_adj (unclipped):
         ``smooth_jerk``·((a(o') - a(o))/dt)² + ``smooth_accel``·a(o)², o → o' a stored transition.
         It regularises the actor directly, as CAPS (Mysore et al. 2021) does, instead of waiting for
@@ -327,7 +356,8 @@ class Agent(nn.Module):
         penalty = self.cfg.smooth_accel * acc_now ** 2
         if self.cfg.smooth_jerk > 0:
             if action_next is None:
-                action_next = self._act(self.actor, next_obs, mask)
+                action_next = self._act_normalised(self.actor, normalise(next_obs), mask,
+                                                   links=next_links)
             acc_next = self.total_acceleration(next_obs, action_next)
             penalty = penalty + self.cfg.smooth_jerk * ((acc_next - acc_now) / DT_S) ** 2
         return penalty
@@ -378,6 +408,13 @@ class ColoredNoise:
     def reset(self, index: np.ndarray) -> None:
         """Draw fresh noise for the environments whose episode ended (boolean mask)."""
         self.value[index] = self.rng.normal(0.0, self.std, self.value[index].shape)
+
+
+def links_tensors(links: Sequence[np.ndarray]) -> Links:
+    """Link arrays (modes, held, modes, held) as the tensors ``forward_over`` takes."""
+    f_mode, f_held, b_mode, b_held = links
+    return (torch.as_tensor(f_mode, dtype=torch.long), torch.as_tensor(f_held, dtype=torch.float32),
+            torch.as_tensor(b_mode, dtype=torch.long), torch.as_tensor(b_held, dtype=torch.float32))
 
 
 def _masked_mse(q: torch.Tensor, y: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

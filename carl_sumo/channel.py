@@ -25,6 +25,13 @@ anew every step; the metrics stay on the true state.
 
 All draws come from ``seed`` and the event's ID, so the same seed gives the same losses and noise
 on an event whichever worker runs it.
+
+**Randomised training** (``train --comm-randomize``, :func:`random_impairments`): every training
+episode draws its own impairments: with probability :data:`PERFECT_SHARE` a perfect channel and
+clean sensors; otherwise a delay of 0, 0.1, ..., 0.5 s (uniform), a loss probability uniform on
+[0, 1], bursts (L uniform on [1, 5] steps) in half of the episodes, the default 1 s timeout, and
+sensor noise in half of the episodes. The policy acts on what it receives (:class:`PlatoonLinks`),
+and its replay buffer keeps how each message arrived, so the actor learns on those inputs.
 """
 
 from __future__ import annotations
@@ -165,6 +172,51 @@ class Channel:
             self.sent_at[arrived] = k
         else:
             self.in_flight.append((k, np.array(messages, dtype=np.float64), self._lost.copy()))
+
+
+PERFECT_SHARE = 0.25
+"""Share of randomised training episodes with a perfect channel and clean sensors."""
+
+MAX_RANDOM_DELAY_STEPS = 5
+"""Randomised training delays: 0 to this many 0.1 s steps (0.5 s, the suite's largest)."""
+
+
+def random_impairments(rng: np.random.Generator) -> Impairments:
+    """One training episode's impairments, drawn as the module docstring says."""
+    seed = int(rng.integers(2 ** 31))
+    if rng.random() < PERFECT_SHARE:
+        return Impairments(seed=seed)
+    delay_s = round(int(rng.integers(MAX_RANDOM_DELAY_STEPS + 1)) * DT_S, 10)
+    loss = float(rng.random())
+    burst = float(rng.uniform(1.0, 5.0)) if rng.random() < 0.5 else 1.0
+    return Impairments(delay_s=delay_s, loss=loss, burst=burst, sensor_noise=bool(rng.random() < 0.5),
+                       seed=seed)
+
+
+class PlatoonLinks:
+    """The CA messages of one platoon of ``n`` followers over impaired links: forward (i+1 → i,
+    link stream 2 of the event) and backward (i-1 → i, stream 3). Per step: :meth:`receive`, the
+    actor computes, :meth:`send` with the messages it computed."""
+
+    def __init__(self, n: int, dim: int, impairments: Impairments, event_id: str):
+        self.n = n
+        self.forward = Channel(n, dim, impairments, impairments.rng(event_id, 2))
+        self.backward = Channel(n, dim, impairments, impairments.rng(event_id, 3))
+        self.k = 0
+
+    def receive(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(forward modes (n,), forward held (n, dim), backward modes, backward held) of this
+        step (LIVE/HELD/FALLBACK; a preview until :meth:`send`)."""
+        f_mode, f_held = self.forward.receive(self.k)
+        b_mode, b_held = self.backward.receive(self.k)
+        return f_mode, f_held, b_mode, b_held
+
+    def send(self, forward_messages: np.ndarray, backward_messages: np.ndarray) -> None:
+        """Every follower's forward and backward message (n, dim) of this step; the step ends."""
+        zero = np.zeros((1, forward_messages.shape[1]))
+        self.forward.send(self.k, np.vstack([forward_messages[1:], zero]))  # to i from i+1
+        self.backward.send(self.k, np.vstack([zero, backward_messages[:self.n - 1]]))
+        self.k += 1
 
 
 class Sensors:

@@ -56,6 +56,11 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
                         "seconds gets no positive adjustment (the learned term may only brake "
                         "more there); part of the policy, in training and wherever it runs "
                         "(default 0: off)")
+    p.add_argument("--comm-randomize", action="store_true", default=None,
+                   help="robust training: every episode draws its own V2V delay (0-0.5 s), loss "
+                        "(0-100 %%, in bursts half the time) and sensor noise (half the time), "
+                        "a quarter of them perfect; the actor learns on the messages as they "
+                        "arrive (see docs/robustness.md)")
     p.add_argument("--imitate", default=None, metavar="PLOEG",
                    help="warm start (IDM base only): the platoons drive with this Ploeg CACC plus "
                         "exploration noise for --learning-starts steps, then the actor is fitted "
@@ -102,7 +107,7 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_sc
                    "smooth_accel", "eval_events", "val_seed", "val_source", "gamma",
                    "adj_max", "base", "critic_burn_in", "braking_events", "update_every",
                    "batch_size", "imitate", "imitate_updates", "observe_ahead",
-                   "shield_ttc")
+                   "shield_ttc", "comm_randomize")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 

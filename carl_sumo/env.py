@@ -21,6 +21,7 @@ from pettingzoo import ParallelEnv
 from carl_sumo.config import BOUNDS, IDM, REWARD, SCENARIO, ControlBounds, IDMParams, \
     RewardConfig, ScenarioConfig
 from carl_sumo import controllers, reward as reward_module
+from carl_sumo.channel import Impairments, Sensors
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
 from carl_sumo.sumo import DEFAULT_NET, PlatoonSim, check_fits
@@ -64,6 +65,7 @@ class PlatoonEnv(ParallelEnv):
         obs_dim = 4 if self._base is None and self._ahead is None else 5
         self._observation_space = spaces.Box(-np.inf, np.inf, shape=(obs_dim,), dtype=np.float32)
         self._rng = np.random.default_rng()
+        self._sensors: Sensors | None = None
         self.event: Event | None = None
 
     def observation_space(self, agent: str) -> spaces.Box:
@@ -73,15 +75,25 @@ class PlatoonEnv(ParallelEnv):
         return self._action_space
 
     # -------------------------------------------------------------------------------- arrays
-    def reset_array(self, seed: int | None = None, event: Event | None = None) -> np.ndarray:
-        """Start an episode on ``event`` (default: a random one); observations (n, 4)."""
+    def reset_array(self, seed: int | None = None, event: Event | None = None,
+                    impairments: Impairments | None = None) -> np.ndarray:
+        """Start an episode on ``event`` (default: a random one); observations (n, 4).
+        ``impairments`` (:mod:`carl_sumo.channel`): this episode's vehicles measure their gap and
+        relative speed with noise (control, observations and shield use the measured values,
+        the reward the true ones), and a classical base's predecessor messages cross impaired
+        links; the CA module's own messages are the caller's (``channel.PlatoonLinks``)."""
         if seed is not None:
             self._rng = np.random.default_rng(seed)
         self.event = event if event is not None else \
             self.events[int(self._rng.integers(len(self.events)))]
         self.sim.reset(self.event, self.n_followers)
+        self._sensors = None
+        if impairments is not None and impairments.sensor_noise:
+            self._sensors = Sensors(impairments.rng(self.event.event_id, 0))
         if self._base is not None:
             self._base.reset(self.n_followers)
+            if impairments is not None and not impairments.perfect_channel:
+                self._base.connect(impairments, self.event.event_id)
         if self._ahead is not None:
             self._ahead.reset()
         self._obs = self._observe()
@@ -92,7 +104,9 @@ class PlatoonEnv(ParallelEnv):
         """o = [v, a, d, Δv] per follower; on a classical base also a_base (m/s²), what the
         base alone would apply at the coming step (a preview: its state moves in the step); with
         observe_ahead also a_ahead (m/s², :class:`carl_sumo.controllers.AheadAcceleration`)."""
-        obs = self.sim.observation()
+        obs = self._true = self.sim.observation()
+        if self._sensors is not None:
+            obs = self._sensors.measure(obs)
         if self._ahead is not None:
             return np.column_stack([obs, self._ahead(obs)])
         if self._base is None:
@@ -116,7 +130,7 @@ class PlatoonEnv(ParallelEnv):
         self._first_step = False
         self.sim.step(accel)
         self._obs = self._observe()
-        rewards, collided = self._reward(self._obs, prev_acc, *self._reward_params)
+        rewards, collided = self._reward(self._true, prev_acc, *self._reward_params)
         terminated = bool(collided.any())
         return self._obs, rewards, terminated, self.sim.done and not terminated, accel
 

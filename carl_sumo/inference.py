@@ -18,7 +18,7 @@ from numba import njit
 from torch import nn
 
 from carl_sumo.agents import BASE_SCALE, GAP_CLIP_M, OBS_SCALE, Agent
-from carl_sumo.channel import Channel
+from carl_sumo.channel import PlatoonLinks
 from carl_sumo.models import CommunicationAware, PerAgentActors, PerVehicle
 
 _OBS_SCALE = np.array(OBS_SCALE, dtype=np.float64)
@@ -184,19 +184,15 @@ class CompiledActor:
         """Width of a V2V message (0: an actor without communication)."""
         return int(self._weights[0].shape[0]) if self._act is _communication_aware_act else 0
 
-    def act_over(self, obs: np.ndarray, forward: Channel, backward: Channel, k: int
-                 ) -> np.ndarray:
-        """a_adj (m/s², shape (n,)) of a CA actor at step k when its messages cross the links
-        ``forward`` (i+1 → i) and ``backward`` (i-1 → i); sends this step's messages."""
+    def act_over(self, obs: np.ndarray, links: PlatoonLinks) -> np.ndarray:
+        """a_adj (m/s², shape (n,)) of a CA actor when its messages cross impaired ``links``
+        (:class:`carl_sumo.channel.PlatoonLinks`); sends this step's messages."""
         obs = np.ascontiguousarray(obs, dtype=np.float64)
-        f_mode, f_held = forward.receive(k)
-        b_mode, b_held = backward.receive(k)
+        f_mode, f_held, b_mode, b_held = links.receive()
         action, f_out, b_out = _communication_aware_act_channel(
             obs, self.adj_max, f_mode.astype(np.int64), f_held, b_mode.astype(np.int64), b_held,
             *self._weights)
-        n = len(obs)
-        forward.send(k, np.vstack([f_out[1:], np.zeros((1, f_out.shape[1]))]))  # to i from i+1
-        backward.send(k, np.vstack([np.zeros((1, b_out.shape[1])), b_out[:n - 1]]))
+        links.send(f_out, b_out)
         return action
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:

@@ -17,6 +17,8 @@ few batched tensor ops per vehicle and a hand-written backward pass.
 
 from __future__ import annotations
 
+from typing import Sequence
+
 import torch
 from torch import nn
 
@@ -49,6 +51,41 @@ class CommunicationAware(nn.Module):
         """Outputs (batch, n, out) for inputs x (batch, n, in) and a mask (batch, n) of real
         vehicles (padding at the tail)."""
         return ca_forward([self], x, mask)[0]
+
+    def forward_over(self, x: torch.Tensor, links: Sequence[torch.Tensor]
+                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Outputs (batch, n, out) when each message crosses an impaired link, and the forward
+        and backward messages (batch, n, M) the vehicles send. ``links`` = (forward modes,
+        forward held, backward modes, backward held): modes (batch, n) of vehicle i's incoming
+        message (LIVE = 0: this step's, HELD = 1: ``held[:, i]`` (batch, n, M), FALLBACK = 2:
+        the boundary message, as at a chain end), as :mod:`carl_sumo.channel` delivers them. A
+        per-vehicle loop under autograd (no padding): all modes LIVE give :meth:`forward`."""
+        f_mode, f_held, b_mode, b_held = links
+        batch, n, _ = x.shape
+        m = self.message_dim
+
+        def incoming(i: int, mode: torch.Tensor, live: torch.Tensor | None, held: torch.Tensor,
+                     boundary: torch.Tensor) -> torch.Tensor:
+            if live is None:  # a chain end
+                return boundary
+            pick = mode[:, i:i + 1]
+            return torch.where(pick == 0, live, torch.where(pick == 1, held[:, i], boundary))
+
+        forward_boundary = self.forward_boundary.expand(batch, m)
+        sent_f: list[torch.Tensor | None] = [None] * n
+        for i in range(n - 1, -1, -1):  # tail -> head
+            inc = incoming(i, f_mode, sent_f[i + 1] if i + 1 < n else None, f_held,
+                           forward_boundary)
+            sent_f[i] = self.forward_net(torch.cat([x[:, i], inc], -1))
+        backward_boundary = self.backward_boundary.expand(batch, m)
+        sent_b: list[torch.Tensor] = []
+        outputs = []
+        for i in range(n):  # head -> tail
+            inc = incoming(i, b_mode, sent_b[i - 1] if i else None, b_held, backward_boundary)
+            out = self.backward_net(torch.cat([sent_f[i], inc], -1))
+            sent_b.append(torch.tanh(out[:, :m]))
+            outputs.append(out[:, m:])
+        return torch.stack(outputs, 1), torch.stack(sent_f, 1), torch.stack(sent_b, 1)
 
 
 class PerVehicle(nn.Module):

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from carl_sumo.agents import AgentConfig, Agent
-from carl_sumo.channel import Channel, Impairments
+from carl_sumo.channel import Impairments, PlatoonLinks
 from carl_sumo.controllers import AheadAcceleration, adjustment_bounds, base_controller, \
     shield_adjustment
 from carl_sumo.errors import InputError
@@ -104,15 +104,15 @@ class PolicyController:
         self._actor = CompiledActor(agent)
         self._ahead = AheadAcceleration() if agent.cfg.observe_ahead else None
         self.bounds = adjustment_bounds(agent.cfg.adj_max)
-        self._links: tuple[Channel, Channel] | None = None
-        self._n, self._k = agent.cfg.n_vehicles, 0
+        self._links: PlatoonLinks | None = None
+        self._n = agent.cfg.n_vehicles
 
     def reset(self, n_followers: int) -> None:
         self.agent.check_length(n_followers)
         if self._ahead is not None:
             self._ahead.reset()
-        self._links: tuple[Channel, Channel] | None = None
-        self._n, self._k = n_followers, 0
+        self._links = None
+        self._n = n_followers
 
     def connect(self, impairments: Impairments, event_id: str) -> None:
         """Carry this episode's CA messages over impaired links (:mod:`carl_sumo.channel`:
@@ -120,9 +120,7 @@ class PolicyController:
         (DDPG, TD3, MADDPG) has nothing to send. Call after :meth:`reset`."""
         m = self._actor.message_dim
         if m:
-            self._links = (Channel(self._n, m, impairments, impairments.rng(event_id, 2)),
-                           Channel(self._n, m, impairments, impairments.rng(event_id, 3)))
-            self._k = 0
+            self._links = PlatoonLinks(self._n, m, impairments, event_id)
 
     def adjustment(self, obs: np.ndarray) -> np.ndarray:
         """a_adj (m/s², shape (n,)) for one platoon observation (n, 4) of a step; a policy that
@@ -133,8 +131,7 @@ class PolicyController:
         if self._links is None:
             action = self._actor(obs)
         else:
-            action = self._actor.act_over(obs, *self._links, self._k)
-            self._k += 1
+            action = self._actor.act_over(obs, self._links)
         return shield_adjustment(obs, action, self.agent.cfg.shield_ttc_s)
 
 

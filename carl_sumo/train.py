@@ -33,6 +33,7 @@ from carl_sumo.metrics import aggregate
 from carl_sumo.policy import load_torch, save_policy, save_torch_atomic
 from carl_sumo.selection import (MARGIN_KEYS, BaseOnly, improvement_z, selection_score,
                                  validate_events)
+from carl_sumo.randomize import RandomisedChannels
 from carl_sumo.replay import ReplayBuffer
 from carl_sumo.files import write_text_atomic
 from carl_sumo.sumo import DEFAULT_NET, check_fits
@@ -85,6 +86,7 @@ class TrainConfig:
     base: str = AgentConfig.base          # base model under a_adj: idm or a classical CACC name
     observe_ahead: bool = False    # o has a fifth column a_ahead (controllers.AheadAcceleration)
     shield_ttc: float = 0.0        # safety shield of the policy (s; controllers.shield_adjustment)
+    comm_randomize: bool = False   # every episode its own V2V delay/loss and sensor noise (randomize.py)
     imitate: str | None = None     # a Ploeg CACC the actor copies first (carl_sumo.imitation)
     imitate_updates: int = 4_000   # behaviour-cloning gradient steps at learning_starts
     imitate_lr: float = 1e-3       # their Adam learning rate
@@ -169,7 +171,7 @@ def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: flo
             "observation": "[v m/s, a m/s^2, d m, dv m/s" + (
                 ", a_base m/s^2]" if agent.cfg.residual else
                 ", a_ahead m/s^2]" if agent.cfg.observe_ahead else "]"),
-            "reward": asdict(cfg.reward),
+            "reward": asdict(cfg.reward), "comm_randomize": cfg.comm_randomize,
             "validation": {k: float(v) for k, v in val.items()},
             "validation_base": {k: float(v) for k, v in (baseline or {}).items()},
             "validation_events": [e.event_id for e in val_events],
@@ -206,7 +208,11 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                               gamma=cfg.gamma, adj_max=cfg.adj_max, base=cfg.base,
                               batch_size=cfg.batch_size, observe_ahead=cfg.observe_ahead,
                               shield_ttc_s=cfg.shield_ttc))
-    buffer = ReplayBuffer(cfg.buffer_size, n, agent.cfg.obs_dim)
+    channels = RandomisedChannels(cfg.num_envs, n, cfg.message_dim if
+                                  agent.cfg.communication_aware else 0, cfg.seed) \
+        if cfg.comm_randomize else None
+    buffer = ReplayBuffer(cfg.buffer_size, n, agent.cfg.obs_dim,
+                          channels.message_dim if channels is not None else 0)
     rng = np.random.default_rng(cfg.seed)
     start_step, best, wall_before = 0, -np.inf, 0.0
     if resume is not None:
@@ -244,7 +250,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
         save_policy(agent, out, _metadata(cfg, agent, start, 0.0, baseline, val_events))
     vec = VecPlatoon(train_events, n, cfg.net, cfg.num_envs, cfg.seed + start_step, cfg.reward,
                      cfg.base, cfg.observe_ahead, adjustment_bounds(cfg.adj_max), cfg.shield_ttc)
-    obs = vec.reset(cfg.seed + start_step)
+    obs = vec.reset(cfg.seed + start_step, channels.current if channels is not None else None)
+    links = channels.receive() if channels is not None else None
     new_log = not (resume is not None and log_path.exists())
     if not new_log:
         _upgrade_log(log_path)
@@ -269,17 +276,27 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
             if step == cfg.learning_starts and teacher is not None:
                 best = _clone_teacher(cfg, agent, teacher, buffer, rng, val_env, val_events,
                                       baseline, baseline_events, out, log)
+            if links is not None:  # the CA actor's messages cross impaired links
+                exploring = step >= cfg.learning_starts
+                action, sent_f, sent_b = agent.act_over(obs, links,
+                                                        noise.sample() if exploring else None)
+                channels.send(sent_f, sent_b)
             if step < cfg.learning_starts:  # the base (or the teacher) plus exploration noise
                 action = noise.sample()
                 if teacher is not None:
                     action = action + teacher_adjustment(teacher, obs, agent.cfg.adj_max,
                                                          cfg.observe_ahead)
                 action = np.clip(action, -agent.cfg.adj_max, agent.cfg.adj_max)
-            else:
+            elif links is None:
                 action = agent.act(obs, noise.sample())
-            next_obs, reward, term, trunc, final = vec.step(action)
+            next_obs, reward, term, trunc, final = vec.step(
+                action, channels.upcoming if channels is not None else None)
             noise.reset(term | trunc)
-            buffer.add(obs, action, reward, final, term.astype(np.float32))
+            next_links = channels.receive() if channels is not None else None  # at o' = final
+            buffer.add(obs, action, reward, final, term.astype(np.float32), links, next_links)
+            if channels is not None:
+                channels.episodes_ended(term | trunc)
+                links = channels.receive()
             recent.append(float(reward.mean()))
             obs = next_obs
             if step >= cfg.learning_starts and (step - cfg.learning_starts) % cfg.update_every == 0:

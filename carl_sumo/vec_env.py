@@ -14,6 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
+from carl_sumo.channel import Impairments
 from carl_sumo.config import BOUNDS, REWARD, ControlBounds, RewardConfig
 from carl_sumo.data.events import Event
 from carl_sumo.workers import WorkerError
@@ -31,13 +32,15 @@ def _worker(conn, events: Sequence[Event], n: int, net_path: str, seed: int,
     while True:
         cmd, data = conn.recv()
         if cmd == "step":
-            next_obs, reward, terminated, truncated, _ = env.step_array(data)
+            action, next_impairments = data
+            next_obs, reward, terminated, truncated, _ = env.step_array(action)
             final = next_obs
             if terminated or truncated:
-                next_obs = env.reset_array()
+                next_obs = env.reset_array(impairments=next_impairments)
             conn.send((next_obs, reward, terminated, truncated, final))
         elif cmd == "reset":
-            conn.send(env.reset_array(seed=data))
+            reset_seed, impairments = data
+            conn.send(env.reset_array(seed=reset_seed, impairments=impairments))
         elif cmd == "close":
             conn.close()
             return
@@ -78,14 +81,21 @@ class VecPlatoon:
                               f"{[self._procs[i].exitcode for i in dead]}); the training stops "
                               "here: continue it from its last checkpoint with --resume") from None
 
-    def reset(self, seed: int) -> np.ndarray:
-        return np.stack(self._exchange([("reset", seed * 1000 + i)
+    def reset(self, seed: int, impairments: Sequence[Impairments | None] | None = None
+              ) -> np.ndarray:
+        """Start every env's episode (``impairments``: each one's, see
+        :meth:`carl_sumo.env.PlatoonEnv.reset_array`); observations stacked over envs."""
+        impairments = impairments or [None] * self.num_envs
+        return np.stack(self._exchange([("reset", (seed * 1000 + i, impairments[i]))
                                         for i in range(self.num_envs)]))
 
-    def step(self, actions: np.ndarray):
-        """Step every env; (obs, rewards, terminated, truncated, final_obs) stacked over envs."""
-        results = self._exchange([("step", np.asarray(action, dtype=np.float64))
-                                  for action in actions])
+    def step(self, actions: np.ndarray,
+             next_impairments: Sequence[Impairments | None] | None = None):
+        """Step every env; (obs, rewards, terminated, truncated, final_obs) stacked over envs.
+        An env whose episode ends starts the next one at once, with its ``next_impairments``."""
+        next_impairments = next_impairments or [None] * self.num_envs
+        results = self._exchange([("step", (np.asarray(action, dtype=np.float64), imp))
+                                  for action, imp in zip(actions, next_impairments)])
         obs, reward, term, trunc, final = zip(*results)
         return (np.stack(obs), np.stack(reward), np.array(term), np.array(trunc),
                 np.stack(final))
