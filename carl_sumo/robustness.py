@@ -6,11 +6,14 @@ Every controller runs the NGSIM test split with 10 followers at each impairment 
 0 to 0.5 s without loss, the bursty point (30 % loss in bursts of 3 steps with 0.2 s delay),
 and sensor noise alone and with the bursty point. IDM (computed in carl-sumo, ``idm-external``)
 sends no messages, so it runs only where its sensors change: the perfect setting and the noisy
-ones. Each cell is the shipped file's aggregate over events with a 95 % bootstrap interval over
-events (:func:`carl_sumo.metrics.bootstrap_ci`); draws use impairment seed 0.
+ones. The paper configuration's nominal and robust CA-TD3 (:data:`SEED_POLICIES`) run with their
+training seeds 0-4 (one recipe each): their cells are seed means with a 95 % t interval over
+seeds. Every other cell is one file's aggregate over events with a 95 % bootstrap interval over
+events (:func:`carl_sumo.metrics.bootstrap_ci`). Draws use impairment seed 0.
 
-Writes ``robustness.md``, ``robustness.csv`` and two figures (each metric against loss and
-against delay). ``--quick``: the shipped default leader set, 2 events and four settings.
+Writes ``robustness.md`` (with the targets of the robust policy checked), ``robustness.csv``,
+``robustness_seeds.csv`` (every seed's run) and two figures (each metric against loss and against
+delay). ``--quick``: the shipped default leader set, 2 events, four settings and 2 seeds.
 """
 
 from __future__ import annotations
@@ -21,20 +24,30 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from carl_sumo.channel import Impairments
 from carl_sumo.data import load_events
 from carl_sumo.errors import InputError
 from carl_sumo.files import write_text_atomic
-from carl_sumo.metrics import bootstrap_ci
-from carl_sumo.simulate import simulate
+from carl_sumo.metrics import aggregate, bootstrap_ci
+from carl_sumo.simulate import score_events, check_impairable
+from carl_sumo.workers import run_parallel
 from carl_sumo.suite import DEFAULT_NGSIM
 
 LOSSES = (0.0, 0.1, 0.3, 0.5, 0.8, 1.0)
 DELAYS_S = (0.0, 0.1, 0.2, 0.5)
 CONTROLLERS = ("idm-external", "ploeg", "ploeg-tuned:h=0.8", "policies/ca_td3_10.pt",
-               "policies/ca_td3_ploeg_10.pt")
+               "policies/ca_td3_10_robust.pt", "policies/ca_td3_ploeg_10.pt")
 """IDM, the textbook Ploeg CACC, the tuned one the product runs on, the paper configuration's
-CA-TD3 and the product configuration's CA-TD3 (trained with a perfect channel)."""
+CA-TD3 trained with a perfect channel and with randomised impairments (``--comm-randomize``),
+and the product configuration's CA-TD3 (perfect channel)."""
+SEED_POLICIES = ("ca_td3_10", "ca_td3_10_robust")
+"""Policy stems whose seed files run (seeds 0-4; --quick: 0-1)."""
+SEEDS = 5
+T_975 = (float("nan"), 12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228)
+"""Student's t quantile 0.975 by degrees of freedom (0-10): the 95 % interval over seeds."""
+BURSTY = "loss 0.3 in bursts of 3, delay 0.2 s"
 KEYS = ("headway_s", "jerk_mps3", "speed_mps", "ttc_lt_4s_count", "ttc_lt_1_5s_count",
         "dampening_ratio", "collisions")
 
@@ -56,7 +69,7 @@ def settings(quick: bool = False) -> list[Setting]:
     out += [Setting(f"loss {p:g}", Impairments(loss=p)) for p in LOSSES[1:]]
     out += [Setting(f"delay {d:g} s", Impairments(delay_s=d)) for d in DELAYS_S[1:]]
     bursty = Impairments(delay_s=0.2, loss=0.3, burst=3.0)
-    out += [Setting("loss 0.3 in bursts of 3, delay 0.2 s", bursty),
+    out += [Setting(BURSTY, bursty),
             Setting("sensor noise", Impairments(sensor_noise=True)),
             Setting("sensor noise, loss 0.3 in bursts of 3, delay 0.2 s",
                     Impairments(delay_s=0.2, loss=0.3, burst=3.0, sensor_noise=True))]
@@ -81,36 +94,98 @@ def run_robustness(out: Path, data: str | None = None, quick: bool = False,
                          "root or train them first")
     limit = events_limit or (2 if quick else None)
     events = load_events(data, "test", limit=limit)
+    runs = {c: seed_files(c, 2 if quick else SEEDS) for c in controllers}
+    for name in controllers:
+        check_impairable(name, Impairments(sensor_noise=True))
+    jobs = [(setting, name, path) for setting in settings(quick) for name in controllers
+            if not (name == "idm-external" and setting.channel_only)  # sends no messages
+            for path in runs[name]]
     start = time.perf_counter()
-    rows = []
+    per_job = _run_jobs(jobs, events, net, workers, progress)
+    rows, seed_rows = [], []
     for setting in settings(quick):
         for name in controllers:
-            if name == "idm-external" and setting.channel_only:
-                continue  # no messages: the same run as at "perfect"
-            result = simulate(name, events, 10, net, progress=progress, workers=workers,
-                              impairments=setting.impairments if setting.label != "perfect"
-                              else None)
-            ci = bootstrap_ci(result["events"])
-            rows.append({"setting": setting.label, "controller": name,
-                         "loss": setting.impairments.loss,
-                         "delay_s": setting.impairments.delay_s,
-                         "burst": setting.impairments.burst,
-                         "sensor_noise": setting.impairments.sensor_noise,
-                         "events": len(events),
-                         **{k: result["metrics"][k] for k in KEYS},
-                         **{f"{k}_lo": ci[k][0] for k in KEYS},
-                         **{f"{k}_hi": ci[k][1] for k in KEYS}})
+            per_file = [per_job[(setting.label, name, path)] for path in runs[name]
+                        if (setting.label, name, path) in per_job]
+            if not per_file:
+                continue
+            head = {"setting": setting.label, "controller": name,
+                    "loss": setting.impairments.loss, "delay_s": setting.impairments.delay_s,
+                    "burst": setting.impairments.burst,
+                    "sensor_noise": setting.impairments.sensor_noise, "events": len(events),
+                    "seeds": len(per_file)}
+            rows.append({**head, **_cell_values(per_file)})
+            if len(per_file) > 1:
+                seed_rows += [{**head, "policy": path, **{k: r["metrics"][k] for k in KEYS}}
+                              for path, r in zip(runs[name], per_file)]
     wall = time.perf_counter() - start
     out.mkdir(parents=True, exist_ok=True)
     _write_csv(out / "robustness.csv", rows)
+    if seed_rows:
+        _write_csv(out / "robustness_seeds.csv", seed_rows)
     write_text_atomic(out / "robustness.md", _markdown(rows, data, len(events), wall, command))
     figures = _figures(out, rows)
     return {"rows": rows, "wall_time_s": wall, "figures": figures}
 
 
+def _run_jobs(jobs: list[tuple[Setting, str, str]], events: list, net: str, workers: int,
+              progress: bool) -> dict[tuple[str, str, str], dict]:
+    """Every (setting, controller, file) run on the events, as ``simulate`` returns it, in one
+    pool of ``workers`` processes (the events of a run split in chunks of at least 20)."""
+    parts = max(1, min(2 * workers, len(events) // 20))
+    chunks = [events[i::parts] for i in range(parts)]
+    items = [(path, chunk, 10, str(net), False,
+              setting.impairments if setting.label != "perfect" else None)
+             for setting, _, path in jobs for chunk in chunks]
+    results = run_parallel(score_events, items, workers,
+                           describe=lambda a: f"{a[0]} on {len(a[1])} events ({a[5]})")
+    if progress:
+        from tqdm import tqdm
+
+        results = tqdm(results, total=len(items), desc="robustness", unit="run", leave=False)
+    results = list(results)
+    order = {e.event_id: i for i, e in enumerate(events)}
+    out = {}
+    for j, (setting, name, path) in enumerate(jobs):
+        per_event = sorted((m for part in results[j * parts:(j + 1) * parts] for m in part),
+                           key=lambda m: order[m["event_id"]])
+        out[(setting.label, name, path)] = {"metrics": aggregate(per_event), "events": per_event}
+    return out
+
+
+def seed_files(controller: str, k: int) -> list[str]:
+    """The files a controller runs: a policy of :data:`SEED_POLICIES` its seed files 0 to k-1
+    (``seeds/<stem>_seed<K>.pt`` beside it), anything else itself."""
+    path = Path(controller)
+    if path.suffix != ".pt" or path.stem not in SEED_POLICIES:
+        return [controller]
+    files = [path.parent / "seeds" / f"{path.stem}_seed{s}.pt" for s in range(k)]
+    missing = [str(f) for f in files if not f.is_file()]
+    if missing:
+        raise InputError(f"seed file(s) {', '.join(missing)} missing; train them with "
+                         f"policies/{path.stem}.sh")
+    return [str(f) for f in files]
+
+
+def _cell_values(per_file: list[dict]) -> dict[str, float]:
+    """Each metric of KEYS with its interval: one file's aggregate with a bootstrap interval over
+    events, or the mean over seed files with a 95 % t interval over seeds (and their std)."""
+    if len(per_file) == 1:
+        ci = bootstrap_ci(per_file[0]["events"])
+        return {**{k: per_file[0]["metrics"][k] for k in KEYS},
+                **{f"{k}_lo": ci[k][0] for k in KEYS}, **{f"{k}_hi": ci[k][1] for k in KEYS}}
+    out: dict[str, float] = {}
+    for k in KEYS:
+        values = np.array([r["metrics"][k] for r in per_file], dtype=float)
+        mean, std = float(values.mean()), float(values.std(ddof=1))
+        half = T_975[min(len(values) - 1, len(T_975) - 1)] * std / np.sqrt(len(values))
+        out.update({k: mean, f"{k}_lo": mean - half, f"{k}_hi": mean + half, f"{k}_std": std})
+    return out
+
+
 def _write_csv(path: Path, rows: list[dict]) -> None:
     buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(rows[0]))
+    writer = csv.DictWriter(buf, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))
     writer.writeheader()
     writer.writerows(rows)
     write_text_atomic(path, buf.getvalue())
@@ -119,24 +194,61 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
 def _cell(row: dict, key: str) -> str:
     value, lo, hi = row[key], row[f"{key}_lo"], row[f"{key}_hi"]
     if isinstance(value, int) or key.endswith("count") or key == "collisions":
-        return f"{int(value)}"
+        return f"{int(value)}" if float(value).is_integer() else f"{value:.1f}"
     if lo != lo:  # nan: a single event
         return f"{value:.3f}"
     return f"{value:.3f} [{lo:.3f}, {hi:.3f}]"
 
 
 def _markdown(rows: list[dict], data: str, n_events: int, wall: float, command: str) -> str:
-    head = ("| setting | controller | headway (s) | jerk (m/s³) | speed (m/s) | TTC<4 s | TTC<1.5 s "
-            "| dampening | collisions |\n|---|---|---|---|---|---|---|---|---|")
+    head = ("| setting | controller | seeds | headway (s) | jerk (m/s³) | speed (m/s) | TTC<4 s "
+            "| TTC<1.5 s | dampening | collisions |\n|---|---|---|---|---|---|---|---|---|---|")
     lines = [f"# Robustness: V2V delay and loss, sensor noise\n",
              f"command: `{command}`\n" if command else "",
              f"{n_events} events of the test split of {data}, 10 followers; wall time "
-             f"{wall:.0f} s. Cells: aggregate over events [95 % bootstrap interval over events]; "
-             "one training seed per policy (the shipped file), impairment seed 0.\n", head]
+             f"{wall:.0f} s; impairment seed 0. Cells with one seed: the file's aggregate over "
+             "events [95 % bootstrap interval over events]; with several: the mean over "
+             "training seeds [95 % t interval over seeds].\n", head]
     for r in rows:
-        lines.append(f"| {r['setting']} | `{r['controller']}` | "
+        lines.append(f"| {r['setting']} | `{r['controller']}` | {r['seeds']} | "
                      + " | ".join(_cell(r, k) for k in KEYS) + " |")
+    lines += ["", *_targets(rows)]
     return "\n".join(lines) + "\n"
+
+
+def _targets(rows: list[dict]) -> list[str]:
+    """The robust policy's targets, checked on these rows (seed means): zero collisions and TTC <
+    1.5 s samples at the bursty point with jerk and dampening at most IDM's; with every message
+    lost no worse than IDM on the safety metrics; at every setting at most as many TTC < 1.5 s
+    samples and collisions as the textbook Ploeg CACC."""
+    robust = next((r["controller"] for r in rows if Path(r["controller"]).stem
+                   == "ca_td3_10_robust"), None)
+    cell = {(r["setting"], r["controller"]): r for r in rows}
+    idm = cell.get(("perfect", "idm-external"))
+    if robust is None or idm is None or (BURSTY, robust) not in cell:
+        return []
+    b, lost = cell[(BURSTY, robust)], cell.get(("loss 1", robust))
+    safety = ("collisions", "ttc_lt_1_5s_count", "ttc_lt_4s_count")
+    checks = [(f"{BURSTY}: no collision, no TTC < 1.5 s",
+               b["collisions"] == 0 and b["ttc_lt_1_5s_count"] == 0,
+               f"{b['collisions']:g} / {b['ttc_lt_1_5s_count']:g}"),
+              (f"{BURSTY}: jerk and dampening at most IDM's",
+               b["jerk_mps3"] <= idm["jerk_mps3"] and b["dampening_ratio"] <= idm["dampening_ratio"],
+               f"{b['jerk_mps3']:.3f} / {b['dampening_ratio']:.3f} vs IDM {idm['jerk_mps3']:.3f}"
+               f" / {idm['dampening_ratio']:.3f}")]
+    if lost is not None:
+        checks.append(("every message lost: no worse than IDM on collisions, TTC < 1.5 s, TTC < 4 s",
+                       all(lost[k] <= idm[k] for k in safety),
+                       " / ".join(f"{lost[k]:g}" for k in safety) + " vs IDM "
+                       + " / ".join(f"{idm[k]:g}" for k in safety)))
+    worse = [s for (s, c), r in cell.items() if c == robust and (s, "ploeg") in cell and any(
+        r[k] > cell[(s, "ploeg")][k] for k in ("collisions", "ttc_lt_1_5s_count"))]
+    checks.append(("at every setting at most `ploeg`'s collisions and TTC < 1.5 s samples",
+                   not worse, "worse at: " + ", ".join(worse) if worse else "everywhere"))
+    out = [f"## Targets of the robust policy (`{robust}`, seed means)\n",
+           "| target | met | measured |", "|---|---|---|"]
+    out += [f"| {name} | {'yes' if ok else 'no'} | {measured} |" for name, ok, measured in checks]
+    return out
 
 
 def _figures(out: Path, rows: list[dict]) -> list[str]:

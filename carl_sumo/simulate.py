@@ -143,7 +143,7 @@ def check_impairable(controller_name: str, impairments: Impairments | None) -> N
                          "file), not to SUMO's native models or the recorded follower")
 
 
-def _score_events(controller_name: str, events: Sequence[Event], n_followers: int,
+def score_events(controller_name: str, events: Sequence[Event], n_followers: int,
                   net_path: str, progress: bool = False,
                   impairments: Impairments | None = None) -> list[dict]:
     """Per-event metrics of one controller, in this process."""
@@ -165,11 +165,11 @@ def simulate(controller_name: str, events: Sequence[Event], n_followers: int,
     check_impairable(controller_name, impairments)
     workers = max(1, min(workers, len(events) // 20))  # a spawned worker costs seconds to start
     if workers == 1 or follower_model == "human":
-        per_event = _score_events(controller_name, events, n_followers, str(net_path), progress,
+        per_event = score_events(controller_name, events, n_followers, str(net_path), progress,
                                   impairments)
     else:
         chunks = [list(events[i::workers]) for i in range(workers)]
-        parts = run_parallel(_score_events, [(controller_name, chunk, n_followers, str(net_path),
+        parts = run_parallel(score_events, [(controller_name, chunk, n_followers, str(net_path),
                                               False, impairments)
                                              for chunk in chunks], workers,
                              describe=lambda a: f"{a[0]} on {len(a[1])} events from "

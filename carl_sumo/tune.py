@@ -90,10 +90,10 @@ def _worker_init(data: str, split: str, limit: int | None) -> None:
 
 def _run_point(task: tuple[str, int, int, int, str]) -> tuple[str, list[dict]]:
     """Per-event metrics of one controller name on a slice of this worker's events."""
-    from carl_sumo.simulate import _score_events
+    from carl_sumo.simulate import score_events
 
     name, start, stop, n, net = task
-    return name, _score_events(name, _EVENTS[start:stop], n, net)
+    return name, score_events(name, _EVENTS[start:stop], n, net)
 
 
 def _score(point: GridPoint, per_event: list[dict]) -> None:

@@ -159,7 +159,12 @@ def test_the_robustness_suite_writes_its_table_and_figures(tmp_path, capsys):
     rows = list(csv.DictReader(open(out / "robustness.csv")))
     settings = {r["setting"] for r in rows}
     assert settings == {"perfect", "loss 0.3", "delay 0.2 s", "sensor noise"}
-    assert len(rows) == 4 * 5 - 2  # IDM sends no messages: not rerun on the channel settings
+    assert len(rows) == 4 * 6 - 2  # IDM sends no messages: not rerun on the channel settings
+    by_seeds = {r["controller"]: int(r["seeds"]) for r in rows}
+    assert by_seeds[str(REPO_ROOT / "policies" / "ca_td3_10_robust.pt")] == 2  # seed means
+    assert by_seeds["ploeg"] == 1
+    seed_runs = list(csv.DictReader(open(out / "robustness_seeds.csv")))
+    assert len(seed_runs) == 4 * 2 * 2 and all("_seed" in r["policy"] for r in seed_runs)
     assert (out / "robustness_vs_loss.png").stat().st_size > 0
     assert "| loss 0.3 | `" in (out / "robustness.md").read_text()
     ploeg = {r["setting"]: r for r in rows if r["controller"] == "ploeg"}
