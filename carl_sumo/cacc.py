@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from carl_sumo.channel import Channel, Impairments
+from carl_sumo.channel import Channel, Impairments, KeyedChannel
 from carl_sumo.config import BOUNDS, DT_S, IDM, ControlBounds
 from carl_sumo.errors import InputError
 from carl_sumo.sumo import REPO_ROOT
@@ -245,6 +245,14 @@ class PloegChains:
         self.controller = PloegController(params, name, bounds)
         self.name = self.controller.name
         self.u: dict[str, float] = {}
+        self.links: KeyedChannel | None = None
+        self._k = 0
+
+    def connect(self, impairments: Impairments, run_id: str) -> None:
+        """Carry the predecessor states over impaired vehicle-keyed links
+        (:class:`carl_sumo.channel.KeyedChannel`, stream 1 of ``run_id``)."""
+        self.links = KeyedChannel(1, impairments, impairments.rng(run_id, 1))
+        self._k = 0
 
     def acceleration(self, obs: np.ndarray, chains: list[list[int]], ids: list[str],
                      ahead: list[tuple[str, float] | None],
@@ -261,9 +269,20 @@ class PloegChains:
             head = ahead[chain[0]]
             a_pred = last_acc.get(head[0], 0.0) if head is not None else 0.0
             u = np.array([self.u.get(ids[i], 0.0) for i in chain])
+            sent = u.copy()  # vehicle j's message is its state at this step
             adj = None if adjustment is None else adjustment[chain]
-            out[chain] = self.controller.step(np.ascontiguousarray(obs[chain]), u, a_pred, adj)
+            mode = held = None
+            if self.links is not None:  # follower j > 0 hears j - 1 over its link
+                pairs = [(ids[chain[j]], ids[chain[j - 1]]) for j in range(1, len(chain))]
+                mode, held = np.zeros(len(chain), dtype=np.int64), np.zeros(len(chain))
+                got_mode, got_held = self.links.receive(self._k, pairs)
+                mode[1:], held[1:] = got_mode, got_held[:, 0]
+                if commit:
+                    self.links.send(self._k, pairs, sent[:-1, None])
+            out[chain] = self.controller.step(np.ascontiguousarray(obs[chain]), u, a_pred, adj,
+                                              mode, held)
             u_new.update(zip((ids[i] for i in chain), u.tolist()))
         if commit:
             self.u = u_new
+            self._k += 1
         return out

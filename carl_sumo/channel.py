@@ -174,6 +174,69 @@ class Channel:
             self.in_flight.append((k, np.array(messages, dtype=np.float64), self._lost.copy()))
 
 
+class KeyedChannel:
+    """Links whose ends change: the study's CACC chains form and break in traffic. One link per
+    receiving vehicle (by ID), carrying whichever vehicle is its neighbour now; a held message
+    counts only while it comes from the current neighbour (a new neighbour is not heard until
+    its first message arrives). Losses as :class:`LossProcess`, with the burst state of a link
+    advanced at the steps its vehicle receives. Every step: :meth:`receive` for the (receiver,
+    sender) pairs, then :meth:`send` with their messages."""
+
+    def __init__(self, dim: int, impairments: Impairments, rng: np.random.Generator):
+        self.cfg, self.dim, self.rng = impairments, dim, rng
+        self.held: dict[str, tuple[str, np.ndarray, int]] = {}  # receiver: (sender, message, sent)
+        self.bad: dict[str, bool] = {}
+        self.in_flight: deque[tuple[int, str, str, np.ndarray]] = deque()
+        self.k = -1
+        self._lost: dict[str, bool] = {}
+        self._to_bad = impairments.loss / (impairments.burst * (1.0 - impairments.loss)) \
+            if impairments.loss < 1 else 1.0
+
+    def _draw(self, receiver: str) -> bool:
+        loss, burst = self.cfg.loss, self.cfg.burst
+        if loss <= 0 or loss >= 1:
+            return loss >= 1
+        u = self.rng.random()
+        if burst <= 1:
+            return bool(u < loss)
+        if receiver not in self.bad:  # first use: the long-run distribution
+            self.bad[receiver] = bool(u < loss)
+            return self.bad[receiver]
+        bad = u >= 1.0 / burst if self.bad[receiver] else u < self._to_bad
+        self.bad[receiver] = bool(bad)
+        return self.bad[receiver]
+
+    def receive(self, k: int, pairs: list[tuple[str, str]]) -> tuple[np.ndarray, np.ndarray]:
+        """(modes (m,) of LIVE/HELD/FALLBACK, held messages (m, dim)) at step k of the m
+        (receiver, sender) pairs; asked again in the same step it draws nothing new."""
+        if k != self.k:
+            self.k, self._lost = k, {}
+            d = self.cfg.delay_steps
+            while self.in_flight and self.in_flight[0][0] <= k - d:
+                sent, receiver, sender, message = self.in_flight.popleft()
+                self.held[receiver] = (sender, message, sent)
+        modes, held = np.full(len(pairs), FALLBACK), np.zeros((len(pairs), self.dim))
+        for j, (receiver, sender) in enumerate(pairs):
+            if receiver not in self._lost:
+                self._lost[receiver] = self._draw(receiver)
+            got = self.held.get(receiver)
+            if got is not None and got[0] == sender and k - got[2] <= self.cfg.timeout_steps:
+                modes[j], held[j] = HELD, got[1]
+            if self.cfg.delay_steps == 0 and not self._lost[receiver]:
+                modes[j] = LIVE
+        return modes, held
+
+    def send(self, k: int, pairs: list[tuple[str, str]], messages: np.ndarray) -> None:
+        """The messages (m, dim) of step k (after :meth:`receive` of step k with these pairs)."""
+        for (receiver, sender), message in zip(pairs, messages):
+            if self._lost.get(receiver, False):
+                continue
+            if self.cfg.delay_steps == 0:
+                self.held[receiver] = (sender, np.array(message, dtype=np.float64), k)
+            else:
+                self.in_flight.append((k, receiver, sender, np.array(message, dtype=np.float64)))
+
+
 PERFECT_SHARE = 0.25
 """Share of randomised training episodes with a perfect channel and clean sensors."""
 

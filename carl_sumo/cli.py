@@ -243,6 +243,7 @@ def _study_parser(sub: argparse._SubParsersAction) -> None:
                    help="human driver imperfection from 0 to 1: SUMO's sigma for the Krauss "
                         "humans and a desired-speed spread (speedDev = 0.2·SIGMA) for all "
                         "humans (default 0: deterministic humans)")
+    add_impairments(p)
     p.add_argument("--demand-scale", type=float, default=1.0,
                    help="multiplies the default demand (2000 veh/h/lane, on-ramp 500 veh/h)")
     p.add_argument("--krauss-share", type=float, default=0.5,
@@ -300,8 +301,12 @@ def cmd_study(args: argparse.Namespace) -> None:
                       warmup_s=args.warmup, v2v_range_m=args.v2v_range,
                       detector_pos_m=args.detector_pos, heatmap_lane=args.heatmap_lane,
                       net=str(args.net), demand=demand, fcd=args.fcd, workers=args.workers,
-                      human_sigma=args.human_sigma)
-    resolve_study_controller(cfg.controller)
+                      human_sigma=args.human_sigma, impairments=impairments_from(args))
+    kind, _ = resolve_study_controller(cfg.controller)
+    if cfg.impairments is not None and kind != "external":
+        raise InputError(f"{cfg.controller}: impairments (--comm-*, --sensor-noise) apply to "
+                         "CACC vehicles controlled in carl-sumo (idm-external, ploeg, a policy "
+                         "file), not to SUMO's own CACC")
     _check_detector(cfg)
     start = time.perf_counter()
     results = run_study(cfg, args.out, progress=sys.stderr.isatty())

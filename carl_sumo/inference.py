@@ -18,7 +18,7 @@ from numba import njit
 from torch import nn
 
 from carl_sumo.agents import BASE_SCALE, GAP_CLIP_M, OBS_SCALE, Agent
-from carl_sumo.channel import PlatoonLinks
+from carl_sumo.channel import KeyedChannel, PlatoonLinks
 from carl_sumo.models import CommunicationAware, PerAgentActors, PerVehicle
 
 _OBS_SCALE = np.array(OBS_SCALE, dtype=np.float64)
@@ -193,6 +193,26 @@ class CompiledActor:
             obs, self.adj_max, f_mode.astype(np.int64), f_held, b_mode.astype(np.int64), b_held,
             *self._weights)
         links.send(f_out, b_out)
+        return action
+
+    def act_keyed(self, obs: np.ndarray, ids: list[str], forward: KeyedChannel,
+                  backward: KeyedChannel, k: int) -> np.ndarray:
+        """a_adj (m/s², shape (n,)) of a CA actor on a chain of vehicles ``ids`` (head first) at
+        step k, its messages crossing the vehicle-keyed links of the study
+        (:class:`carl_sumo.channel.KeyedChannel`); sends this step's messages."""
+        obs = np.ascontiguousarray(obs, dtype=np.float64)
+        n = len(ids)
+        f_pairs = [(ids[j], ids[j + 1]) for j in range(n - 1)]  # i hears i+1
+        b_pairs = [(ids[j], ids[j - 1]) for j in range(1, n)]  # i hears i-1
+        f_mode, f_held = np.full(n, 2), np.zeros((n, self.message_dim))
+        b_mode, b_held = np.full(n, 2), np.zeros((n, self.message_dim))
+        f_mode[:n - 1], f_held[:n - 1] = forward.receive(k, f_pairs)
+        b_mode[1:], b_held[1:] = backward.receive(k, b_pairs)
+        action, f_out, b_out = _communication_aware_act_channel(
+            obs, self.adj_max, f_mode.astype(np.int64), f_held, b_mode.astype(np.int64), b_held,
+            *self._weights)
+        forward.send(k, f_pairs, f_out[1:])
+        backward.send(k, b_pairs, b_out[:n - 1])
         return action
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:

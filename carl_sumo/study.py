@@ -54,6 +54,7 @@ import numpy as np
 
 from carl_sumo.config import DT_S, HEADWAY_MIN_SPEED_MPS
 from carl_sumo.cacc import PloegChains, is_ploeg_name, parse_ploeg
+from carl_sumo.channel import Impairments, KeyedChannel, Sensors
 from carl_sumo.config import BOUNDS
 from carl_sumo.controllers import adjustment_bounds, shield_adjustment, total_acceleration
 from carl_sumo.errors import InputError
@@ -113,6 +114,7 @@ class StudyConfig:
     fcd: bool = False                  # FCD output of the first seed of each rate
     workers: int = 2
     human_sigma: float = 0.0           # human driver imperfection (see set_human_variability)
+    impairments: Impairments | None = None  # V2V delay/loss and sensor noise of the CACC vehicles
 
 
 class ChainController:
@@ -124,6 +126,8 @@ class ChainController:
         self.agent = None
         self.compiled = None
         self.base: PloegChains | None = None
+        self.links: tuple[KeyedChannel, KeyedChannel] | None = None
+        self._k = 0
         if name != "idm-external":
             from carl_sumo.policy import load_policy
 
@@ -140,6 +144,16 @@ class ChainController:
             if agent.cfg.residual:
                 self.base = PloegChains(parse_ploeg(agent.cfg.base), agent.cfg.base)
 
+    def connect(self, impairments: Impairments, run_id: str) -> None:
+        """Carry the CA messages (streams 2 and 3 of ``run_id``) and a classical base's
+        predecessor states over impaired vehicle-keyed links (:class:`KeyedChannel`)."""
+        m = self.compiled.message_dim if self.compiled is not None else 0
+        if m:
+            self.links = (KeyedChannel(m, impairments, impairments.rng(run_id, 2)),
+                          KeyedChannel(m, impairments, impairments.rng(run_id, 3)))
+        if self.base is not None:
+            self.base.connect(impairments, run_id)
+
     def acceleration(self, obs: np.ndarray, chains: list[list[int]], ids: list[str],
                      ahead: list[tuple[str, float] | None],
                      last_acc: dict[str, float]) -> np.ndarray:
@@ -151,23 +165,31 @@ class ChainController:
                 # the acceleration of the vehicle ahead over the last step (as the policy's
                 # AheadAcceleration measures it in a platoon); 0 with no vehicle ahead
                 a_ahead = [last_acc.get(a[0], 0.0) if a is not None else 0.0 for a in ahead]
-                adj = self.adjustment(np.column_stack([obs, a_ahead]), chains)
+                adj = self.adjustment(np.column_stack([obs, a_ahead]), chains, ids)
             else:
-                adj = self.adjustment(obs, chains)
+                adj = self.adjustment(obs, chains, ids)
             bounds = adjustment_bounds(self.agent.cfg.adj_max) if self.agent else BOUNDS
             return total_acceleration(obs, adj, bounds=bounds)
         preview = self.base.acceleration(obs, chains, ids, ahead, last_acc, commit=False)
-        adj = self.adjustment(np.column_stack([obs, preview]), chains)
+        adj = self.adjustment(np.column_stack([obs, preview]), chains, ids)
         return self.base.acceleration(obs, chains, ids, ahead, last_acc, adj)
 
-    def adjustment(self, obs: np.ndarray, chains: list[list[int]]) -> np.ndarray:
-        """a_adj (m/s², shape (m,)) for observations (m, 4) of the CACC vehicles and their chains."""
+    def adjustment(self, obs: np.ndarray, chains: list[list[int]],
+                   ids: list[str] | None = None) -> np.ndarray:
+        """a_adj (m/s², shape (m,)) for observations (m, 4) of the CACC vehicles ``ids`` and
+        their chains (the IDs key the impaired links, when there are any)."""
         m = obs.shape[0]
         if self.compiled is None or m == 0:
             return np.zeros(m)
         out = np.empty(m)
         for chain in chains:  # one chain at a time: the cost grows with the vehicles, not the chains
-            out[chain] = self.compiled(np.ascontiguousarray(obs[chain]))
+            chain_obs = np.ascontiguousarray(obs[chain])
+            if self.links is None or ids is None:
+                out[chain] = self.compiled(chain_obs)
+            else:
+                out[chain] = self.compiled.act_keyed(chain_obs, [ids[i] for i in chain],
+                                                     *self.links, self._k)
+        self._k += 1
         return shield_adjustment(obs, out, self.agent.cfg.shield_ttc_s)
 
 
@@ -260,8 +282,15 @@ def run_one(cfg: StudyConfig, penetration: float, seed: int, out_dir: Path) -> R
         if kind == "external":
             ls.vehicletype.setTau(CACC_TYPES["external"], insertion_tau_s())
         set_human_variability(ls, cfg.human_sigma)
+        sensors = None
+        if cfg.impairments is not None:  # every run its own draws: keyed by its name
+            if not cfg.impairments.perfect_channel and hasattr(controller, "connect"):
+                controller.connect(cfg.impairments, name)
+            if cfg.impairments.sensor_noise:
+                sensors = Sensors(cfg.impairments.rng(name, 0))
         try:
-            acc, heat, timing = _simulate(ls, cfg, kind, controller, routes.cacc_ids, lane_chain)
+            acc, heat, timing = _simulate(ls, cfg, kind, controller, routes.cacc_ids, lane_chain,
+                                          sensors)
         finally:
             close_sumo()  # SUMO writes and closes its output files
         metrics = _score(cfg, acc, outputs)
@@ -286,8 +315,9 @@ def _main_lanes(net: str) -> int:
 
 def _simulate(ls, cfg: StudyConfig, kind: str,
               controller: ChainController | PloegChains | None, cacc_ids: set[str],
-              lane_chain) -> tuple[_Accumulator, tuple, dict]:
-    """The 0.1 s loop of one run: control, metrics, time-space map. Returns sums and timings.
+              lane_chain, sensors: Sensors | None = None) -> tuple[_Accumulator, tuple, dict]:
+    """The 0.1 s loop of one run: control, metrics, time-space map (``sensors``: the CACC
+    vehicles measure their gaps and relative speeds with noise). Returns sums and timings.
 
     One function on purpose: it runs every 0.1 s for about a thousand vehicles, and its libsumo
     calls are bound to locals once, outside the loop."""
@@ -359,6 +389,8 @@ def _simulate(ls, cfg: StudyConfig, kind: str,
                                                  [accel[i] for i in cidx], cahead, speed_of,
                                                  min_gap, lookahead)
             chains = form_chains(cids, chain_ahead, cfg.v2v_range_m)
+            if sensors is not None:
+                obs = sensors.measure(obs)
             accel_cmd = controller.acceleration(obs, chains, cids, chain_ahead, prev_acc)
             for vid, v, a in zip(cids, obs[:, 0].tolist(), accel_cmd.tolist()):
                 v += a * DT_S

@@ -169,3 +169,41 @@ def test_the_robustness_suite_writes_its_table_and_figures(tmp_path, capsys):
     assert "| loss 0.3 | `" in (out / "robustness.md").read_text()
     ploeg = {r["setting"]: r for r in rows if r["controller"] == "ploeg"}
     assert ploeg["delay 0.2 s"]["jerk_mps3"] != ploeg["perfect"]["jerk_mps3"]
+
+
+def test_keyed_links_follow_the_neighbour_and_hear_a_new_one_only_after_its_message():
+    from carl_sumo.channel import KeyedChannel
+
+    imp = Impairments(delay_s=0.2)
+    ch = KeyedChannel(1, imp, imp.rng("run", 1))
+    got = []
+    for k in range(8):
+        sender = "a" if k < 4 else "b"  # the vehicle ahead of "r" changes at step 4
+        mode, held = ch.receive(k, [("r", sender)])
+        got.append((int(mode[0]), float(held[0, 0])))
+        ch.send(k, [("r", sender)], np.array([[k + (0.5 if sender == "b" else 0.0)]]))
+    # 0.2 s late: step k hears the message of step k - 2 from the same sender, else nothing
+    assert got[:2] == [(FALLBACK, 0.0), (FALLBACK, 0.0)]
+    assert got[2:4] == [(HELD, 0.0), (HELD, 1.0)]
+    assert [m for m, _ in got[4:6]] == [FALLBACK, FALLBACK]  # "a"'s messages are not "b"'s
+    assert got[6:] == [(HELD, 4.5), (HELD, 5.5)]
+
+
+def test_keyed_links_lose_at_the_requested_rate_and_repeat_with_the_seed():
+    from carl_sumo.channel import KeyedChannel
+
+    imp = Impairments(loss=0.3, burst=3.0, seed=4)
+    modes = []
+    for _ in range(2):
+        ch = KeyedChannel(1, imp, imp.rng("run", 2))
+        out = []
+        for k in range(20000):
+            mode, _ = ch.receive(k, [("r1", "s1"), ("r2", "s2")])
+            ch.send(k, [("r1", "s1"), ("r2", "s2")], np.zeros((2, 1)))
+            out.append(mode.copy())
+        modes.append(np.array(out))
+    assert np.array_equal(*modes)
+    lost = modes[0] != LIVE
+    assert abs(lost.mean() - 0.3) < 0.02
+    runs = np.diff(np.flatnonzero(np.diff(np.concatenate([[0], lost[:, 0], [0]]))))[::2]
+    assert abs(runs.mean() - 3.0) < 0.3  # bursts of the requested mean length

@@ -266,3 +266,42 @@ def test_every_cacc_controller_is_inserted_like_sumos_cacc():
     from carl_sumo.study import insertion_tau_s
 
     assert insertion_tau_s() == 0.6
+
+
+def test_chains_over_perfect_keyed_links_act_as_without_them():
+    from carl_sumo.channel import Impairments
+
+    plain, linked = ChainController(str(POLICY)), ChainController(str(POLICY))
+    linked.connect(Impairments(), "run")
+    rng = np.random.default_rng(1)
+    ids = [f"v{i}" for i in range(9)]
+    chains = [[4, 0, 7], [1], [2, 3, 5, 6, 8]]
+    for _ in range(3):
+        obs = np.column_stack([rng.uniform(10, 30, 9), rng.uniform(-1, 1, 9),
+                               rng.uniform(5, 60, 9), rng.uniform(-2, 2, 9)])
+        assert np.allclose(linked.adjustment(obs, chains, ids), plain.adjustment(obs, chains),
+                           atol=1e-9)
+
+
+def test_impaired_study_runs_repeat_with_their_seed(tmp_path):
+    from carl_sumo.channel import Impairments
+
+    cfg = StudyConfig(controller=str(POLICY), duration_s=20.0, warmup_s=40.0, demand=LOW,
+                      seeds=(1,), detector_pos_m=100.0)
+    imp = Impairments(delay_s=0.2, loss=0.3, burst=3.0, sensor_noise=True)
+    plain = run_one(cfg, 1.0, 1, tmp_path / "plain")
+    first = run_one(replace(cfg, impairments=imp), 1.0, 1, tmp_path / "first")
+    again = run_one(replace(cfg, impairments=imp), 1.0, 1, tmp_path / "again")
+    timing = ("sim_speed", "sumo_share", "wall_s")
+    assert {k: v for k, v in first.metrics.items() if k not in timing} == \
+        {k: v for k, v in again.metrics.items() if k not in timing}
+    assert first.metrics["jerk_mps3"] != plain.metrics["jerk_mps3"]
+    assert first.metrics["collisions"] == 0
+
+
+def test_sumos_own_cacc_refuses_impairments(tmp_path, capsys):
+    code = main(["study", "--controller", "sumo-cacc", "--comm-loss", "0.3",
+                 "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 2 and "impairments" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
