@@ -38,7 +38,7 @@ def format_table(results: list[dict]) -> str:
     header = ["controller", "followers", "events", *METRIC_KEYS]
     rows = [[r["controller"], str(r["followers"]), str(len(r["events"])),
              *(fmt(r["metrics"][k]) for k in METRIC_KEYS)] for r in results]
-    widths = [max(len(h), *(len(row[i]) for row in rows)) for i, h in enumerate(header)]
+    widths = [max([len(h), *(len(row[i]) for row in rows)]) for i, h in enumerate(header)]
     line = lambda cells: "  ".join(c.rjust(w) for c, w in zip(cells, widths))  # noqa: E731
     return "\n".join([line(header), line(["-" * w for w in widths]), *map(line, rows)])
 
@@ -67,6 +67,10 @@ def cmd_simulate(args: argparse.Namespace) -> None:
     if args.events is not None:
         positive(args.events, "--events")
     names = [c.strip() for c in args.controller.split(",") if c.strip()]
+    if not names:
+        raise InputError(f"--controller {args.controller!r} names no controller; give one or "
+                         "more of idm, krauss, sumo-cacc, idm-external, ploeg, ploeg-tuned:h=H, "
+                         "human or a policy file, separated by commas")
     for name in names:  # fail on a bad controller or platoon length before any simulation runs
         _, controller = resolve_controller(name)
         if controller is not None:

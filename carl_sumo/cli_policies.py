@@ -17,6 +17,17 @@ from carl_sumo.errors import InputError
 from carl_sumo.files import check_output_file
 
 
+def _add_reward_options(p: argparse.ArgumentParser) -> None:
+    """The reward's weights (defaults: carl_sumo.config.REWARD)."""
+    p.add_argument("--w-gap", type=float, default=None, help="reward weight of the headway term")
+    p.add_argument("--w-safe", type=float, default=None, help="reward weight of the TTC term")
+    p.add_argument("--w-comfort", type=float, default=None, help="reward weight of the jerk term")
+    p.add_argument("--w-accel", type=float, default=None,
+                   help="weight of the optional control-effort term -w·a² (default 0: off)")
+    p.add_argument("--jerk-scale", type=float, default=None,
+                   help="jerk that normalises the comfort term (m/s³)")
+
+
 def _train_parser(sub: argparse._SubParsersAction) -> None:
     # train options
     p = sub.add_parser("train", help="train a CA-RL (or baseline) agent inside SUMO")
@@ -70,13 +81,7 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--base", default=None,
                    help="base model under the learned adjustment: idm (default, the paper's) or "
                         "a classical CACC such as ploeg-tuned:h=0.8 (the actor starts at a_adj = 0)")
-    p.add_argument("--w-gap", type=float, default=None, help="reward weight of the headway term")
-    p.add_argument("--w-safe", type=float, default=None, help="reward weight of the TTC term")
-    p.add_argument("--w-comfort", type=float, default=None, help="reward weight of the jerk term")
-    p.add_argument("--w-accel", type=float, default=None,
-                   help="weight of the optional control-effort term -w·a² (default 0: off)")
-    p.add_argument("--jerk-scale", type=float, default=None,
-                   help="jerk that normalises the comfort term (m/s³)")
+    _add_reward_options(p)
     p.add_argument("--message-dim", type=int, default=None, help="V2V message width (CA models)")
     p.add_argument("--hidden", type=int, default=None, help="hidden layer width")
     p.add_argument("--actor-lr", type=float, default=None, help="actor learning rate")

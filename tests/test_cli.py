@@ -110,6 +110,7 @@ def bad_cases(tmp_path: Path, table: Path):
         "missing columns": (["simulate", "--data", str(cols)], "lacks the column"),
         "nan": (["simulate", "--data", str(nan)], "NaN"),
         "unknown controller": (sim + ["--controller", "pid"], "unknown controller"),
+        "no controller": (sim + ["--controller", " , "], "names no controller"),
         "unknown event": (["replay", "--data", str(table), "--event", "nope", "--fcd",
                            str(tmp_path / "x.xml")], "unknown event"),
         "missing network": (sim + ["--net", str(tmp_path / "none.net.xml")], "does not exist"),
@@ -122,6 +123,7 @@ def bad_cases(tmp_path: Path, table: Path):
 
 
 CASES = ["missing data file", "malformed data", "missing columns", "nan", "unknown controller",
+         "no controller",
          "unknown event", "missing network", "invalid network", "too short", "unknown option",
          "unknown split", "zero vehicles"]
 
