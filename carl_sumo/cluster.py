@@ -106,7 +106,15 @@ def disconnect() -> None:
 
 def cluster_cpus() -> int:
     """CPUs of the Ray runtime this process is connected to."""
-    return int(import_ray().cluster_resources().get("CPU", 1))
+    return int(import_ray().cluster_resources().get("CPU", 0))
+
+
+def require_cpus(n: int, option: str) -> None:
+    """InputError when the Ray runtime has fewer than ``n`` CPUs for ``option``'s actors."""
+    cpus = cluster_cpus()
+    if cpus < n:
+        raise InputError(f"{option} {n} needs {n} CPUs on the Ray cluster, which has {cpus}; "
+                         f"give {option} {max(cpus, 1)} or add nodes")
 
 
 _INITIALISED = False

@@ -56,6 +56,10 @@ def test_tasks_land_on_both_nodes_of_a_two_node_cluster(tmp_path, capsys):
         result = simulate_json(tmp_path, "two", "--ray", two.address)
         assert len(cluster.last_nodes) == 2  # each node ran a chunk of each controller
         assert sorted(cluster.last_nodes.values()) == [2, 2]
+        capsys.readouterr()
+        one_line_exit_2(capsys, [*TRAIN_ARGS, "--envs", "3", "--ray", two.address, "--out",
+                                 str(tmp_path / "x" / "p.pt")], "needs 3 CPUs on the Ray cluster")
+        assert not (tmp_path / "x").exists()
     finally:
         two.shutdown()
     assert result["controllers"]["ploeg"]["metrics"] == \
@@ -97,3 +101,27 @@ def test_a_missing_extra_is_one_line_exit_2(tmp_path):
     assert proc.returncode == 2
     assert proc.stderr.strip() == f"carl-sumo: error: {cluster.EXTRA_HINT}"
     assert not (tmp_path / "e").exists()
+
+
+def curve(path) -> list[list[str]]:
+    """A learning-curve CSV without its wall-time column."""
+    import csv
+
+    rows = list(csv.reader(open(path)))
+    col = rows[0].index("wall_s")
+    return [r[:col] + r[col + 1:] for r in rows]
+
+
+TRAIN_ARGS = ["train", "--vehicles", "3", "--steps", "200", "--learning-starts", "100",
+              "--eval-every", "100", "--eval-events", "2", "--checkpoint-every", "100",
+              "--seed", "3", "--net", str(NET)]
+
+
+def test_train_with_ray_actors_takes_the_same_steps(tmp_path, capsys):
+    """``train --ray local``: the rollout environments in Ray actors give the same learning curve
+    (every validation of every step count) as the spawned processes."""
+    args = TRAIN_ARGS
+    assert main([*args, "--out", str(tmp_path / "local" / "p.pt")]) == 0
+    assert main([*args, "--out", str(tmp_path / "ray" / "p.pt"), "--ray", "local"]) == 0
+    local = curve(tmp_path / "local" / "p.csv")
+    assert len(local) == 3 and curve(tmp_path / "ray" / "p.csv") == local
