@@ -17,8 +17,8 @@ from pathlib import Path
 from carl_sumo.cli_common import (add_common, add_impairments, add_ray, check_ray, fmt,
                                    impairments_from, positive, ray_session, workers_for)
 from carl_sumo.cli_policies import (_export_parser, _policy_info_parser, _rank_parser,
-                                    _train_parser, _tune_parser, cmd_export, cmd_policy_info,
-                                    cmd_rank, cmd_train, cmd_tune)
+                                    _sweep_parser, _train_parser, _tune_parser, cmd_export,
+                                    cmd_policy_info, cmd_rank, cmd_sweep, cmd_train, cmd_tune)
 from carl_sumo.errors import InputError
 from carl_sumo.files import check_output_dir, check_output_file, write_text_atomic
 from carl_sumo.workers import WorkerError
@@ -399,8 +399,8 @@ def build_parser() -> argparse.ArgumentParser:
     (``_<command>_parser`` above ``cmd_<command>``, here or in :mod:`carl_sumo.cli_policies`)."""
     parser = _Parser(prog="carl-sumo", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
-    for add in (_simulate_parser, _replay_parser, _evaluate_parser, _train_parser, _tune_parser,
-                _export_parser, _policy_info_parser, _rank_parser, _bench_parser, _study_parser,
+    for add in (_simulate_parser, _replay_parser, _evaluate_parser, _train_parser, _sweep_parser,
+                _tune_parser, _export_parser, _policy_info_parser, _rank_parser, _bench_parser, _study_parser,
                 _net_parser, _data_parser):
         add(sub)
     return parser
@@ -408,6 +408,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 COMMANDS = {"simulate": cmd_simulate, "evaluate": cmd_evaluate, "train": cmd_train,
             "policy-info": cmd_policy_info, "export": cmd_export, "tune": cmd_tune,
+            "sweep": cmd_sweep,
             "replay": cmd_replay,
             "bench": cmd_bench, "rank": cmd_rank, "net": cmd_net, "study": cmd_study,
             "data": cmd_data}
