@@ -178,3 +178,30 @@ def test_a_bad_spec_is_one_line_exit_2_and_nothing_is_written(tmp_path, capsys, 
 def test_a_missing_spec_is_one_line_exit_2(tmp_path, capsys):
     assert main(["sweep", str(tmp_path / "none.toml")]) == 2
     assert "cannot read sweep spec" in capsys.readouterr().err
+
+
+SHIPPED_SEEDS = REPO_ROOT / "policies" / "seeds"
+
+
+@pytest.mark.parametrize("spec", sorted((REPO_ROOT / "sweeps").glob("*.toml")),
+                         ids=lambda p: p.stem)
+def test_shipped_specs_run_the_recipes_of_the_shipped_seed_files(spec):
+    """Every trial of a shipped spec is `train` with exactly the options recorded in the seed
+    file that policies/*.sh trained (same stem and seed; only --out differs)."""
+    import shlex
+
+    from carl_sumo.cli import build_parser
+    from carl_sumo.policy import read_policy_payload
+    from carl_sumo.sweep import load_spec, plan_trials
+
+    loaded = load_spec(spec)
+    assert loaded.ship == Path("policies") / f"{loaded.name}.pt" and loaded.ship.exists()
+    trials = plan_trials(loaded)
+    assert trials
+    for trial in trials:
+        meta = read_policy_payload(SHIPPED_SEEDS / f"{trial.name}.pt")["metadata"]
+        recorded = vars(build_parser().parse_args(shlex.split(meta["command"])[1:]))
+        planned = vars(build_parser().parse_args(["train", *trial.argv]))
+        for options in (recorded, planned):
+            options.pop("out")
+        assert planned == recorded, trial.name
