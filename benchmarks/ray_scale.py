@@ -1,14 +1,14 @@
 """Ray against the local process pool, and Ray tasks on two nodes (docs/scale.md).
 
-``overhead``: the README's ``simulate`` command (403 NGSIM test events, 10 followers) run as a
-whole command, alternately with the local pool (``--workers 2``) and through a local Ray runtime
+``overhead``: the README's ``simulate`` command (403 NGSIM test events, 10 followers; its four
+controllers, or ``--controller``) run as a whole command, alternately with the local pool (``--workers 2``) and through a local Ray runtime
 with 2 CPUs (``--ray local --workers 2``), ``--rounds`` times each; wall times, their medians and
 the ratio, and whether the metrics are identical. ``tasks``: the cost of one task once the
 workers are up (a warm pool or a warm Ray runtime, 8 tasks of 20 events each) and the start-up of
 each. ``two-node``: a two-node Ray cluster on this machine (``ray.cluster_utils.Cluster``, 1 CPU
 per node), the same command joined to it with ``--ray HOST:PORT``, and the tasks per node.
 
-    python benchmarks/ray_scale.py overhead [--rounds 3]
+    python benchmarks/ray_scale.py overhead [--rounds 3] [--controller idm-external]
     python benchmarks/ray_scale.py tasks
     python benchmarks/ray_scale.py two-node
 """
@@ -25,14 +25,21 @@ import time
 from pathlib import Path
 
 DATA = "../shared/data/ngsim/ngsim_cf_events.csv.gz"
-COMMAND = ["simulate", "--net", "networks/i80.net.xml", "--controller",
-           "idm,krauss,idm-external,human", "--data", DATA, "--split", "test", "--vehicles", "10"]
+README_CONTROLLERS = "idm,krauss,idm-external,human"
 
 
-def run_cli(extra: list[str], out: Path) -> tuple[float, str]:
-    """Wall time (s) of one ``carl-sumo`` command in a fresh process, and its stderr."""
+def command(controllers: str) -> list[str]:
+    """The README's simulate command (403 NGSIM test events, 10 followers) for controllers."""
+    return ["simulate", "--net", "networks/i80.net.xml", "--controller", controllers, "--data",
+            DATA, "--split", "test", "--vehicles", "10"]
+
+
+def run_cli(extra: list[str], out: Path, controllers: str = README_CONTROLLERS
+            ) -> tuple[float, str]:
+    """Wall time (s) of one ``simulate`` command in a fresh process, and its stderr."""
     start = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "carl_sumo.cli", *COMMAND, "--json", str(out),
+    proc = subprocess.run([sys.executable, "-m", "carl_sumo.cli", *command(controllers),
+                           "--json", str(out),
                            *extra], capture_output=True, text=True, timeout=900)
     wall = time.perf_counter() - start
     if proc.returncode != 0:
@@ -40,13 +47,13 @@ def run_cli(extra: list[str], out: Path) -> tuple[float, str]:
     return wall, proc.stderr
 
 
-def overhead(rounds: int) -> None:
+def overhead(rounds: int, controllers: str) -> None:
     walls: dict[str, list[float]] = {"pool": [], "ray": []}
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(rounds):
             for name, extra in (("pool", ["--workers", "2"]),
                                 ("ray", ["--workers", "2", "--ray", "local"])):
-                wall, _ = run_cli(extra, Path(tmp) / f"{name}{r}.json")
+                wall, _ = run_cli(extra, Path(tmp) / f"{name}{r}.json", controllers)
                 walls[name].append(wall)
                 print(f"round {r + 1} {name}: {wall:.1f} s", flush=True)
         same = all(json.loads((Path(tmp) / f"ray{r}.json").read_text())
@@ -107,9 +114,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("what", choices=("overhead", "tasks", "two-node"))
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--controller", default=README_CONTROLLERS,
+                        help="overhead: the controllers (default: the README's four)")
     args = parser.parse_args()
     if args.what == "overhead":
-        overhead(args.rounds)
+        overhead(args.rounds, args.controller)
     elif args.what == "tasks":
         tasks()
     else:

@@ -91,7 +91,9 @@ def connect(address: str, num_cpus: int | None = None) -> None:
     except ConnectionError as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise InputError(f"--ray {address}: cannot join a Ray cluster ({first}); start one with "
-                         "`ray start --head`, or give --ray local") from None
+                         "`ray start --head`, or give --ray local (a cluster with token "
+                         "authentication, Ray's default for `ray start`, needs RAY_AUTH_MODE=token "
+                         "and its token: docs/scale.md)") from None
     last_nodes.clear()
     workers.set_backend(run_ray)
 

@@ -1,7 +1,8 @@
 """The tables of ``carl-sumo sweep``: per trial, per configuration, and the best configuration.
 
 - ``trials.csv``: every trial's kept checkpoint (the policy file its ``train`` run wrote) with its
-  validation metrics, the selection score of the spec's ``--select`` rule, safety, wall time,
+  validation metrics, the selection score of the spec's ``--select`` rule, safety, the run's
+  training wall time (its curve's last ``wall_s``),
   whether it resumed from a checkpoint after its worker died, and its status;
 - ``configs.csv``: per configuration (the searched options but the seed) the mean ± standard
   deviation over its seeds of the score and the validation metrics, and the comparison across
@@ -58,10 +59,19 @@ def trial_rows(trials: Sequence, outcome: dict[str, dict[str, Any]], select: str
             continue
         val = meta.get("validation") or {}
         row.update({"score": ranked["score"], "unsafe": ranked["unsafe"],
-                    "wall_s": float(meta.get("wall_time_s", math.nan)),
+                    "wall_s": _last_wall(path.with_suffix(".csv")),
                     **{m: float(val.get(m, math.nan)) for m in METRICS}})
         rows.append(row)
     return rows
+
+
+def _last_wall(curve: Path) -> float:
+    """The training wall time (s) in the last row of a run's learning curve (NaN without one)."""
+    try:
+        rows = list(csv.DictReader(open(curve)))
+        return float(rows[-1]["wall_s"]) if rows else math.nan
+    except (OSError, KeyError, ValueError):
+        return math.nan
 
 
 def config_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
