@@ -1,10 +1,11 @@
 """Planned wall times on 1, 8 and 64 nodes from measured per-task costs (docs/scale.md).
 
 Suite: the tasks of ``evaluate --suite paper --all-seeds`` (every model's seed files in every
-table: 15 seeds for the main models) as the evaluate plan makes them, each costing what its job
-cost per unit of planned work in a measured run (``--timing``: the ``timing.csv`` of an
-``evaluate --suite paper --seeds`` run; a seed file's job costs what the model's shipped file
-cost on the same events and platoon length). Sweep: 5 algorithms × 5 seeds × 3 recipes, each
+table: 15 seeds for the main models) as the evaluate plan makes them, each costing its share
+(by planned work) of its job's worker CPU seconds in a measured run (``--timing``: the
+``timing.csv`` of an ``evaluate --suite paper --seeds`` run; a seed file's job costs what the
+model's shipped file cost on the same events and platoon length; CPU seconds, since the wall
+time of a task on a shared machine includes waiting for the CPU). Sweep: 5 algorithms × 5 seeds × 3 recipes, each
 trial costing the training wall time recorded in the shipped seed files' curves of that
 algorithm (``policies/seeds/*.csv``, median over seeds; trained two at a time on a 2-core
 machine). Both are scheduled longest first on 2 slots per node (nodes like the measuring one),
@@ -46,7 +47,7 @@ def suite_costs(timing: Path) -> list[float]:
     for row in csv.DictReader(open(timing)):
         key = (row["event_set"], Path(row["controller"]).name.split("_seed")[0].removesuffix(".pt"),
                int(row["followers"]))
-        measured.setdefault(key, float(row["seconds"]))  # the shipped file's (listed first)
+        measured.setdefault(key, float(row["cpu_seconds"]))  # the shipped file's (listed first)
     tasks = plan_tasks(plan_suite("paper", None, False, None, None, "networks/i80.net.xml",
                                   True, False), "networks/i80.net.xml")
     planned: dict[tuple, float] = {}

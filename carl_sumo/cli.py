@@ -14,11 +14,12 @@ import sys
 import time
 from pathlib import Path
 
-from carl_sumo.cli_common import (add_common, add_impairments, add_ray, check_ray, fmt,
+from carl_sumo.cli_common import (Parser, add_common, add_impairments, add_ray, check_ray, fmt,
                                    impairments_from, positive, ray_session, workers_for)
 from carl_sumo.cli_policies import (_export_parser, _policy_info_parser, _rank_parser,
-                                    _sweep_parser, _train_parser, _tune_parser, cmd_export,
-                                    cmd_policy_info, cmd_rank, cmd_sweep, cmd_train, cmd_tune)
+                                    _train_parser, _tune_parser, cmd_export, cmd_policy_info,
+                                    cmd_rank, cmd_train, cmd_tune)
+from carl_sumo.cli_sweep import _sweep_parser, cmd_sweep
 from carl_sumo.errors import InputError
 from carl_sumo.files import check_output_dir, check_output_file, write_text_atomic
 from carl_sumo.workers import WorkerError
@@ -26,11 +27,7 @@ from carl_sumo.workers import WorkerError
 EXIT_BAD_INPUT = 2
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse, but a usage error is one line and exit status 2."""
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        raise InputError(f"{message} (see `{self.prog} --help`)")
+_Parser = Parser  # a usage error is one line and exit status 2
 
 
 def format_table(results: list[dict]) -> str:

@@ -11,6 +11,13 @@ from typing import Iterator
 from carl_sumo.errors import InputError
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line (InputError: exit status 2)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise InputError(f"{message} (see `{self.prog} --help`)")
+
+
 def add_common(p: argparse.ArgumentParser, split_default: str = "test") -> None:
     p.add_argument("--net", default="networks/i80.net.xml", help="SUMO network (.net.xml)")
     p.add_argument("--data", default="default",

@@ -206,10 +206,19 @@ def plan_trials(spec: SweepSpec) -> list[Trial]:
     return trials
 
 
+def train_parser():
+    """The parser of ``carl-sumo train`` alone (a usage error: InputError)."""
+    from carl_sumo.cli_common import Parser
+    from carl_sumo.cli_policies import _train_parser
+
+    parser = Parser(prog="carl-sumo")
+    _train_parser(parser.add_subparsers(dest="command", required=True, parser_class=Parser))
+    return parser
+
+
 def check_trials(spec: SweepSpec, trials: list[Trial]) -> None:
     """Parse every trial's ``train`` arguments and check its options, the outputs, the network
     and the data (InputError naming the spec) before anything runs."""
-    from carl_sumo.cli import build_parser
     from carl_sumo.cli_policies import check_train_args
     from carl_sumo.data import load_events
     from carl_sumo.sumo import lane_route
@@ -223,7 +232,7 @@ def check_trials(spec: SweepSpec, trials: list[Trial]) -> None:
     loaded, nets = set(), set()
     for trial in trials:
         try:
-            args = build_parser().parse_args(["train", *trial.argv])
+            args = train_parser().parse_args(["train", *trial.argv])
             check_train_args(args)
             if args.net not in nets:
                 lane_route(args.net)
@@ -240,7 +249,6 @@ def run_trial(config: dict[str, Any]) -> None:
     when the trial restarts, each atomic checkpoint handed to Tune as it is written."""
     from ray import tune
 
-    from carl_sumo.cli import build_parser
     from carl_sumo.cli_policies import train_config
     from carl_sumo.data import load_events
     from carl_sumo.train import train
@@ -250,7 +258,7 @@ def run_trial(config: dict[str, Any]) -> None:
     config = config["trial"]
     if os.path.isdir(config["cwd"]):
         os.chdir(config["cwd"])
-    args = build_parser().parse_args(["train", *config["argv"]])
+    args = train_parser().parse_args(["train", *config["argv"]])
     out = Path(args.out)
     resume, resumed_at = _restore(tune.get_checkpoint(), out)
 
