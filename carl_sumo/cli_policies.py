@@ -17,6 +17,48 @@ from carl_sumo.errors import InputError
 from carl_sumo.files import check_output_file
 
 
+def check_train_args(args: argparse.Namespace) -> Path:
+    """InputError for any bad ``train`` option (before anything runs); the policy file path."""
+    from carl_sumo.agents import ALGOS
+
+    if args.algo not in ALGOS:
+        raise InputError(f"unknown algorithm {args.algo!r}; choose one of {', '.join(ALGOS)}")
+    for name in ("vehicles", "steps", "envs", "eval_every", "checkpoint_every"):
+        positive(getattr(args, name), "--" + name.replace("_", "-"))
+    for name in ("update_every", "batch_size", "imitate_updates"):
+        if getattr(args, name) is not None:
+            positive(getattr(args, name), "--" + name.replace("_", "-"))
+    if args.base is not None:
+        from carl_sumo.controllers import check_base
+
+        check_base(args.base)
+    if args.shield_ttc is not None and not (math.isfinite(args.shield_ttc)
+                                            and args.shield_ttc >= 0):
+        raise InputError(f"--shield-ttc must be a time to collision of 0 s or more (0: off), "
+                         f"got {args.shield_ttc}")
+    if args.imitate is not None:
+        from carl_sumo.imitation import teacher
+
+        teacher(args.imitate)
+        if args.base not in (None, "idm"):
+            raise InputError("--imitate warm-starts the paper's IDM-based adjustment; a run on "
+                             "a classical --base starts on that base already: leave one out")
+    return check_output_file(args.out or Path("policies") / f"{args.algo.replace('-', '_')}.pt",
+                             "--out")
+
+
+def train_config(args: argparse.Namespace, out: Path, command: str):
+    """The :class:`carl_sumo.train.TrainConfig` of parsed ``train`` options."""
+    from carl_sumo.train import TrainConfig
+
+    return TrainConfig(algo=args.algo, n_vehicles=args.vehicles, steps=args.steps, seed=args.seed,
+                      num_envs=args.envs, learning_starts=args.learning_starts,
+                      eval_every=args.eval_every, checkpoint_every=args.checkpoint_every,
+                      net=args.net, data=args.data, split=args.split, out=str(out),
+                      command=command,
+                      **{k: getattr(args, k) for k in TRAIN_OVERRIDES if getattr(args, k) is not None})
+
+
 def _train_parser(sub: argparse._SubParsersAction) -> None:
     # train options
     p = sub.add_parser("train", help="train a CA-RL (or baseline) agent inside SUMO")
@@ -105,48 +147,6 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_sc
                    "batch_size", "imitate", "imitate_updates", "observe_ahead",
                    "shield_ttc")
 """Training options that, when given, override the defaults of TrainConfig."""
-
-
-def check_train_args(args: argparse.Namespace) -> Path:
-    """InputError for any bad ``train`` option (before anything runs); the policy file path."""
-    from carl_sumo.agents import ALGOS
-
-    if args.algo not in ALGOS:
-        raise InputError(f"unknown algorithm {args.algo!r}; choose one of {', '.join(ALGOS)}")
-    for name in ("vehicles", "steps", "envs", "eval_every", "checkpoint_every"):
-        positive(getattr(args, name), "--" + name.replace("_", "-"))
-    for name in ("update_every", "batch_size", "imitate_updates"):
-        if getattr(args, name) is not None:
-            positive(getattr(args, name), "--" + name.replace("_", "-"))
-    if args.base is not None:
-        from carl_sumo.controllers import check_base
-
-        check_base(args.base)
-    if args.shield_ttc is not None and not (math.isfinite(args.shield_ttc)
-                                            and args.shield_ttc >= 0):
-        raise InputError(f"--shield-ttc must be a time to collision of 0 s or more (0: off), "
-                         f"got {args.shield_ttc}")
-    if args.imitate is not None:
-        from carl_sumo.imitation import teacher
-
-        teacher(args.imitate)
-        if args.base not in (None, "idm"):
-            raise InputError("--imitate warm-starts the paper's IDM-based adjustment; a run on "
-                             "a classical --base starts on that base already: leave one out")
-    return check_output_file(args.out or Path("policies") / f"{args.algo.replace('-', '_')}.pt",
-                             "--out")
-
-
-def train_config(args: argparse.Namespace, out: Path, command: str):
-    """The :class:`carl_sumo.train.TrainConfig` of parsed ``train`` options."""
-    from carl_sumo.train import TrainConfig
-
-    return TrainConfig(algo=args.algo, n_vehicles=args.vehicles, steps=args.steps, seed=args.seed,
-                      num_envs=args.envs, learning_starts=args.learning_starts,
-                      eval_every=args.eval_every, checkpoint_every=args.checkpoint_every,
-                      net=args.net, data=args.data, split=args.split, out=str(out),
-                      command=command,
-                      **{k: getattr(args, k) for k in TRAIN_OVERRIDES if getattr(args, k) is not None})
 
 
 def cmd_train(args: argparse.Namespace) -> None:
