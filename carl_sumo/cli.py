@@ -67,6 +67,9 @@ def cmd_simulate(args: argparse.Namespace) -> None:
     if args.events is not None:
         positive(args.events, "--events")
     names = [c.strip() for c in args.controller.split(",") if c.strip()]
+    if not names:
+        raise InputError(f"--controller {args.controller!r} names no controller; give one or "
+                         "more, e.g. --controller idm,ploeg")
     for name in names:  # fail on a bad controller or platoon length before any simulation runs
         _, controller = resolve_controller(name)
         if controller is not None:

@@ -217,3 +217,12 @@ def test_each_subcommand_has_a_small_parser_function_beside_its_command():
         (m1, options), (m2, run) = where[f"_{key}_parser"], where[f"cmd_{key}"]
         assert m1 == m2 and 0 < run - options <= 2, \
             f"the options of {command} are not beside cmd_{key}"
+
+
+@pytest.mark.parametrize("controllers", ["", " , "])
+def test_simulate_without_a_controller_is_one_line_exit_2(capsys, controllers):
+    """Found by test_properties' random values in a fresh clone: an empty --controller used to
+    end in a traceback (no table to print)."""
+    assert main(["simulate", "--controller", controllers, "--events", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("carl-sumo: error: --controller") and "\n" not in err
