@@ -14,10 +14,12 @@ import sys
 import time
 from pathlib import Path
 
-from carl_sumo.cli_common import add_common, add_impairments, fmt, impairments_from, positive
+from carl_sumo.cli_common import (Parser, add_common, add_impairments, add_ray, check_ray, fmt,
+                                   impairments_from, positive, ray_session, workers_for)
 from carl_sumo.cli_policies import (_export_parser, _policy_info_parser, _rank_parser,
                                     _train_parser, _tune_parser, cmd_export, cmd_policy_info,
                                     cmd_rank, cmd_train, cmd_tune)
+from carl_sumo.cli_sweep import _sweep_parser, cmd_sweep
 from carl_sumo.errors import InputError
 from carl_sumo.files import check_output_dir, check_output_file, write_text_atomic
 from carl_sumo.workers import WorkerError
@@ -25,11 +27,7 @@ from carl_sumo.workers import WorkerError
 EXIT_BAD_INPUT = 2
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse, but a usage error is one line and exit status 2."""
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        raise InputError(f"{message} (see `{self.prog} --help`)")
+_Parser = Parser  # a usage error is one line and exit status 2
 
 
 def format_table(results: list[dict]) -> str:
@@ -51,8 +49,10 @@ def _simulate_parser(sub: argparse._SubParsersAction) -> None:
                         "ploeg-tuned:h=H | human | POLICY.pt; several with commas")
     p.add_argument("--events", type=int, default=None, metavar="K", help="only the first K events")
     p.add_argument("--json", type=Path, default=None, metavar="OUT", help="write metrics as JSON")
-    p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
-                   help="parallel SUMO processes (default: 2, or the number of cores if fewer)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="parallel SUMO processes (default: 2, or the number of cores if fewer; "
+                        "with --ray: the cluster's CPUs)")
+    add_ray(p)
     add_impairments(p)
 
 
@@ -76,11 +76,15 @@ def cmd_simulate(args: argparse.Namespace) -> None:
         if controller is not None:
             controller.reset(args.vehicles)
         check_impairable(name, impairments)
+    if args.workers is not None:
+        positive(args.workers, "--workers")
+    check_ray(args)
     events = load_events(args.data, args.split, limit=args.events)
     start = time.perf_counter()
-    workers = positive(args.workers, "--workers")
-    results = [simulate(name, events, args.vehicles, args.net, progress=sys.stderr.isatty(),
-                        workers=workers, impairments=impairments) for name in names]
+    with ray_session(args, args.workers or os.cpu_count()):
+        workers = workers_for(args, min(2, os.cpu_count() or 1))
+        results = [simulate(name, events, args.vehicles, args.net, progress=sys.stderr.isatty(),
+                            workers=workers, impairments=impairments) for name in names]
     print(format_table(results))
     print(f"{len(events)} events of split {args.split} of {args.data}, "
           f"{time.perf_counter() - start:.1f} s")
@@ -139,8 +143,10 @@ def _evaluate_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--policies", type=Path, default=None,
                    help="directory of the policy files (default: policies/)")
     p.add_argument("--net", default="networks/i80.net.xml", help="SUMO network (.net.xml)")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
-                   help="parallel SUMO processes (default: the number of cores)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="parallel SUMO processes (default: the number of cores; with --ray: the "
+                        "cluster's CPUs)")
+    add_ray(p)
     p.add_argument("--all-seeds", action="store_true",
                    help="run every model's seed files in every table (slower)")
     p.add_argument("--seeds", action="store_true",
@@ -152,8 +158,17 @@ def _evaluate_parser(sub: argparse._SubParsersAction) -> None:
 def cmd_evaluate(args: argparse.Namespace) -> None:
     from carl_sumo.evaluate import evaluate
 
-    workers = positive(args.workers, "--workers")
+    if args.workers is not None:
+        positive(args.workers, "--workers")
     check_output_dir(args.out, "--out")
+    check_ray(args)
+    with ray_session(args, args.workers or os.cpu_count()):
+        _run_evaluate(args, workers_for(args, os.cpu_count() or 1))
+
+
+def _run_evaluate(args: argparse.Namespace, workers: int) -> None:
+    from carl_sumo.evaluate import evaluate
+
     if args.suite == "robustness":
         from carl_sumo.robustness import CONTROLLERS, run_robustness
 
@@ -256,8 +271,10 @@ def _study_parser(sub: argparse._SubParsersAction) -> None:
                    help="position of the induction loops on i80_main (m from its start)")
     p.add_argument("--heatmap-lane", type=int, default=6,
                    help="NGSIM lane of the time-space speed maps (1 = leftmost, 6 = rightmost)")
-    p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
-                   help="parallel SUMO processes")
+    p.add_argument("--workers", type=int, default=None,
+                   help="parallel SUMO processes (default: 2, or the number of cores if fewer; "
+                        "with --ray: the cluster's CPUs)")
+    add_ray(p)
     p.add_argument("--fcd", action="store_true",
                    help="also write SUMO FCD output (1 s period, gzip) of the first seed per rate")
     p.add_argument("--out", type=Path, default=Path("results/study"), help="output folder")
@@ -294,8 +311,10 @@ def cmd_study(args: argparse.Namespace) -> None:
     if not (math.isfinite(args.warmup) and args.warmup >= 0):
         raise InputError(f"--warmup must be a non-negative number of seconds, got {args.warmup}")
     positive(args.seeds, "--seeds")
-    positive(args.workers, "--workers")
+    if args.workers is not None:
+        positive(args.workers, "--workers")
     check_output_dir(args.out, "--out")
+    check_ray(args)
     lane_route(args.net, args.heatmap_lane)  # checks the network and the lane
     if not 0.0 <= args.detector_pos:
         raise InputError(f"--detector-pos must be non-negative, got {args.detector_pos}")
@@ -304,7 +323,7 @@ def cmd_study(args: argparse.Namespace) -> None:
                       seeds=tuple(range(args.seeds)), duration_s=args.duration,
                       warmup_s=args.warmup, v2v_range_m=args.v2v_range,
                       detector_pos_m=args.detector_pos, heatmap_lane=args.heatmap_lane,
-                      net=str(args.net), demand=demand, fcd=args.fcd, workers=args.workers,
+                      net=str(args.net), demand=demand, fcd=args.fcd, workers=1,
                       human_sigma=args.human_sigma, impairments=impairments_from(args))
     kind, _ = resolve_study_controller(cfg.controller)
     if cfg.impairments is not None and kind != "external":
@@ -313,7 +332,9 @@ def cmd_study(args: argparse.Namespace) -> None:
                          "file), not to SUMO's own CACC")
     _check_detector(cfg)
     start = time.perf_counter()
-    results = run_study(cfg, args.out, progress=sys.stderr.isatty())
+    with ray_session(args, args.workers or os.cpu_count()):
+        cfg = replace(cfg, workers=workers_for(args, min(2, os.cpu_count() or 1)))
+        results = run_study(cfg, args.out, progress=sys.stderr.isatty())
     wall = time.perf_counter() - start
     written = write_outputs(cfg, results, args.out, "carl-sumo " + " ".join(sys.argv[1:]), wall)
     print(markdown_table(summarise(results)))
@@ -384,8 +405,8 @@ def build_parser() -> argparse.ArgumentParser:
     (``_<command>_parser`` above ``cmd_<command>``, here or in :mod:`carl_sumo.cli_policies`)."""
     parser = _Parser(prog="carl-sumo", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
-    for add in (_simulate_parser, _replay_parser, _evaluate_parser, _train_parser, _tune_parser,
-                _export_parser, _policy_info_parser, _rank_parser, _bench_parser, _study_parser,
+    for add in (_simulate_parser, _replay_parser, _evaluate_parser, _train_parser, _sweep_parser,
+                _tune_parser, _export_parser, _policy_info_parser, _rank_parser, _bench_parser, _study_parser,
                 _net_parser, _data_parser):
         add(sub)
     return parser
@@ -393,6 +414,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 COMMANDS = {"simulate": cmd_simulate, "evaluate": cmd_evaluate, "train": cmd_train,
             "policy-info": cmd_policy_info, "export": cmd_export, "tune": cmd_tune,
+            "sweep": cmd_sweep,
             "replay": cmd_replay,
             "bench": cmd_bench, "rank": cmd_rank, "net": cmd_net, "study": cmd_study,
             "data": cmd_data}

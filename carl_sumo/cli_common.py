@@ -4,8 +4,18 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
+from contextlib import contextmanager
+from typing import Iterator
 
 from carl_sumo.errors import InputError
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line (InputError: exit status 2)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise InputError(f"{message} (see `{self.prog} --help`)")
 
 
 def add_common(p: argparse.ArgumentParser, split_default: str = "test") -> None:
@@ -54,3 +64,50 @@ def fmt(value: float) -> str:
     if isinstance(value, int):
         return str(value)
     return "nan" if math.isnan(value) else f"{value:.3f}"
+
+
+def add_ray(p: argparse.ArgumentParser, what: str = "the SUMO tasks") -> None:
+    """``--ray ADDRESS``: run ``what`` as Ray tasks (:mod:`carl_sumo.cluster`)."""
+    p.add_argument("--ray", default=None, metavar="ADDRESS",
+                   help=f"run {what} on Ray: local (a Ray runtime in this process with --workers "
+                        "CPUs), auto (the cluster started here with `ray start --head`) or "
+                        "HOST:PORT of a cluster's head; needs pip install -e '.[ray]'")
+
+
+def check_ray(args: argparse.Namespace) -> None:
+    """InputError now (before any long work) for a malformed ``--ray`` or a missing extra."""
+    if getattr(args, "ray", None) is not None:
+        from carl_sumo.cluster import check_address, import_ray
+
+        check_address(args.ray)
+        import_ray()
+
+
+@contextmanager
+def ray_session(args: argparse.Namespace, num_cpus: int | None = None) -> Iterator[None]:
+    """Connected to ``--ray`` (when given) for the block, ``num_cpus`` CPUs for ``local``;
+    afterwards one line on stderr says how many tasks ran on which nodes."""
+    if getattr(args, "ray", None) is None:
+        yield
+        return
+    from carl_sumo import cluster
+
+    cluster.connect(args.ray, num_cpus)
+    try:
+        yield
+    finally:
+        if cluster.last_nodes:
+            print(f"ray: {cluster.describe_nodes()}", file=sys.stderr)
+        cluster.disconnect()
+
+
+def workers_for(args: argparse.Namespace, default: int) -> int:
+    """``--workers`` if given (at least 1), else: with ``--ray`` the CPUs of the Ray runtime
+    (call inside :func:`ray_session`), without it ``default``."""
+    if args.workers is not None:
+        return positive(args.workers, "--workers")
+    if getattr(args, "ray", None) is not None:
+        from carl_sumo.cluster import cluster_cpus
+
+        return cluster_cpus()
+    return default

@@ -12,7 +12,7 @@ import os
 import sys
 from pathlib import Path
 
-from carl_sumo.cli_common import add_common, fmt, positive
+from carl_sumo.cli_common import add_common, add_ray, check_ray, fmt, positive, ray_session
 from carl_sumo.errors import InputError
 from carl_sumo.files import check_output_file
 
@@ -28,6 +28,48 @@ def _add_reward_options(p: argparse.ArgumentParser) -> None:
                    help="jerk that normalises the comfort term (m/s³)")
 
 
+def check_train_args(args: argparse.Namespace) -> Path:
+    """InputError for any bad ``train`` option (before anything runs); the policy file path."""
+    from carl_sumo.agents import ALGOS
+
+    if args.algo not in ALGOS:
+        raise InputError(f"unknown algorithm {args.algo!r}; choose one of {', '.join(ALGOS)}")
+    for name in ("vehicles", "steps", "envs", "eval_every", "checkpoint_every"):
+        positive(getattr(args, name), "--" + name.replace("_", "-"))
+    for name in ("update_every", "batch_size", "imitate_updates"):
+        if getattr(args, name) is not None:
+            positive(getattr(args, name), "--" + name.replace("_", "-"))
+    if args.base is not None:
+        from carl_sumo.controllers import check_base
+
+        check_base(args.base)
+    if args.shield_ttc is not None and not (math.isfinite(args.shield_ttc)
+                                            and args.shield_ttc >= 0):
+        raise InputError(f"--shield-ttc must be a time to collision of 0 s or more (0: off), "
+                         f"got {args.shield_ttc}")
+    if args.imitate is not None:
+        from carl_sumo.imitation import teacher
+
+        teacher(args.imitate)
+        if args.base not in (None, "idm"):
+            raise InputError("--imitate warm-starts the paper's IDM-based adjustment; a run on "
+                             "a classical --base starts on that base already: leave one out")
+    return check_output_file(args.out or Path("policies") / f"{args.algo.replace('-', '_')}.pt",
+                             "--out")
+
+
+def train_config(args: argparse.Namespace, out: Path, command: str):
+    """The :class:`carl_sumo.train.TrainConfig` of parsed ``train`` options."""
+    from carl_sumo.train import TrainConfig
+
+    return TrainConfig(algo=args.algo, n_vehicles=args.vehicles, steps=args.steps, seed=args.seed,
+                      num_envs=args.envs, learning_starts=args.learning_starts,
+                      eval_every=args.eval_every, checkpoint_every=args.checkpoint_every,
+                      net=args.net, data=args.data, split=args.split, out=str(out),
+                      command=command,
+                      **{k: getattr(args, k) for k in TRAIN_OVERRIDES if getattr(args, k) is not None})
+
+
 def _train_parser(sub: argparse._SubParsersAction) -> None:
     # train options
     p = sub.add_parser("train", help="train a CA-RL (or baseline) agent inside SUMO")
@@ -36,6 +78,7 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--steps", type=int, default=20_000, help="vector steps (all envs at once)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--envs", type=int, default=2, help="parallel SUMO worker processes")
+    add_ray(p, "the --envs SUMO environments (as Ray actors; the same steps)")
     p.add_argument("--learning-starts", type=int, default=1_000)
     p.add_argument("--eval-every", type=int, default=2_000)
     p.add_argument("--checkpoint-every", type=int, default=5_000)
@@ -117,42 +160,20 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_sc
 
 
 def cmd_train(args: argparse.Namespace) -> None:
-    from carl_sumo.agents import ALGOS
     from carl_sumo.data import load_events
-    from carl_sumo.train import TrainConfig, train
+    from carl_sumo.train import train
 
-    if args.algo not in ALGOS:
-        raise InputError(f"unknown algorithm {args.algo!r}; choose one of {', '.join(ALGOS)}")
-    for name in ("vehicles", "steps", "envs", "eval_every", "checkpoint_every"):
-        positive(getattr(args, name), "--" + name.replace("_", "-"))
-    for name in ("update_every", "batch_size", "imitate_updates"):
-        if getattr(args, name) is not None:
-            positive(getattr(args, name), "--" + name.replace("_", "-"))
-    if args.base is not None:
-        from carl_sumo.controllers import check_base
-
-        check_base(args.base)
-    if args.shield_ttc is not None and not (math.isfinite(args.shield_ttc)
-                                            and args.shield_ttc >= 0):
-        raise InputError(f"--shield-ttc must be a time to collision of 0 s or more (0: off), "
-                         f"got {args.shield_ttc}")
-    if args.imitate is not None:
-        from carl_sumo.imitation import teacher
-
-        teacher(args.imitate)
-        if args.base not in (None, "idm"):
-            raise InputError("--imitate warm-starts the paper's IDM-based adjustment; a run on "
-                             "a classical --base starts on that base already: leave one out")
-    out = check_output_file(args.out or Path("policies") / f"{args.algo.replace('-', '_')}.pt",
-                            "--out")
+    out = check_train_args(args)
+    check_ray(args)
     events = load_events(args.data, args.split)
-    cfg = TrainConfig(algo=args.algo, n_vehicles=args.vehicles, steps=args.steps, seed=args.seed,
-                      num_envs=args.envs, learning_starts=args.learning_starts,
-                      eval_every=args.eval_every, checkpoint_every=args.checkpoint_every,
-                      net=args.net, data=args.data, split=args.split, out=str(out),
-                      command="carl-sumo " + " ".join(sys.argv[1:]),
-                      **{k: getattr(args, k) for k in TRAIN_OVERRIDES if getattr(args, k) is not None})
-    result = train(cfg, events, resume=args.resume, progress=sys.stderr.isatty())
+    cfg = train_config(args, out, "carl-sumo " + " ".join(sys.argv[1:]))
+    with ray_session(args, args.envs):
+        if args.ray is not None:
+            from carl_sumo.cluster import require_cpus
+
+            require_cpus(args.envs, "--envs")
+        result = train(cfg, events, resume=args.resume, progress=sys.stderr.isatty(),
+                       rollouts="processes" if args.ray is None else "ray")
     val = result["validation"]
     print(f"wrote {out} (best validation score {result['best_score']:.4f}); "
           f"wall time {result['wall_time_s']:.0f} s; last validation: "
@@ -272,3 +293,4 @@ def cmd_rank(args: argparse.Namespace) -> None:
               f"{'yes' if r['unsafe'] else 'no'} | " + " | ".join(f"{r[k]:.3f}" for k in inputs)
               + " |")
     print(f"best: {rows[0]['path']}")
+

@@ -124,7 +124,8 @@ def plan_tasks(suite: Suite, net: str) -> list[dict]:
 def run_tasks(tasks: list[dict], workers: int | None = None, progress: bool = False
               ) -> dict[tuple, JobResult]:
     """Run tasks (longest first) in ``workers`` spawned processes (None: in this process);
-    results merged per job."""
+    results merged per job, in the order of the plan (so the outputs do not depend on which
+    task finished first)."""
     parts: dict[tuple, list[dict]] = {}
     bar = None
     if progress:
@@ -151,7 +152,8 @@ def run_tasks(tasks: list[dict], workers: int | None = None, progress: bool = Fa
         if bar is not None:
             bar.close()
     results: dict[tuple, JobResult] = {}
-    for job, outs in parts.items():
+    for job in dict.fromkeys(t["job"] for t in tasks):  # the plan's order, not the finishing one
+        outs = parts[job]
         res = JobResult(samples={k: [] for k in SAMPLE_KEYS})
         for out in sorted(outs, key=lambda o: o["index"]):
             res.per_event += out["per_event"]

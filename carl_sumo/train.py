@@ -181,14 +181,19 @@ def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: flo
 
 
 def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
-          progress: bool = True, log=print) -> dict[str, Any]:
+          progress: bool = True, log=print, rollouts: str = "processes",
+          on_checkpoint=None) -> dict[str, Any]:
     """Train an agent; writes the best policy to ``cfg.out``, checkpoints and a CSV log beside it.
+
+    ``rollouts``: the environments run in spawned processes or, ``"ray"``, in Ray actors (the same
+    steps). ``on_checkpoint(step)`` is called after each checkpoint is written (``sweep``
+    hands it to Ray Tune).
 
     Returns the final validation metrics and timing. Long on purpose: the whole algorithm loop
     (act, step, store, update, validate, keep, checkpoint) reads top to bottom in one place, as in
     CleanRL; its parts that stand alone (validation, selection, checkpoints) are functions above.
     """
-    from carl_sumo.vec_env import VecPlatoon
+    from carl_sumo.vec_env import RayVecPlatoon, VecPlatoon
 
     train_events, val_events = held_out_split(events, cfg)  # InputError before any file
     teacher = _teacher(cfg)  # InputError before any file
@@ -248,8 +253,9 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
         start = {**baseline, **improvement_z(baseline_events, baseline_events)}
         best = selection_score(start, cfg.select, baseline)
         save_policy(agent, out, _metadata(cfg, agent, start, 0.0, baseline, val_events))
-    vec = VecPlatoon(train_events, n, cfg.net, cfg.num_envs, cfg.seed + start_step, cfg.reward,
-                     cfg.base, cfg.observe_ahead, adjustment_bounds(cfg.adj_max), cfg.shield_ttc)
+    vec_class = RayVecPlatoon if rollouts == "ray" else VecPlatoon
+    vec = vec_class(train_events, n, cfg.net, cfg.num_envs, cfg.seed + start_step, cfg.reward,
+                    cfg.base, cfg.observe_ahead, adjustment_bounds(cfg.adj_max), cfg.shield_ttc)
     obs = vec.reset(cfg.seed + start_step, channels.current if channels is not None else None)
     links = channels.receive() if channels is not None else None
     new_log = not (resume is not None and log_path.exists())
@@ -334,6 +340,9 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
             if done_steps % cfg.checkpoint_every == 0 or done_steps == cfg.steps:
                 _save_checkpoint(ckpt_path, cfg, agent, buffer, rng, done_steps, best,
                                  wall_before + time.perf_counter() - t0)
+                if on_checkpoint is not None:
+                    log_file.flush()
+                    on_checkpoint(done_steps)
             if bar is not None:
                 bar.update(1)
     finally:

@@ -9,6 +9,9 @@ tasks that had not finished run again in a fresh pool, and those lost again one 
 task is deterministic given its arguments, so the results are the same as without the fault. A
 task whose worker dies when it runs alone stops the job with :class:`WorkerError`, one line
 naming it.
+
+:func:`set_backend` replaces the pool by another runner of the same tasks: ``--ray`` sets
+:func:`carl_sumo.cluster.run_ray` (Ray remote tasks, the same results).
 """
 
 from __future__ import annotations
@@ -21,6 +24,16 @@ from typing import Any, Callable, Iterator, Sequence
 
 class WorkerError(RuntimeError):
     """A worker process died again while running the same task."""
+
+
+_backend: Callable[..., Iterator[Any]] | None = None
+
+
+def set_backend(runner: Callable[..., Iterator[Any]] | None) -> None:
+    """Run :func:`run_parallel`'s tasks with ``runner(fn, items, workers, describe, ordered)``
+    instead of the local pool (None: the local pool again)."""
+    global _backend
+    _backend = runner
 
 
 def worker_init() -> None:
@@ -104,7 +117,10 @@ def run_parallel(fn: Callable[..., Any], items: Sequence[tuple], workers: int,
     ``items`` (``ordered``) or as they finish. The tasks lost with a dead worker run again in a
     fresh pool; those lost a second time run one at a time, each in a fresh worker, and a task
     whose worker dies then raises :class:`WorkerError` naming it (``describe``). Exceptions
-    raised by ``fn`` itself propagate."""
+    raised by ``fn`` itself propagate. With a backend set (:func:`set_backend`) it runs them."""
+    if _backend is not None:
+        yield from _backend(fn, items, workers, describe, ordered)
+        return
     done: dict[int, Any] = {}
     next_out = 0
     todo: list[int] = list(range(len(items)))

@@ -193,13 +193,13 @@ def test_each_subcommand_has_a_small_parser_function_beside_its_command():
     import ast
     import inspect
 
-    from carl_sumo import cli, cli_common, cli_policies
+    from carl_sumo import cli, cli_common, cli_policies, cli_sweep
 
     parser = cli.build_parser()
     (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
     assert set(sub.choices) == set(cli.COMMANDS)
     where = {}
-    for module in (cli, cli_common, cli_policies):
+    for module in (cli, cli_common, cli_policies, cli_sweep):
         source = inspect.getsource(module)
         assert len(source.splitlines()) <= 500, f"{module.__name__} is over 500 lines"
         functions = [n for n in ast.parse(source).body if isinstance(n, ast.FunctionDef)]
@@ -219,3 +219,12 @@ def test_each_subcommand_has_a_small_parser_function_beside_its_command():
         (m1, options), (m2, run) = where[f"_{key}_parser"], where[f"cmd_{key}"]
         assert m1 == m2 and 0 < run - options <= 2, \
             f"the options of {command} are not beside cmd_{key}"
+
+
+@pytest.mark.parametrize("controllers", ["", " , "])
+def test_simulate_without_a_controller_is_one_line_exit_2(capsys, controllers):
+    """Found by test_properties' random values in a fresh clone: an empty --controller used to
+    end in a traceback (no table to print)."""
+    assert main(["simulate", "--controller", controllers, "--events", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("carl-sumo: error: --controller") and "\n" not in err

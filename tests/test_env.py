@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 from pettingzoo.test import parallel_api_test
 
 from carl_sumo.config import ControlBounds
@@ -77,3 +78,27 @@ def test_unknown_base_is_refused():
 
     with pytest.raises(InputError, match="unknown base model 'krauss'"):
         PlatoonEnv([braking_event()], n_followers=2, net_path=NET, base="krauss")
+
+
+def test_the_env_runs_through_rllibs_pettingzoo_wrapper():
+    """RLlib users plug the ParallelEnv in through Ray's wrapper: it builds, resets and steps,
+    with the env's spaces per agent (skipped without the Ray extra)."""
+    pytest.importorskip("ray")
+    pytest.importorskip("tree")  # RLlib's own dependency (dm-tree), part of the extra
+    from ray.rllib.env.multi_agent_env import MultiAgentEnv
+    from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
+
+    from carl_sumo.data import load_events
+
+    env = ParallelPettingZooEnv(PlatoonEnv(load_events("default", "train")[:2], 3, NET))
+    assert isinstance(env, MultiAgentEnv)
+    obs, _ = env.reset(seed=0)
+    assert sorted(obs) == ["cacc_0", "cacc_1", "cacc_2"]
+    assert all(env.observation_space[a].contains(o) for a, o in obs.items())
+    for _ in range(20):
+        actions = {a: np.full(1, -0.5, np.float32) for a in obs}  # all brake gently
+        obs, rewards, terminated, truncated, _ = env.step(actions)
+    assert set(rewards) == {"cacc_0", "cacc_1", "cacc_2"}
+    assert terminated["__all__"] is False and truncated["__all__"] is False
+    assert all(np.isfinite(r) for r in rewards.values())
+    env.close()

@@ -339,3 +339,19 @@ def test_replay_maddpg_other_length_is_refused_before_running(capsys, tmp_path):
                        "--fcd", tmp_path / "out.xml", "--net", NET)
     assert code == 2 and "trained for 10 vehicles" in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_quick_suite_through_ray_writes_the_same_tables(quick_suite, tmp_path):
+    """``--ray local``: the suite's tasks as Ray tasks give every table and per-event row of the
+    local pool's run (the fixture's), byte for byte."""
+    pytest.importorskip("ray")
+    policies = quick_suite.parent / "policies"
+    out = tmp_path / "ray"
+    assert main(["evaluate", "--suite", "paper", "--quick", "--seeds", "--out", str(out),
+                 "--policies", str(policies), "--net", str(NET), "--workers", "2",
+                 "--ray", "local"]) == 0
+    compared = sorted(p.name for p in quick_suite.glob("*.csv") if p.name != "timing.csv")
+    assert "per_event.csv" in compared and "table1_ngsim_test.csv" in compared
+    for name in compared:
+        assert (out / name).read_bytes() == (quick_suite / name).read_bytes(), name
+    assert {p.name for p in out.iterdir()} == {p.name for p in quick_suite.iterdir()}
