@@ -70,6 +70,19 @@ def train_config(args: argparse.Namespace, out: Path, command: str):
                       **{k: getattr(args, k) for k in TRAIN_OVERRIDES if getattr(args, k) is not None})
 
 
+def _add_robust_training_options(p: argparse.ArgumentParser) -> None:
+    """Training for impaired V2V and sensors (carl_sumo.randomize)."""
+    p.add_argument("--comm-randomize", action="store_true", default=None,
+                   help="robust training: every episode draws its own V2V delay (0-0.5 s), loss "
+                        "(0-100 %%, in bursts half the time) and sensor noise (half the time), "
+                        "a quarter of them perfect; the actor learns on the messages as they "
+                        "arrive (see docs/robustness.md)")
+    p.add_argument("--val-impaired", action="store_true", default=None,
+                   help="validate every event also with 30 %% loss in bursts of 3 steps, 0.2 s "
+                        "delay and sensor noise, and keep the checkpoint that is best over both "
+                        "(for --comm-randomize)")
+
+
 def _train_parser(sub: argparse._SubParsersAction) -> None:
     # train options
     p = sub.add_parser("train", help="train a CA-RL (or baseline) agent inside SUMO")
@@ -110,11 +123,7 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
                         "seconds gets no positive adjustment (the learned term may only brake "
                         "more there); part of the policy, in training and wherever it runs "
                         "(default 0: off)")
-    p.add_argument("--comm-randomize", action="store_true", default=None,
-                   help="robust training: every episode draws its own V2V delay (0-0.5 s), loss "
-                        "(0-100 %%, in bursts half the time) and sensor noise (half the time), "
-                        "a quarter of them perfect; the actor learns on the messages as they "
-                        "arrive (see docs/robustness.md)")
+    _add_robust_training_options(p)
     p.add_argument("--imitate", default=None, metavar="PLOEG",
                    help="warm start (IDM base only): the platoons drive with this Ploeg CACC plus "
                         "exploration noise for --learning-starts steps, then the actor is fitted "
@@ -155,7 +164,7 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_sc
                    "smooth_accel", "eval_events", "val_seed", "val_source", "gamma",
                    "adj_max", "base", "critic_burn_in", "braking_events", "update_every",
                    "batch_size", "imitate", "imitate_updates", "observe_ahead",
-                   "shield_ttc", "comm_randomize")
+                   "shield_ttc", "comm_randomize", "val_impaired")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 

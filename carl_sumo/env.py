@@ -113,6 +113,11 @@ class PlatoonEnv(ParallelEnv):
             return obs
         return np.column_stack([obs, self._base.acceleration(obs, commit=False)])
 
+    @property
+    def true_observation(self) -> np.ndarray:
+        """This step's [v, a, d, Δv] (n, 4) as they are (what the vehicles see may be noisy)."""
+        return self._true
+
     def step_array(self, adjustment: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray, bool, bool, np.ndarray]:
         """Apply a_adj (m/s², shape (n,)); returns obs, rewards, terminated, truncated, a."""

@@ -12,6 +12,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from carl_sumo.agents import Agent
+from carl_sumo.channel import Impairments, PlatoonLinks
 from carl_sumo.data.events import Event
 from carl_sumo.env import PlatoonEnv
 from carl_sumo.errors import InputError
@@ -19,26 +20,42 @@ from carl_sumo.metrics import BETTER, PlatoonTrajectory, aggregate, event_weight
 from carl_sumo.policy import read_policy_payload
 
 
-def validate_events(agent: Agent, env: PlatoonEnv, events: Sequence[Event]
+VALIDATION_IMPAIRMENTS = Impairments(delay_s=0.2, loss=0.3, burst=3.0, sensor_noise=True)
+"""``train --val-impaired``: validation also runs here (the robustness suite's hardest setting:
+30 % loss in bursts of 3 steps, 0.2 s delay, sensor noise), with impairment seed 0."""
+
+
+def validate_events(agent: Agent, env: PlatoonEnv, events: Sequence[Event],
+                    conditions: Sequence[Impairments | None] = (None,)
                     ) -> tuple[float, list[dict[str, float]]]:
-    """Greedy policy on each event: mean per-vehicle reward and each event's metrics."""
+    """Greedy policy on each event under each of ``conditions`` (None: a perfect channel and
+    clean sensors): mean per-vehicle reward and each (condition, event)'s metrics, scored on the
+    true state."""
     from carl_sumo.inference import CompiledActor
 
     act = CompiledActor(agent) if isinstance(agent, Agent) else agent.act  # numba, ~40 µs a step
     rewards, per_event = [], []
-    for event in events:
-        obs = env.reset_array(event=event)
-        speeds, gaps, leader = [obs[:, 0]], [obs[:, 2]], [env.sim.leader_speed]
-        collisions, done = 0, False
-        while not done:
-            obs, reward, terminated, truncated, _ = env.step_array(act(obs))
-            rewards.append(reward.mean())
-            speeds.append(obs[:, 0]), gaps.append(obs[:, 2]), leader.append(env.sim.leader_speed)
-            collisions = int((obs[:, 2] <= 0).sum()) if terminated else 0
-            done = terminated or truncated
-        per_event.append(score_event(PlatoonTrajectory(event.event_id, np.array(leader),
-                                                       np.array(speeds), np.array(gaps),
-                                                       collisions)))
+    for impairments in conditions:
+        for event in events:
+            obs = env.reset_array(event=event, impairments=impairments)
+            links = None
+            if (impairments is not None and not impairments.perfect_channel
+                    and isinstance(act, CompiledActor) and act.message_dim):
+                links = PlatoonLinks(len(obs), act.message_dim, impairments, event.event_id)
+            true = env.true_observation
+            speeds, gaps, leader = [true[:, 0]], [true[:, 2]], [env.sim.leader_speed]
+            collisions, done = 0, False
+            while not done:
+                action = act(obs) if links is None else act.act_over(obs, links)
+                obs, reward, terminated, truncated, _ = env.step_array(action)
+                true = env.true_observation
+                rewards.append(reward.mean())
+                speeds.append(true[:, 0]), gaps.append(true[:, 2])
+                leader.append(env.sim.leader_speed)
+                collisions = int((true[:, 2] <= 0).sum()) if terminated else 0
+                done = terminated or truncated
+            per_event.append(score_event(PlatoonTrajectory(
+                event.event_id, np.array(leader), np.array(speeds), np.array(gaps), collisions)))
     return float(np.mean(rewards)), per_event
 
 

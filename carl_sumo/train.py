@@ -31,8 +31,8 @@ from carl_sumo.imitation import teacher_adjustment
 from carl_sumo.errors import InputError
 from carl_sumo.metrics import aggregate
 from carl_sumo.policy import load_torch, save_policy, save_torch_atomic
-from carl_sumo.selection import (MARGIN_KEYS, BaseOnly, improvement_z, selection_score,
-                                 validate_events)
+from carl_sumo.selection import (MARGIN_KEYS, VALIDATION_IMPAIRMENTS, BaseOnly, improvement_z,
+                                 selection_score, validate_events)
 from carl_sumo.randomize import RandomisedChannels
 from carl_sumo.replay import ReplayBuffer
 from carl_sumo.files import write_text_atomic
@@ -87,6 +87,7 @@ class TrainConfig:
     observe_ahead: bool = False    # o has a fifth column a_ahead (controllers.AheadAcceleration)
     shield_ttc: float = 0.0        # safety shield of the policy (s; controllers.shield_adjustment)
     comm_randomize: bool = False   # every episode its own V2V delay/loss and sensor noise (randomize.py)
+    val_impaired: bool = False     # validate also under selection.VALIDATION_IMPAIRMENTS
     imitate: str | None = None     # a Ploeg CACC the actor copies first (carl_sumo.imitation)
     imitate_updates: int = 4_000   # behaviour-cloning gradient steps at learning_starts
     imitate_lr: float = 1e-3       # their Adam learning rate
@@ -154,6 +155,12 @@ def _upgrade_log(path: Path) -> None:
     write_text_atomic(path, out.getvalue())
 
 
+def validation_conditions(cfg: TrainConfig) -> tuple:
+    """What validation runs every event under: a perfect channel, and with ``--val-impaired``
+    also :data:`carl_sumo.selection.VALIDATION_IMPAIRMENTS`."""
+    return (None, VALIDATION_IMPAIRMENTS) if cfg.val_impaired else (None,)
+
+
 def seed_everything(seed: int) -> None:
     random.seed(seed)
     np.random.seed(seed)
@@ -172,6 +179,7 @@ def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: flo
                 ", a_base m/s^2]" if agent.cfg.residual else
                 ", a_ahead m/s^2]" if agent.cfg.observe_ahead else "]"),
             "reward": asdict(cfg.reward), "comm_randomize": cfg.comm_randomize,
+            "val_impaired": cfg.val_impaired,
             "validation": {k: float(v) for k, v in val.items()},
             "validation_base": {k: float(v) for k, v in (baseline or {}).items()},
             "validation_events": [e.event_id for e in val_events],
@@ -243,7 +251,9 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                          shield_ttc_s=cfg.shield_ttc)
     for event in train_events:  # fail here, not in a worker, when an event does not fit the net
         check_fits(val_env.sim.route, event, n)
-    base_reward, baseline_events = validate_events(BaseOnly(), val_env, val_events)  # same events
+    conditions = validation_conditions(cfg)
+    base_reward, baseline_events = validate_events(BaseOnly(), val_env, val_events,
+                                                     conditions)  # same events
     baseline = {"val_reward": base_reward, **aggregate(baseline_events)}
     log(f"validation baseline ({cfg.base}): "
         + ", ".join(f"{k}={v:.3f}" for k, v in baseline.items()))
@@ -311,7 +321,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                     agent.update(buffer.sample(agent.cfg.batch_size, rng), train_actor)
             done_steps = step + 1
             if done_steps % cfg.eval_every == 0 or done_steps == cfg.steps:
-                val_reward, per_event = validate_events(agent, val_env, val_events)
+                val_reward, per_event = validate_events(agent, val_env, val_events, conditions)
                 val = {"val_reward": val_reward, **aggregate(per_event),
                        **improvement_z(per_event, baseline_events)}
                 wall = wall_before + time.perf_counter() - t0
@@ -378,7 +388,7 @@ def _clone_teacher(cfg: TrainConfig, agent: Agent, teacher, buffer: ReplayBuffer
     obs, target = imitation.dataset(teacher, buffer.obs[:buffer.size], agent.cfg.adj_max,
                                     cfg.observe_ahead)
     mse = agent.imitate(obs, target, cfg.imitate_updates, cfg.imitate_lr, 256, rng)
-    val_reward, per_event = validate_events(agent, val_env, val_events)
+    val_reward, per_event = validate_events(agent, val_env, val_events, validation_conditions(cfg))
     val = {"val_reward": val_reward, **aggregate(per_event),
            **improvement_z(per_event, baseline_events)}
     log(f"imitated {cfg.imitate} on {len(obs)} platoon states (mse {mse:.4f} m²/s⁴): "

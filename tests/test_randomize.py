@@ -124,13 +124,28 @@ def test_a_randomised_run_trains_on_impaired_messages(tmp_path, algo):
     events = [cruise_event(150, 15.0, 30.0)]
     cfg = TrainConfig(algo=algo, n_vehicles=3, steps=160, seed=0, num_envs=2,
                       learning_starts=60, eval_every=160, eval_events=1, checkpoint_every=160,
-                      net=str(NET), smooth_jerk=0.05, comm_randomize=True,
+                      net=str(NET), smooth_jerk=0.05, comm_randomize=True, val_impaired=True,
                       out=str(tmp_path / "r.pt"))
     train(cfg, events, progress=False)
     agent, meta = load_policy(tmp_path / "r.pt")
-    assert meta["comm_randomize"] is True
+    assert meta["comm_randomize"] is True and meta["val_impaired"] is True
+    assert len(meta["validation_events"]) == 1  # one event, scored under two conditions
     state = torch.load(tmp_path / "r.ckpt", weights_only=False)["buffer"]
     if algo == "ca-td3":  # held and missing messages were met and stored
         assert {HELD, FALLBACK} <= set(state["link_mode"].unique().tolist())
     else:
         assert state["message_dim"] == 0
+
+
+def test_validation_under_impairments_scores_each_event_twice_on_the_true_state():
+    from carl_sumo.selection import VALIDATION_IMPAIRMENTS, BaseOnly, validate_events
+
+    event = braking_event(n=80)
+    env = PlatoonEnv([event], 3, NET)
+    agent = Agent(AgentConfig(algo="ca-td3", n_vehicles=3))
+    _, clean = validate_events(agent, env, [event])
+    _, both = validate_events(agent, env, [event], (None, VALIDATION_IMPAIRMENTS))
+    assert len(both) == 2 and both[0] == clean[0]
+    assert both[1]["jerk_mps3"] > clean[0]["jerk_mps3"]  # noisy gaps: a rougher ride
+    _, base = validate_events(BaseOnly(), env, [event], (None, VALIDATION_IMPAIRMENTS))
+    assert len(base) == 2
