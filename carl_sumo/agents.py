@@ -220,10 +220,7 @@ class Agent(nn.Module):
         single = obs.ndim == 2
         x = torch.as_tensor(obs[None] if single else obs, dtype=torch.float32)
         self.check_length(x.shape[1])
-        action = self._act(self.actor, x, None).numpy().astype(np.float64)
-        if noise is not None:
-            action = np.clip(action + noise.reshape(action.shape), -self.cfg.adj_max,
-                             self.cfg.adj_max)
+        action = self._with_noise(self._act(self.actor, x, None).numpy(), noise)
         return action[0] if single else action
 
     @torch.no_grad()
@@ -235,11 +232,15 @@ class Agent(nn.Module):
         forward and backward messages (b, n, M) the vehicles send."""
         x = normalise(torch.as_tensor(obs, dtype=torch.float32))
         pre, sent_f, sent_b = self.actor.forward_over(x, links_tensors(links))
-        action = (self.cfg.adj_max * torch.tanh(pre.squeeze(-1))).numpy().astype(np.float64)
-        if noise is not None:
-            action = np.clip(action + noise.reshape(action.shape), -self.cfg.adj_max,
-                             self.cfg.adj_max)
+        action = self._with_noise((self.cfg.adj_max * torch.tanh(pre.squeeze(-1))).numpy(), noise)
         return action, sent_f.numpy().astype(np.float64), sent_b.numpy().astype(np.float64)
+
+    def _with_noise(self, action: np.ndarray, noise: np.ndarray | None) -> np.ndarray:
+        """a_adj (m/s², float64) plus exploration ``noise``, kept within ±adj_max."""
+        action = action.astype(np.float64)
+        if noise is None:
+            return action
+        return np.clip(action + noise.reshape(action.shape), -self.cfg.adj_max, self.cfg.adj_max)
 
     # ---------------------------------------------------------------------------- learning
     def imitate(self, obs: torch.Tensor, target: torch.Tensor, updates: int, lr: float,

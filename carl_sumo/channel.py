@@ -106,6 +106,16 @@ class Impairments:
         return np.random.default_rng([self.seed, zlib.crc32(event_id.encode()), stream])
 
 
+BURSTY_CHANNEL = Impairments(delay_s=0.2, loss=0.3, burst=3.0)
+"""The robustness suite's bursty point: 30 % loss in bursts of 3 steps, 0.2 s delay."""
+
+
+def to_bad_probability(loss: float, burst: float) -> float:
+    """Gilbert-Elliott good → bad probability per step that gives the long-run loss rate
+    ``loss`` with bursts of mean length ``burst`` steps (bad → good: 1/burst)."""
+    return loss / (burst * (1.0 - loss)) if loss < 1 else 1.0
+
+
 class LossProcess:
     """Which of ``n`` links lose their message at each step (see the module docstring)."""
 
@@ -113,7 +123,7 @@ class LossProcess:
         self.n, self.loss, self.burst, self.rng = n, loss, burst, rng
         self.bad = rng.random(n) < loss if burst > 1 else np.zeros(n, dtype=bool)
         self.to_good = 1.0 / burst
-        self.to_bad = loss / (burst * (1.0 - loss)) if loss < 1 else 1.0
+        self.to_bad = to_bad_probability(loss, burst)
 
     def draw(self) -> np.ndarray:
         """Lost flags (n,) of the messages sent this step."""
@@ -189,8 +199,7 @@ class KeyedChannel:
         self.in_flight: deque[tuple[int, str, str, np.ndarray]] = deque()
         self.k = -1
         self._lost: dict[str, bool] = {}
-        self._to_bad = impairments.loss / (impairments.burst * (1.0 - impairments.loss)) \
-            if impairments.loss < 1 else 1.0
+        self._to_bad = to_bad_probability(impairments.loss, impairments.burst)
 
     def _draw(self, receiver: str) -> bool:
         loss, burst = self.cfg.loss, self.cfg.burst
@@ -252,8 +261,8 @@ def random_impairments(rng: np.random.Generator) -> Impairments:
     delay_s = round(int(rng.integers(MAX_RANDOM_DELAY_STEPS + 1)) * DT_S, 10)
     loss = float(rng.random())
     burst = float(rng.uniform(1.0, 5.0)) if rng.random() < 0.5 else 1.0
-    return Impairments(delay_s=delay_s, loss=loss, burst=burst, sensor_noise=bool(rng.random() < 0.5),
-                       seed=seed)
+    return Impairments(delay_s=delay_s, loss=loss, burst=burst,
+                       sensor_noise=bool(rng.random() < 0.5), seed=seed)
 
 
 class PlatoonLinks:

@@ -21,18 +21,17 @@ from __future__ import annotations
 import csv
 import io
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from carl_sumo.channel import Impairments
+from carl_sumo.channel import BURSTY_CHANNEL, Impairments
 from carl_sumo.data import load_events
 from carl_sumo.errors import InputError
 from carl_sumo.files import write_text_atomic
-from carl_sumo.metrics import aggregate, bootstrap_ci
-from carl_sumo.simulate import score_events, check_impairable
-from carl_sumo.workers import run_parallel
+from carl_sumo.metrics import bootstrap_ci
+from carl_sumo.simulate import check_impairable, simulate_jobs
 from carl_sumo.suite import DEFAULT_NGSIM
 
 LOSSES = (0.0, 0.1, 0.3, 0.5, 0.8, 1.0)
@@ -68,11 +67,9 @@ def settings(quick: bool = False) -> list[Setting]:
     out = [Setting("perfect", Impairments())]
     out += [Setting(f"loss {p:g}", Impairments(loss=p)) for p in LOSSES[1:]]
     out += [Setting(f"delay {d:g} s", Impairments(delay_s=d)) for d in DELAYS_S[1:]]
-    bursty = Impairments(delay_s=0.2, loss=0.3, burst=3.0)
-    out += [Setting(BURSTY, bursty),
+    out += [Setting(BURSTY, BURSTY_CHANNEL),
             Setting("sensor noise", Impairments(sensor_noise=True)),
-            Setting("sensor noise, loss 0.3 in bursts of 3, delay 0.2 s",
-                    Impairments(delay_s=0.2, loss=0.3, burst=3.0, sensor_noise=True))]
+            Setting(f"sensor noise, {BURSTY}", replace(BURSTY_CHANNEL, sensor_noise=True))]
     if quick:
         keep = {"perfect", "loss 0.3", "delay 0.2 s", "sensor noise"}
         out = [s for s in out if s.label in keep]
@@ -101,7 +98,11 @@ def run_robustness(out: Path, data: str | None = None, quick: bool = False,
             if not (name == "idm-external" and setting.channel_only)  # sends no messages
             for path in runs[name]]
     start = time.perf_counter()
-    per_job = _run_jobs(jobs, events, net, workers, progress)
+    results = simulate_jobs([(path, setting.impairments if setting.label != "perfect" else None)
+                             for setting, _, path in jobs], events, 10, net, workers,
+                            chunks=max(1, min(2 * workers, len(events) // 20)), progress=progress)
+    per_job = {(setting.label, name, path): result
+               for (setting, name, path), result in zip(jobs, results)}
     rows, seed_rows = [], []
     for setting in settings(quick):
         for name in controllers:
@@ -126,31 +127,6 @@ def run_robustness(out: Path, data: str | None = None, quick: bool = False,
     write_text_atomic(out / "robustness.md", _markdown(rows, data, len(events), wall, command))
     figures = _figures(out, rows)
     return {"rows": rows, "wall_time_s": wall, "figures": figures}
-
-
-def _run_jobs(jobs: list[tuple[Setting, str, str]], events: list, net: str, workers: int,
-              progress: bool) -> dict[tuple[str, str, str], dict]:
-    """Every (setting, controller, file) run on the events, as ``simulate`` returns it, in one
-    pool of ``workers`` processes (the events of a run split in chunks of at least 20)."""
-    parts = max(1, min(2 * workers, len(events) // 20))
-    chunks = [events[i::parts] for i in range(parts)]
-    items = [(path, chunk, 10, str(net), False,
-              setting.impairments if setting.label != "perfect" else None)
-             for setting, _, path in jobs for chunk in chunks]
-    results = run_parallel(score_events, items, workers,
-                           describe=lambda a: f"{a[0]} on {len(a[1])} events ({a[5]})")
-    if progress:
-        from tqdm import tqdm
-
-        results = tqdm(results, total=len(items), desc="robustness", unit="run", leave=False)
-    results = list(results)
-    order = {e.event_id: i for i, e in enumerate(events)}
-    out = {}
-    for j, (setting, name, path) in enumerate(jobs):
-        per_event = sorted((m for part in results[j * parts:(j + 1) * parts] for m in part),
-                           key=lambda m: order[m["event_id"]])
-        out[(setting.label, name, path)] = {"metrics": aggregate(per_event), "events": per_event}
-    return out
 
 
 def seed_files(controller: str, k: int) -> list[str]:

@@ -6,13 +6,14 @@ never a test-split number.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
 from carl_sumo.agents import Agent
-from carl_sumo.channel import Impairments, PlatoonLinks
+from carl_sumo.channel import BURSTY_CHANNEL, Impairments, PlatoonLinks
 from carl_sumo.data.events import Event
 from carl_sumo.env import PlatoonEnv
 from carl_sumo.errors import InputError
@@ -20,7 +21,7 @@ from carl_sumo.metrics import BETTER, PlatoonTrajectory, aggregate, event_weight
 from carl_sumo.policy import read_policy_payload
 
 
-VALIDATION_IMPAIRMENTS = Impairments(delay_s=0.2, loss=0.3, burst=3.0, sensor_noise=True)
+VALIDATION_IMPAIRMENTS = replace(BURSTY_CHANNEL, sensor_noise=True)
 """``train --val-impaired``: validation also runs here (the robustness suite's hardest setting:
 30 % loss in bursts of 3 steps, 0.2 s delay, sensor noise), with impairment seed 0."""
 

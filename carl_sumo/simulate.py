@@ -168,16 +168,37 @@ def simulate(controller_name: str, events: Sequence[Event], n_followers: int,
         per_event = score_events(controller_name, events, n_followers, str(net_path), progress,
                                   impairments)
     else:
-        chunks = [list(events[i::workers]) for i in range(workers)]
-        parts = run_parallel(score_events, [(controller_name, chunk, n_followers, str(net_path),
-                                              False, impairments)
-                                             for chunk in chunks], workers,
-                             describe=lambda a: f"{a[0]} on {len(a[1])} events from "
-                                                f"{a[1][0].event_id}")
-        order = {e.event_id: i for i, e in enumerate(events)}
-        per_event = sorted((m for part in parts for m in part), key=lambda m: order[m["event_id"]])
+        per_event = simulate_jobs([(controller_name, impairments)], events, n_followers,
+                                  net_path, workers, chunks=workers)[0]["events"]
     return {"controller": controller_name, "followers": 1 if follower_model == "human"
             else n_followers, "metrics": aggregate(per_event), "events": per_event}
+
+
+def simulate_jobs(jobs: Sequence[tuple[str, Impairments | None]], events: Sequence[Event],
+                  n_followers: int, net_path: str | Path, workers: int, chunks: int,
+                  progress: bool = False) -> list[dict]:
+    """``{"metrics", "events"}`` of every (controller, impairments) job on ``events``, all in
+    one pool of ``workers`` processes: each job's events split in ``chunks`` tasks, its
+    per-event metrics back in the order of ``events``."""
+    chunks = max(1, min(chunks, len(events)))
+    parts = [list(events[i::chunks]) for i in range(chunks)]
+    items = [(name, part, n_followers, str(net_path), False, imp)
+             for name, imp in jobs for part in parts]
+    results = run_parallel(score_events, items, workers,
+                           describe=lambda a: f"{a[0]} on {len(a[1])} events from "
+                                              f"{a[1][0].event_id} ({a[5]})")
+    if progress:
+        from tqdm import tqdm
+
+        results = tqdm(results, total=len(items), desc="runs", unit="task", leave=False)
+    results = list(results)
+    order = {e.event_id: i for i, e in enumerate(events)}
+    out = []
+    for j in range(len(jobs)):
+        per_event = sorted((m for part in results[j * chunks:(j + 1) * chunks] for m in part),
+                           key=lambda m: order[m["event_id"]])
+        out.append({"metrics": aggregate(per_event), "events": per_event})
+    return out
 
 
 def replay(controller_name: str, event: Event, n_followers: int, fcd_path: Path,

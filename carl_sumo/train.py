@@ -310,9 +310,9 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
             noise.reset(term | trunc)
             next_links = channels.receive() if channels is not None else None  # at o' = final
             buffer.add(obs, action, reward, final, term.astype(np.float32), links, next_links)
-            if channels is not None:
+            if channels is not None:  # a new episode's links, else this step's preview holds
                 channels.episodes_ended(term | trunc)
-                links = channels.receive()
+                links = channels.receive() if (term | trunc).any() else next_links
             recent.append(float(reward.mean()))
             obs = next_obs
             if step >= cfg.learning_starts and (step - cfg.learning_starts) % cfg.update_every == 0:
