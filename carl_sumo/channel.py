@@ -8,10 +8,21 @@ controller's predecessor input u_{i-1} (i-1 → i). Each link, every 0.1 s step 
   step k + d, d = ``delay_s`` / 0.1 s (a whole number of steps: another delay is refused);
 - the receiver holds the last message that arrived and knows its age, k - (the step it was sent);
   with d = 0 a message that is not lost is used in the step it is sent (today's behaviour);
-- a held message older than ``timeout_s`` is not used: the receiver falls back (the CA module
-  takes its learned boundary message, as the last vehicle of a chain does; the Ploeg controller
-  drops the feed-forward and acts as an ACC on its own sensors); so does a receiver that has
-  heard nothing yet.
+- past ``timeout_s`` the receiver falls back (the CA module takes its learned boundary message,
+  as the last vehicle of a chain does; the Ploeg controller drops the feed-forward and acts as an
+  ACC on its own sensors); so does a receiver that has heard nothing yet. The fallback is not a
+  jump: over ``fade_s`` after the timeout the held message fades linearly into the fallback
+  message f (the boundary message; 0 for the Ploeg feed-forward). With age a, timeout T and fade
+  F in steps, the receiver uses w·held + (1 - w)·f with
+
+      w = clip((T + F + 1 - a) / (F + 1), 0, 1),
+
+  so w = 1 up to the timeout and w = 0 (the fallback alone) from age T + F + 1 on; F = 0 is a
+  hard switch at the timeout. Why: switching from a held message to the boundary message in one
+  step is a step in a_adj. On 300 training events at the suite's bursty point (30 % loss in
+  bursts of 3 steps, 0.2 s delay) the shipped CA-TD3's jerk was 0.204 m/s³ with the hard
+  switch, 0.193 with a 0.5 s fade and 0.191 with 1 s (0.187 on a perfect channel, IDM 0.196),
+  with the same headway and dampening.
 
 **Loss.** ``burst`` = 1: every message is lost independently with probability P = ``loss``. With
 ``burst`` = L > 1 a two-state Gilbert-Elliott channel per link: in the bad state every message is
@@ -29,8 +40,8 @@ on an event whichever worker runs it.
 **Randomised training** (``train --comm-randomize``, :func:`random_impairments`): every training
 episode draws its own impairments: with probability :data:`PERFECT_SHARE` a perfect channel and
 clean sensors; otherwise a delay of 0, 0.1, ..., 0.5 s (uniform), a loss probability uniform on
-[0, 1], bursts (L uniform on [1, 5] steps) in half of the episodes, the default 1 s timeout, and
-sensor noise in half of the episodes. The policy acts on what it receives (:class:`PlatoonLinks`),
+[0, 1], bursts (L uniform on [1, 5] steps) in half of the episodes, the default 1 s timeout and
+1 s fade, and sensor noise in half of the episodes. The policy acts on what it receives (:class:`PlatoonLinks`),
 and its replay buffer keeps how each message arrived, so the actor learns on those inputs.
 """
 
@@ -59,13 +70,15 @@ LIVE, HELD, FALLBACK = 0, 1, 2
 
 @dataclass(frozen=True)
 class Impairments:
-    """What ``--comm-delay``, ``--comm-loss``, ``--comm-burst``, ``--comm-timeout`` and
-    ``--sensor-noise`` ask for (units in the names); the defaults are a perfect channel."""
+    """What ``--comm-delay``, ``--comm-loss``, ``--comm-burst``, ``--comm-timeout``,
+    ``--comm-fade`` and ``--sensor-noise`` ask for (units in the names); the defaults are a
+    perfect channel."""
 
     delay_s: float = 0.0
     loss: float = 0.0
     burst: float = 1.0
     timeout_s: float = 1.0
+    fade_s: float = 1.0
     sensor_noise: bool = False
     seed: int = 0
 
@@ -83,6 +96,8 @@ class Impairments:
         if not (math.isfinite(self.timeout_s) and self.timeout_s >= DT_S - 1e-12):
             raise InputError(f"--comm-timeout must be at least one step ({DT_S} s), "
                              f"got {self.timeout_s}")
+        if not (math.isfinite(self.fade_s) and self.fade_s >= 0):
+            raise InputError(f"--comm-fade must be 0 s or more, got {self.fade_s}")
 
     @property
     def delay_steps(self) -> int:
@@ -92,6 +107,17 @@ class Impairments:
     def timeout_steps(self) -> int:
         """The oldest usable message, in steps (a message exactly this old is still used)."""
         return int(math.floor(self.timeout_s / DT_S + 1e-9))
+
+    @property
+    def fade_steps(self) -> int:
+        """Steps over which a held message fades into the fallback after the timeout."""
+        return int(math.floor(self.fade_s / DT_S + 1e-9))
+
+    def held_weight(self, age_steps: np.ndarray | int) -> np.ndarray:
+        """w of a held message of this age (steps): 1 up to the timeout, then falling linearly
+        to 0 over the fade (see the module docstring)."""
+        t, f = self.timeout_steps, self.fade_steps
+        return np.clip((t + f + 1 - np.asarray(age_steps, dtype=np.float64)) / (f + 1), 0.0, 1.0)
 
     @property
     def perfect_channel(self) -> bool:
@@ -108,6 +134,14 @@ class Impairments:
 
 BURSTY_CHANNEL = Impairments(delay_s=0.2, loss=0.3, burst=3.0)
 """The robustness suite's bursty point: 30 % loss in bursts of 3 steps, 0.2 s delay."""
+
+
+def _faded(held: np.ndarray, weight: np.ndarray, fallback: np.ndarray | None) -> np.ndarray:
+    """w·held + (1 - w)·fallback per row (fallback None: zeros)."""
+    out = held * weight[:, None]
+    if fallback is not None:
+        out += (1.0 - weight)[:, None] * np.asarray(fallback, dtype=np.float64)
+    return out
 
 
 def to_bad_probability(loss: float, burst: float) -> float:
@@ -155,9 +189,12 @@ class Channel:
         self.k = -1
         self._lost = np.zeros(n, dtype=bool)
         self._mode = np.full(n, FALLBACK)
+        self._weight = np.zeros(n)
 
-    def receive(self, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """(mode (n,) of LIVE/HELD/FALLBACK, held messages (n, dim)) of step k."""
+    def receive(self, k: int, fallback: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """(mode (n,) of LIVE/HELD/FALLBACK, held messages (n, dim), fading into ``fallback``
+        (dim,) past the timeout (None: zeros)) of step k."""
         if k != self.k:
             self.k = k
             self._lost = self.losses.draw()
@@ -167,12 +204,12 @@ class Channel:
                 arrived = ~lost
                 self.held[arrived] = messages[arrived]
                 self.sent_at[arrived] = sent
-            fresh = k - self.sent_at <= self.cfg.timeout_steps
-            mode = np.where(fresh, HELD, FALLBACK)
+            self._weight = self.cfg.held_weight(k - self.sent_at)
+            mode = np.where(self._weight > 0, HELD, FALLBACK)
             if d == 0:
                 mode = np.where(self._lost, mode, LIVE)
             self._mode = mode
-        return self._mode, self.held
+        return self._mode.copy(), _faded(self.held, self._weight, fallback)
 
     def send(self, k: int, messages: np.ndarray) -> None:
         """The messages (n, dim) sent at step k (after :meth:`receive` of step k)."""
@@ -215,9 +252,11 @@ class KeyedChannel:
         self.bad[receiver] = bool(bad)
         return self.bad[receiver]
 
-    def receive(self, k: int, pairs: list[tuple[str, str]]) -> tuple[np.ndarray, np.ndarray]:
-        """(modes (m,) of LIVE/HELD/FALLBACK, held messages (m, dim)) at step k of the m
-        (receiver, sender) pairs; asked again in the same step it draws nothing new."""
+    def receive(self, k: int, pairs: list[tuple[str, str]], fallback: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """(modes (m,) of LIVE/HELD/FALLBACK, held messages (m, dim), fading into ``fallback``
+        past the timeout as :class:`Channel`'s) at step k of the m (receiver, sender) pairs;
+        asked again in the same step it draws nothing new."""
         if k != self.k:
             self.k, self._lost = k, {}
             d = self.cfg.delay_steps
@@ -225,15 +264,18 @@ class KeyedChannel:
                 sent, receiver, sender, message = self.in_flight.popleft()
                 self.held[receiver] = (sender, message, sent)
         modes, held = np.full(len(pairs), FALLBACK), np.zeros((len(pairs), self.dim))
+        weight = np.zeros(len(pairs))
         for j, (receiver, sender) in enumerate(pairs):
             if receiver not in self._lost:
                 self._lost[receiver] = self._draw(receiver)
             got = self.held.get(receiver)
-            if got is not None and got[0] == sender and k - got[2] <= self.cfg.timeout_steps:
-                modes[j], held[j] = HELD, got[1]
+            if got is not None and got[0] == sender:
+                weight[j] = self.cfg.held_weight(k - got[2])
+                if weight[j] > 0:
+                    modes[j], held[j] = HELD, got[1]
             if self.cfg.delay_steps == 0 and not self._lost[receiver]:
                 modes[j] = LIVE
-        return modes, held
+        return modes, _faded(held, weight, fallback)
 
     def send(self, k: int, pairs: list[tuple[str, str]], messages: np.ndarray) -> None:
         """The messages (m, dim) of step k (after :meth:`receive` of step k with these pairs)."""
@@ -276,11 +318,14 @@ class PlatoonLinks:
         self.backward = Channel(n, dim, impairments, impairments.rng(event_id, 3))
         self.k = 0
 
-    def receive(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def receive(self, forward_fallback: np.ndarray | None = None,
+                backward_fallback: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(forward modes (n,), forward held (n, dim), backward modes, backward held) of this
-        step (LIVE/HELD/FALLBACK; a preview until :meth:`send`)."""
-        f_mode, f_held = self.forward.receive(self.k)
-        b_mode, b_held = self.backward.receive(self.k)
+        step (LIVE/HELD/FALLBACK; a preview until :meth:`send`); held messages past the timeout
+        fade into the fallbacks (the actor's boundary messages; None: zeros)."""
+        f_mode, f_held = self.forward.receive(self.k, forward_fallback)
+        b_mode, b_held = self.backward.receive(self.k, backward_fallback)
         return f_mode, f_held, b_mode, b_held
 
     def send(self, forward_messages: np.ndarray, backward_messages: np.ndarray) -> None:

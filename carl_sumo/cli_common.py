@@ -38,6 +38,9 @@ def add_impairments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--comm-timeout", type=float, default=1.0, metavar="S",
                    help="a receiver falls back (CA: the boundary message; Ploeg: ACC) when its "
                         "last message is older than S seconds (default 1)")
+    p.add_argument("--comm-fade", type=float, default=1.0, metavar="S",
+                   help="past the timeout the held message fades linearly into the fallback "
+                        "over S seconds (default 1; 0: a hard switch)")
     p.add_argument("--sensor-noise", action="store_true",
                    help="Gaussian noise on the measured gap (0.1 m) and relative speed (0.1 m/s)")
     p.add_argument("--impairment-seed", type=int, default=0,
@@ -49,8 +52,9 @@ def impairments_from(args: argparse.Namespace):
     None when everything is perfect."""
     from carl_sumo.channel import Impairments
 
-    imp = Impairments(args.comm_delay, args.comm_loss, args.comm_burst, args.comm_timeout,
-                      args.sensor_noise, args.impairment_seed)
+    imp = Impairments(delay_s=args.comm_delay, loss=args.comm_loss, burst=args.comm_burst,
+                      timeout_s=args.comm_timeout, fade_s=args.comm_fade,
+                      sensor_noise=args.sensor_noise, seed=args.impairment_seed)
     return imp if imp.active else None
 
 

@@ -188,7 +188,7 @@ class CompiledActor:
         """a_adj (m/s², shape (n,)) of a CA actor when its messages cross impaired ``links``
         (:class:`carl_sumo.channel.PlatoonLinks`); sends this step's messages."""
         obs = np.ascontiguousarray(obs, dtype=np.float64)
-        f_mode, f_held, b_mode, b_held = links.receive()
+        f_mode, f_held, b_mode, b_held = links.receive(self._weights[0], self._weights[1])
         action, f_out, b_out = _communication_aware_act_channel(
             obs, self.adj_max, f_mode.astype(np.int64), f_held, b_mode.astype(np.int64), b_held,
             *self._weights)
@@ -206,8 +206,8 @@ class CompiledActor:
         b_pairs = [(ids[j], ids[j - 1]) for j in range(1, n)]  # i hears i-1
         f_mode, f_held = np.full(n, 2), np.zeros((n, self.message_dim))
         b_mode, b_held = np.full(n, 2), np.zeros((n, self.message_dim))
-        f_mode[:n - 1], f_held[:n - 1] = forward.receive(k, f_pairs)
-        b_mode[1:], b_held[1:] = backward.receive(k, b_pairs)
+        f_mode[:n - 1], f_held[:n - 1] = forward.receive(k, f_pairs, self._weights[0])
+        b_mode[1:], b_held[1:] = backward.receive(k, b_pairs, self._weights[1])
         action, f_out, b_out = _communication_aware_act_channel(
             obs, self.adj_max, f_mode.astype(np.int64), f_held, b_mode.astype(np.int64), b_held,
             *self._weights)

@@ -57,8 +57,10 @@ class CommunicationAware(nn.Module):
         """Outputs (batch, n, out) when each message crosses an impaired link, and the forward
         and backward messages (batch, n, M) the vehicles send. ``links`` = (forward modes,
         forward held, backward modes, backward held): modes (batch, n) of vehicle i's incoming
-        message (LIVE = 0: this step's, HELD = 1: ``held[:, i]`` (batch, n, M), FALLBACK = 2:
-        the boundary message, as at a chain end), as :mod:`carl_sumo.channel` delivers them. A
+        message (LIVE = 0: this step's, HELD = 1: ``held[:, i]`` (batch, n, M), which past the
+        timeout the channel has already faded toward the boundary message the acting actor had,
+        FALLBACK = 2: the boundary message, as at a chain end), as :mod:`carl_sumo.channel`
+        delivers them. A
         per-vehicle loop under autograd (no padding): all modes LIVE give :meth:`forward`."""
         f_mode, f_held, b_mode, b_held = links
         batch, n, _ = x.shape

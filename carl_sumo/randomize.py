@@ -39,12 +39,14 @@ class RandomisedChannels:
             return None
         return PlatoonLinks(self.n, self.message_dim, impairments, "training")
 
-    def receive(self) -> LinkArrays | None:
+    def receive(self, fallbacks: tuple[np.ndarray, np.ndarray] | None = None
+                ) -> LinkArrays | None:
         """How every environment's messages arrive this step, stacked over environments (copies;
-        None without messages)."""
+        None without messages); held messages past the timeout fade into ``fallbacks`` (the
+        acting actor's forward and backward boundary messages, as a receiver has them)."""
         if not self.message_dim:
             return None
-        parts = [links.receive() for links in self.links]
+        parts = [links.receive(*(fallbacks or (None, None))) for links in self.links]
         return tuple(np.stack([p[j] for p in parts]) for j in range(4))  # type: ignore[return-value]
 
     def send(self, forward: np.ndarray, backward: np.ndarray) -> None:

@@ -30,6 +30,7 @@ from carl_sumo.env import PlatoonEnv
 from carl_sumo.imitation import teacher_adjustment
 from carl_sumo.errors import InputError
 from carl_sumo.metrics import aggregate
+from carl_sumo.models import CommunicationAware
 from carl_sumo.policy import load_torch, save_policy, save_torch_atomic
 from carl_sumo.selection import (MARGIN_KEYS, VALIDATION_IMPAIRMENTS, BaseOnly, improvement_z,
                                  selection_score, validate_events)
@@ -167,6 +168,16 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
+def _boundaries(agent: Agent) -> tuple[np.ndarray, np.ndarray] | None:
+    """The CA actor's boundary messages (forward, backward), which a receiver's held message fades
+    into past the timeout (carl_sumo.channel); None for an actor without messages."""
+    actor = agent.actor
+    if not isinstance(actor, CommunicationAware):
+        return None
+    return (actor.forward_boundary.detach().double().numpy(),
+            actor.backward_boundary.detach().double().numpy())
+
+
 def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: float,
               baseline: dict[str, float] | None = None,
               val_events: Sequence[Event] = ()) -> dict:
@@ -267,7 +278,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     vec = vec_class(train_events, n, cfg.net, cfg.num_envs, cfg.seed + start_step, cfg.reward,
                     cfg.base, cfg.observe_ahead, adjustment_bounds(cfg.adj_max), cfg.shield_ttc)
     obs = vec.reset(cfg.seed + start_step, channels.current if channels is not None else None)
-    links = channels.receive() if channels is not None else None
+    links = channels.receive(_boundaries(agent)) if channels is not None else None
     new_log = not (resume is not None and log_path.exists())
     if not new_log:
         _upgrade_log(log_path)
@@ -308,11 +319,11 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
             next_obs, reward, term, trunc, final = vec.step(
                 action, channels.upcoming if channels is not None else None)
             noise.reset(term | trunc)
-            next_links = channels.receive() if channels is not None else None  # at o' = final
+            next_links = channels.receive(_boundaries(agent)) if channels is not None else None  # at o' = final
             buffer.add(obs, action, reward, final, term.astype(np.float32), links, next_links)
             if channels is not None:  # a new episode's links, else this step's preview holds
                 channels.episodes_ended(term | trunc)
-                links = channels.receive() if (term | trunc).any() else next_links
+                links = channels.receive(_boundaries(agent)) if (term | trunc).any() else next_links
             recent.append(float(reward.mean()))
             obs = next_obs
             if step >= cfg.learning_starts and (step - cfg.learning_starts) % cfg.update_every == 0:

@@ -52,20 +52,39 @@ def test_losses_are_reproducible_and_have_the_requested_rate_and_burst_length():
 
 
 def test_a_receiver_past_its_timeout_falls_back_and_a_lost_message_is_held():
-    imp = Impairments(loss=1.0, timeout_s=0.3)
+    imp = Impairments(loss=1.0, timeout_s=0.3, fade_s=0.0)  # a hard switch
     ch = Channel(2, 1, imp, imp.rng("e", 1))
     ch.held[:] = 7.0
     ch.sent_at[:] = 0
     for k, expected in [(1, HELD), (2, HELD), (3, HELD), (4, FALLBACK)]:
         mode, held = ch.receive(k)
-        assert np.all(mode == expected) and np.all(held == 7.0)
+        assert np.all(mode == expected)
+        assert np.all(held == (7.0 if expected == HELD else 0.0))
         ch.send(k, np.full((2, 1), float(k)))
+
+
+def test_past_the_timeout_a_held_message_fades_linearly_into_the_fallback():
+    imp = Impairments(loss=1.0, timeout_s=0.3, fade_s=0.3)
+    ch = Channel(2, 1, imp, imp.rng("e", 1))
+    ch.held[:] = 7.0
+    ch.sent_at[:] = 0
+    fallback = np.array([-1.0])
+    got = []
+    for k in range(1, 9):
+        mode, held = ch.receive(k, fallback)
+        got.append((int(mode[0]), float(held[0, 0])))
+        ch.send(k, np.full((2, 1), float(k)))  # all lost
+    w = [1, 1, 1, 0.75, 0.5, 0.25, 0, 0]  # ages 1..8, T = F = 3 steps
+    assert [m for m, _ in got] == [HELD] * 6 + [FALLBACK] * 2
+    assert [v for _, v in got] == pytest.approx([7.0 * x - (1 - x) for x in w])
+    assert imp.held_weight(np.arange(8)).tolist() == [1, 1, 1, 1, 0.75, 0.5, 0.25, 0]
 
 
 @pytest.mark.parametrize("kwargs, message", [
     ({"delay_s": -0.1}, "--comm-delay must be"), ({"delay_s": 0.25}, "not a multiple"),
     ({"loss": 1.5}, "--comm-loss is a probability"), ({"loss": -0.1}, "--comm-loss"),
-    ({"burst": 0.5}, "--comm-burst"), ({"timeout_s": 0.05}, "at least one step")])
+    ({"burst": 0.5}, "--comm-burst"), ({"timeout_s": 0.05}, "at least one step"),
+    ({"fade_s": -0.1}, "--comm-fade must be")])
 def test_bad_values_are_refused(kwargs, message):
     with pytest.raises(InputError, match=message):
         Impairments(**kwargs)
