@@ -67,3 +67,35 @@ def test_compiled_actor_keeps_a_smaller_adjustment_bound():
     out = CompiledActor(agent)(obs)
     assert np.abs(out).max() <= 1.0 and np.abs(out).max() > 0.9
     assert np.allclose(out, agent.act(obs), atol=1e-5)
+
+
+def test_a_fading_message_mixes_in_the_actors_own_boundary_message():
+    """Past the timeout the compiled CA actor hears w·held + (1 - w)·its boundary message."""
+    from carl_sumo.channel import FALLBACK, HELD, Impairments, PlatoonLinks
+    from carl_sumo.inference import _communication_aware_act_channel
+
+    torch.manual_seed(3)
+    agent = Agent(AgentConfig(algo="ca-td3", n_vehicles=3))
+    with torch.no_grad():
+        agent.actor.forward_boundary.normal_()
+        agent.actor.backward_boundary.normal_()
+    compiled = CompiledActor(agent)
+    obs = random_platoon(np.random.default_rng(3), 3)
+    links = PlatoonLinks(3, compiled.message_dim, Impairments(loss=1.0, timeout_s=0.1, fade_s=0.1),
+                         "e")
+    message = np.linspace(-0.5, 0.5, compiled.message_dim)
+    for channel in (links.forward, links.backward):
+        channel.held[:] = message
+        channel.sent_at[:] = -2  # age 2 at step 0: T = F = 1 step, so w = 0.5
+    got = compiled.act_over(obs, links)
+    fb, bb = compiled._weights[0], compiled._weights[1]
+    held_f = np.tile(0.5 * message + 0.5 * fb, (3, 1))
+    held_b = np.tile(0.5 * message + 0.5 * bb, (3, 1))
+    mode = np.full(3, HELD)
+    expected, _, _ = _communication_aware_act_channel(obs, compiled.adj_max, mode, held_f, mode,
+                                                      held_b, *compiled._weights)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
+    alone, _, _ = _communication_aware_act_channel(obs, compiled.adj_max, np.full(3, FALLBACK),
+                                                   held_f, np.full(3, FALLBACK), held_b,
+                                                   *compiled._weights)
+    assert not np.allclose(got[1], alone[1])  # the middle vehicle still hears half a message
