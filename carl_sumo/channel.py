@@ -41,7 +41,7 @@ on an event whichever worker runs it.
 episode draws its own impairments: with probability :data:`PERFECT_SHARE` a perfect channel and
 clean sensors; otherwise a delay of 0, 0.1, ..., 0.5 s (uniform), a loss probability uniform on
 [0, 1], bursts (L uniform on [1, 5] steps) in half of the episodes, the default 1 s timeout and
-1 s fade, and sensor noise in half of the episodes. The policy acts on what it receives (:class:`PlatoonLinks`),
+1 s fade, and sensor noise in half of the episodes (none with ``train --no-sensor-randomize``). The policy acts on what it receives (:class:`PlatoonLinks`),
 and its replay buffer keeps how each message arrived, so the actor learns on those inputs.
 """
 
@@ -295,8 +295,10 @@ MAX_RANDOM_DELAY_STEPS = 5
 """Randomised training delays: 0 to this many 0.1 s steps (0.5 s, the suite's largest)."""
 
 
-def random_impairments(rng: np.random.Generator) -> Impairments:
-    """One training episode's impairments, drawn as the module docstring says."""
+def random_impairments(rng: np.random.Generator, sensor_noise_share: float = 0.5
+                       ) -> Impairments:
+    """One training episode's impairments, drawn as the module docstring says (sensor noise in
+    ``sensor_noise_share`` of the impaired episodes; the channel draws do not depend on it)."""
     seed = int(rng.integers(2 ** 31))
     if rng.random() < PERFECT_SHARE:
         return Impairments(seed=seed)
@@ -304,7 +306,7 @@ def random_impairments(rng: np.random.Generator) -> Impairments:
     loss = float(rng.random())
     burst = float(rng.uniform(1.0, 5.0)) if rng.random() < 0.5 else 1.0
     return Impairments(delay_s=delay_s, loss=loss, burst=burst,
-                       sensor_noise=bool(rng.random() < 0.5), seed=seed)
+                       sensor_noise=bool(rng.random() < sensor_noise_share), seed=seed)
 
 
 class PlatoonLinks:

@@ -47,6 +47,8 @@ def check_train_args(args: argparse.Namespace) -> Path:
                                             and args.shield_ttc >= 0):
         raise InputError(f"--shield-ttc must be a time to collision of 0 s or more (0: off), "
                          f"got {args.shield_ttc}")
+    if args.randomize_sensors is False and not args.comm_randomize:
+        raise InputError("--no-sensor-randomize narrows --comm-randomize; give both, or neither")
     if args.imitate is not None:
         from carl_sumo.imitation import teacher
 
@@ -77,10 +79,14 @@ def _add_robust_training_options(p: argparse.ArgumentParser) -> None:
                         "(0-100 %%, in bursts half the time) and sensor noise (half the time), "
                         "a quarter of them perfect; the actor learns on the messages as they "
                         "arrive (see docs/robustness.md)")
+    p.add_argument("--no-sensor-randomize", dest="randomize_sensors", action="store_false",
+                   default=None,
+                   help="with --comm-randomize: randomise the V2V channel only, clean sensors "
+                        "in every episode (the same channel draws)")
     p.add_argument("--val-impaired", action="store_true", default=None,
                    help="validate every event also with 30 %% loss in bursts of 3 steps, 0.2 s "
-                        "delay and sensor noise, and keep the checkpoint that is best over both "
-                        "(for --comm-randomize)")
+                        "delay and sensor noise (clean sensors with --no-sensor-randomize), and "
+                        "keep the checkpoint that is best over both (for --comm-randomize)")
 
 
 def _train_parser(sub: argparse._SubParsersAction) -> None:
@@ -164,7 +170,7 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_sc
                    "smooth_accel", "eval_events", "val_seed", "val_source", "gamma",
                    "adj_max", "base", "critic_burn_in", "braking_events", "update_every",
                    "batch_size", "imitate", "imitate_updates", "observe_ahead",
-                   "shield_ttc", "comm_randomize", "val_impaired")
+                   "shield_ttc", "comm_randomize", "randomize_sensors", "val_impaired")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 

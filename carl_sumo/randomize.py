@@ -25,14 +25,20 @@ LinkArrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 class RandomisedChannels:
     """The current and the next episode's impairments of ``num_envs`` environments of ``n``
     followers, and the CA links (messages of ``message_dim`` numbers; 0: an actor without
-    messages, sensor noise only)."""
+    messages, sensor noise only). ``sensor_noise`` False: the channel alone is randomised (the
+    same channel draws), the sensors stay clean."""
 
-    def __init__(self, num_envs: int, n: int, message_dim: int, seed: int):
+    def __init__(self, num_envs: int, n: int, message_dim: int, seed: int,
+                 sensor_noise: bool = True):
         self.n, self.message_dim = n, message_dim
         self.rng = np.random.default_rng([seed, STREAM])
-        self.current = [random_impairments(self.rng) for _ in range(num_envs)]
-        self.upcoming = [random_impairments(self.rng) for _ in range(num_envs)]
+        self.noise_share = 0.5 if sensor_noise else 0.0
+        self.current = [self._draw() for _ in range(num_envs)]
+        self.upcoming = [self._draw() for _ in range(num_envs)]
         self.links = [self._links(imp) for imp in self.current]
+
+    def _draw(self) -> Impairments:
+        return random_impairments(self.rng, self.noise_share)
 
     def _links(self, impairments: Impairments) -> PlatoonLinks | None:
         if not self.message_dim:
@@ -60,5 +66,5 @@ class RandomisedChannels:
         workers have done so already) on fresh links, and draw the next ones."""
         for e in np.flatnonzero(ended):
             self.current[e] = self.upcoming[e]
-            self.upcoming[e] = random_impairments(self.rng)
+            self.upcoming[e] = self._draw()
             self.links[e] = self._links(self.current[e])

@@ -88,6 +88,7 @@ class TrainConfig:
     observe_ahead: bool = False    # o has a fifth column a_ahead (controllers.AheadAcceleration)
     shield_ttc: float = 0.0        # safety shield of the policy (s; controllers.shield_adjustment)
     comm_randomize: bool = False   # every episode its own V2V delay/loss and sensor noise (randomize.py)
+    randomize_sensors: bool = True  # with comm_randomize: sensor noise in half the episodes
     val_impaired: bool = False     # validate also under selection.VALIDATION_IMPAIRMENTS
     imitate: str | None = None     # a Ploeg CACC the actor copies first (carl_sumo.imitation)
     imitate_updates: int = 4_000   # behaviour-cloning gradient steps at learning_starts
@@ -158,8 +159,12 @@ def _upgrade_log(path: Path) -> None:
 
 def validation_conditions(cfg: TrainConfig) -> tuple:
     """What validation runs every event under: a perfect channel, and with ``--val-impaired``
-    also :data:`carl_sumo.selection.VALIDATION_IMPAIRMENTS`."""
-    return (None, VALIDATION_IMPAIRMENTS) if cfg.val_impaired else (None,)
+    also :data:`carl_sumo.selection.VALIDATION_IMPAIRMENTS` (with clean sensors for a run
+    randomised without sensor noise)."""
+    if not cfg.val_impaired:
+        return (None,)
+    return (None, VALIDATION_IMPAIRMENTS if not cfg.comm_randomize or cfg.randomize_sensors
+            else replace(VALIDATION_IMPAIRMENTS, sensor_noise=False))
 
 
 def seed_everything(seed: int) -> None:
@@ -190,6 +195,7 @@ def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: flo
                 ", a_base m/s^2]" if agent.cfg.residual else
                 ", a_ahead m/s^2]" if agent.cfg.observe_ahead else "]"),
             "reward": asdict(cfg.reward), "comm_randomize": cfg.comm_randomize,
+            "randomize_sensors": cfg.randomize_sensors,
             "val_impaired": cfg.val_impaired,
             "validation": {k: float(v) for k, v in val.items()},
             "validation_base": {k: float(v) for k, v in (baseline or {}).items()},
@@ -233,7 +239,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                               batch_size=cfg.batch_size, observe_ahead=cfg.observe_ahead,
                               shield_ttc_s=cfg.shield_ttc))
     channels = RandomisedChannels(cfg.num_envs, n, cfg.message_dim if
-                                  agent.cfg.communication_aware else 0, cfg.seed) \
+                                  agent.cfg.communication_aware else 0, cfg.seed,
+                                  cfg.randomize_sensors) \
         if cfg.comm_randomize else None
     buffer = ReplayBuffer(cfg.buffer_size, n, agent.cfg.obs_dim,
                           channels.message_dim if channels is not None else 0)

@@ -228,3 +228,8 @@ def test_simulate_without_a_controller_is_one_line_exit_2(capsys, controllers):
     assert main(["simulate", "--controller", controllers, "--events", "1"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("carl-sumo: error: --controller") and "\n" not in err
+
+
+def test_train_refuses_channel_only_randomisation_without_randomisation(capsys):
+    code, _, err = run(capsys, "train", "--no-sensor-randomize", "--steps", "10")
+    assert code == 2 and "--no-sensor-randomize" in err and len(err.strip().splitlines()) == 1

@@ -88,6 +88,25 @@ def test_each_environment_gets_fresh_impairments_and_links_when_its_episode_ends
     assert channels.links[1].k == 0 and channels.links[0].k == 1
 
 
+def test_channel_only_randomisation_draws_the_same_channels_with_clean_sensors():
+    from dataclasses import replace
+
+    from carl_sumo.train import validation_conditions
+
+    both = RandomisedChannels(num_envs=2, n=4, message_dim=3, seed=0)
+    channel = RandomisedChannels(num_envs=2, n=4, message_dim=3, seed=0, sensor_noise=False)
+    for _ in range(50):
+        for a, b in zip(both.upcoming, channel.upcoming):
+            assert replace(a, sensor_noise=False) == b and not b.sensor_noise
+        both.episodes_ended(np.array([True, True]))
+        channel.episodes_ended(np.array([True, True]))
+    assert any(imp.sensor_noise for imp in both.current)
+    noisy, clean = (validation_conditions(TrainConfig(comm_randomize=True, val_impaired=True,
+                                                      randomize_sensors=r))[1]
+                    for r in (True, False))
+    assert noisy.sensor_noise and clean == replace(noisy, sensor_noise=False)
+
+
 def test_the_replay_buffer_keeps_how_messages_arrived_and_restores_them():
     rng = np.random.default_rng(4)
     buf = ReplayBuffer(10, 3, 4, message_dim=2)
