@@ -41,8 +41,9 @@ on an event whichever worker runs it.
 episode draws its own impairments: with probability :data:`PERFECT_SHARE` a perfect channel and
 clean sensors; otherwise a delay of 0, 0.1, ..., 0.5 s (uniform), a loss probability uniform on
 [0, 1], bursts (L uniform on [1, 5] steps) in half of the episodes, the default 1 s timeout and
-1 s fade, and sensor noise in half of the episodes (none with ``train --no-sensor-randomize``). The policy acts on what it receives (:class:`PlatoonLinks`),
-and its replay buffer keeps how each message arrived, so the actor learns on those inputs.
+1 s fade, and sensor noise in half of the episodes (none with ``train --no-sensor-randomize``).
+The policy acts on what it receives (:class:`PlatoonLinks`), and its replay buffer keeps how each
+message arrived, so the actor learns on those inputs.
 """
 
 from __future__ import annotations
