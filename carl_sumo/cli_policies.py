@@ -12,7 +12,8 @@ import os
 import sys
 from pathlib import Path
 
-from carl_sumo.cli_common import add_common, add_ray, check_ray, fmt, positive, ray_session
+from carl_sumo.cli_common import (add_common, add_impairments, add_ray, check_ray, fmt,
+                                 impairments_from, positive, ray_session)
 from carl_sumo.errors import InputError
 from carl_sumo.files import check_output_file
 
@@ -49,6 +50,9 @@ def check_train_args(args: argparse.Namespace) -> Path:
                          f"got {args.shield_ttc}")
     if args.randomize_sensors is False and not args.comm_randomize:
         raise InputError("--no-sensor-randomize narrows --comm-randomize; give both, or neither")
+    if impairments_from(args) is not None and args.comm_randomize:
+        raise InputError("--comm-randomize draws every episode's impairments itself; give it or "
+                         "fixed --comm-*/--sensor-noise options, not both")
     if args.imitate is not None:
         from carl_sumo.imitation import teacher
 
@@ -73,7 +77,9 @@ def train_config(args: argparse.Namespace, out: Path, command: str):
 
 
 def _add_robust_training_options(p: argparse.ArgumentParser) -> None:
-    """Training for impaired V2V and sensors (carl_sumo.randomize)."""
+    """Training for impaired V2V and sensors (carl_sumo.randomize): fixed impairments in every
+    episode (the --comm-* options of simulate), or randomised ones."""
+    add_impairments(p)
     p.add_argument("--comm-randomize", action="store_true", default=None,
                    help="robust training: every episode draws its own V2V delay (0-0.5 s), loss "
                         "(0-100 %%, in bursts half the time) and sensor noise (half the time), "
@@ -85,8 +91,9 @@ def _add_robust_training_options(p: argparse.ArgumentParser) -> None:
                         "in every episode (the same channel draws)")
     p.add_argument("--val-impaired", action="store_true", default=None,
                    help="validate every event also with 30 %% loss in bursts of 3 steps, 0.2 s "
-                        "delay and sensor noise (clean sensors with --no-sensor-randomize), and "
-                        "keep the checkpoint that is best over both (for --comm-randomize)")
+                        "delay and sensor noise (clean sensors with --no-sensor-randomize; with "
+                        "fixed --comm-* options: under those), and keep the checkpoint that is "
+                        "best over both")
 
 
 def _train_parser(sub: argparse._SubParsersAction) -> None:
@@ -170,7 +177,9 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_sc
                    "smooth_accel", "eval_events", "val_seed", "val_source", "gamma",
                    "adj_max", "base", "critic_burn_in", "braking_events", "update_every",
                    "batch_size", "imitate", "imitate_updates", "observe_ahead",
-                   "shield_ttc", "comm_randomize", "randomize_sensors", "val_impaired")
+                   "shield_ttc", "comm_randomize", "randomize_sensors", "val_impaired",
+                   "comm_delay", "comm_loss", "comm_burst", "comm_timeout", "comm_fade",
+                   "sensor_noise", "impairment_seed")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 

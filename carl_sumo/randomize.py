@@ -1,6 +1,7 @@
-"""Randomised impairments in training (``train --comm-randomize``): every training episode of
-every environment draws its own V2V delay, loss, bursts and sensor noise
-(:func:`carl_sumo.channel.random_impairments`).
+"""Impairments in training: with ``train --comm-randomize`` every training episode of every
+environment draws its own V2V delay, loss, bursts and sensor noise
+(:func:`carl_sumo.channel.random_impairments`); with fixed ones (``train --comm-loss P ...``)
+every episode has those, with its own draws.
 
 The environments' workers apply the sensor noise (and a classical base's impaired predecessor
 link) themselves; the CA actor runs in the training process, so its messages cross
@@ -10,6 +11,8 @@ exactly what it drew before.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -26,18 +29,23 @@ class RandomisedChannels:
     """The current and the next episode's impairments of ``num_envs`` environments of ``n``
     followers, and the CA links (messages of ``message_dim`` numbers; 0: an actor without
     messages, sensor noise only). ``sensor_noise`` False: the channel alone is randomised (the
-    same channel draws), the sensors stay clean."""
+    same channel draws), the sensors stay clean. ``fixed``: every episode has these impairments
+    instead (``train --comm-loss ...``), with its own loss and noise draws (seeded by the training
+    seed and ``fixed.seed``)."""
 
     def __init__(self, num_envs: int, n: int, message_dim: int, seed: int,
-                 sensor_noise: bool = True):
-        self.n, self.message_dim = n, message_dim
-        self.rng = np.random.default_rng([seed, STREAM])
+                 sensor_noise: bool = True, fixed: Impairments | None = None):
+        self.n, self.message_dim, self.fixed = n, message_dim, fixed
+        self.rng = np.random.default_rng([seed, STREAM] if fixed is None
+                                         else [seed, STREAM, fixed.seed])
         self.noise_share = 0.5 if sensor_noise else 0.0
         self.current = [self._draw() for _ in range(num_envs)]
         self.upcoming = [self._draw() for _ in range(num_envs)]
         self.links = [self._links(imp) for imp in self.current]
 
     def _draw(self) -> Impairments:
+        if self.fixed is not None:
+            return replace(self.fixed, seed=int(self.rng.integers(2 ** 31)))
         return random_impairments(self.rng, self.noise_share)
 
     def _links(self, impairments: Impairments) -> PlatoonLinks | None:

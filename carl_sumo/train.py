@@ -23,6 +23,7 @@ import torch
 from carl_sumo import __version__, imitation
 from carl_sumo.agents import Agent, AgentConfig, ColoredNoise
 from carl_sumo.ca_scan import keep_heap_memory
+from carl_sumo.channel import Impairments
 from carl_sumo.config import REWARD, RewardConfig
 from carl_sumo.data.events import Event
 from carl_sumo.controllers import adjustment_bounds
@@ -90,9 +91,24 @@ class TrainConfig:
     comm_randomize: bool = False   # every episode its own V2V delay/loss and sensor noise (randomize.py)
     randomize_sensors: bool = True  # with comm_randomize: sensor noise in half the episodes
     val_impaired: bool = False     # validate also under selection.VALIDATION_IMPAIRMENTS
+    comm_delay: float = 0.0        # fixed impairments of every training episode (channel.py)
+    comm_loss: float = 0.0
+    comm_burst: float = 1.0
+    comm_timeout: float = 1.0
+    comm_fade: float = 1.0
+    sensor_noise: bool = False
+    impairment_seed: int = 0
     imitate: str | None = None     # a Ploeg CACC the actor copies first (carl_sumo.imitation)
     imitate_updates: int = 4_000   # behaviour-cloning gradient steps at learning_starts
     imitate_lr: float = 1e-3       # their Adam learning rate
+
+    @property
+    def fixed_impairments(self) -> Impairments | None:
+        """The fixed impairments of every training episode (``--comm-loss`` ...), or None."""
+        imp = Impairments(delay_s=self.comm_delay, loss=self.comm_loss, burst=self.comm_burst,
+                          timeout_s=self.comm_timeout, fade_s=self.comm_fade,
+                          sensor_noise=self.sensor_noise, seed=self.impairment_seed)
+        return imp if imp.active else None
 
     @property
     def reward(self) -> RewardConfig:
@@ -160,9 +176,11 @@ def _upgrade_log(path: Path) -> None:
 def validation_conditions(cfg: TrainConfig) -> tuple:
     """What validation runs every event under: a perfect channel, and with ``--val-impaired``
     also :data:`carl_sumo.selection.VALIDATION_IMPAIRMENTS` (with clean sensors for a run
-    randomised without sensor noise)."""
+    randomised without sensor noise), or a run's fixed impairments (impairment seed 0)."""
     if not cfg.val_impaired:
         return (None,)
+    if cfg.fixed_impairments is not None:
+        return (None, replace(cfg.fixed_impairments, seed=0))
     return (None, VALIDATION_IMPAIRMENTS if not cfg.comm_randomize or cfg.randomize_sensors
             else replace(VALIDATION_IMPAIRMENTS, sensor_noise=False))
 
@@ -196,6 +214,7 @@ def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: flo
                 ", a_ahead m/s^2]" if agent.cfg.observe_ahead else "]"),
             "reward": asdict(cfg.reward), "comm_randomize": cfg.comm_randomize,
             "randomize_sensors": cfg.randomize_sensors,
+            "impairments": asdict(cfg.fixed_impairments) if cfg.fixed_impairments else None,
             "val_impaired": cfg.val_impaired,
             "validation": {k: float(v) for k, v in val.items()},
             "validation_base": {k: float(v) for k, v in (baseline or {}).items()},
@@ -238,10 +257,11 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                               gamma=cfg.gamma, adj_max=cfg.adj_max, base=cfg.base,
                               batch_size=cfg.batch_size, observe_ahead=cfg.observe_ahead,
                               shield_ttc_s=cfg.shield_ttc))
+    fixed = cfg.fixed_impairments
     channels = RandomisedChannels(cfg.num_envs, n, cfg.message_dim if
                                   agent.cfg.communication_aware else 0, cfg.seed,
-                                  cfg.randomize_sensors) \
-        if cfg.comm_randomize else None
+                                  cfg.randomize_sensors, fixed) \
+        if cfg.comm_randomize or fixed is not None else None
     buffer = ReplayBuffer(cfg.buffer_size, n, agent.cfg.obs_dim,
                           channels.message_dim if channels is not None else 0)
     rng = np.random.default_rng(cfg.seed)

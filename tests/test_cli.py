@@ -233,3 +233,10 @@ def test_simulate_without_a_controller_is_one_line_exit_2(capsys, controllers):
 def test_train_refuses_channel_only_randomisation_without_randomisation(capsys):
     code, _, err = run(capsys, "train", "--no-sensor-randomize", "--steps", "10")
     assert code == 2 and "--no-sensor-randomize" in err and len(err.strip().splitlines()) == 1
+
+
+def test_train_refuses_fixed_and_randomised_impairments_together(capsys):
+    code, _, err = run(capsys, "train", "--comm-loss", "0.3", "--comm-randomize", "--steps", "10")
+    assert code == 2 and "not both" in err and len(err.strip().splitlines()) == 1
+    code, _, err = run(capsys, "train", "--comm-fade", "-1", "--steps", "10")
+    assert code == 2 and "--comm-fade" in err

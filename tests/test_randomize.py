@@ -1,6 +1,8 @@
-"""Randomised impairments in training (carl_sumo.randomize): the channel-aware actor pass, the
-per-episode draws, the replay buffer's link fields, noisy sensors in the environment, and a short
-``--comm-randomize`` run."""
+"""Impairments in training (carl_sumo.randomize): the channel-aware actor pass, the per-episode
+draws, the replay buffer's link fields, noisy sensors in the environment, and short
+``--comm-randomize`` and fixed-impairment runs."""
+
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -154,6 +156,25 @@ def test_a_randomised_run_trains_on_impaired_messages(tmp_path, algo):
         assert {HELD, FALLBACK} <= set(state["link_mode"].unique().tolist())
     else:
         assert state["message_dim"] == 0
+
+
+def test_a_run_under_fixed_impairments_trains_on_them_and_validates_under_them(tmp_path):
+    from carl_sumo.train import validation_conditions
+
+    events = [cruise_event(150, 15.0, 30.0)]
+    cfg = TrainConfig(algo="ca-td3", n_vehicles=3, steps=120, seed=0, num_envs=2,
+                      learning_starts=60, eval_every=120, eval_events=1, checkpoint_every=120,
+                      net=str(NET), comm_loss=1.0, impairment_seed=3, val_impaired=True,
+                      out=str(tmp_path / "f.pt"))
+    assert validation_conditions(cfg)[1] == Impairments(loss=1.0, seed=0)
+    channels = RandomisedChannels(2, 3, 16, seed=0, fixed=cfg.fixed_impairments)
+    assert all(replace(imp, seed=3) == cfg.fixed_impairments for imp in channels.current)
+    assert channels.current[0].seed != channels.current[1].seed  # each episode its own draws
+    train(cfg, events, progress=False)
+    _, meta = load_policy(tmp_path / "f.pt")
+    assert meta["impairments"]["loss"] == 1.0 and meta["comm_randomize"] is False
+    state = torch.load(tmp_path / "f.ckpt", weights_only=False)["buffer"]
+    assert set(state["link_mode"].unique().tolist()) == {FALLBACK}  # every message lost
 
 
 def test_validation_under_impairments_scores_each_event_twice_on_the_true_state():
