@@ -147,6 +147,7 @@ def _evaluate_parser(sub: argparse._SubParsersAction) -> None:
                    help="parallel SUMO processes (default: the number of cores; with --ray: the "
                         "cluster's CPUs)")
     add_ray(p)
+    add_impairments(p)
     p.add_argument("--all-seeds", action="store_true",
                    help="run every model's seed files in every table (slower)")
     p.add_argument("--seeds", action="store_true",
@@ -160,13 +161,17 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
 
     if args.workers is not None:
         positive(args.workers, "--workers")
+    impairments = impairments_from(args)
+    if impairments is not None and args.suite == "robustness":
+        raise InputError("--suite robustness runs its own grid of impairments; leave out "
+                         "--comm-* and --sensor-noise, or run --suite paper with them")
     check_output_dir(args.out, "--out")
     check_ray(args)
     with ray_session(args, args.workers or os.cpu_count()):
-        _run_evaluate(args, workers_for(args, os.cpu_count() or 1))
+        _run_evaluate(args, workers_for(args, os.cpu_count() or 1), impairments)
 
 
-def _run_evaluate(args: argparse.Namespace, workers: int) -> None:
+def _run_evaluate(args: argparse.Namespace, workers: int, impairments) -> None:
     from carl_sumo.evaluate import evaluate
 
     if args.suite == "robustness":
@@ -184,7 +189,7 @@ def _run_evaluate(args: argparse.Namespace, workers: int) -> None:
     result = evaluate(args.suite, args.out, args.data, args.quick, args.events, args.policies,
                       args.net, workers, progress=sys.stderr.isatty(),
                       command="carl-sumo " + " ".join(sys.argv[1:]), all_seeds=args.all_seeds,
-                      seeds=args.seeds)
+                      seeds=args.seeds, impairments=impairments)
     for key, rows in result["rows"].items():
         print(f"wrote {args.out / (key + '.md')} and .csv ({len(rows)} rows)")
     print(f"wrote {args.out / 'README.md'}, per_event.csv, timing.csv and "

@@ -33,11 +33,13 @@ them and :mod:`carl_sumo.figures` draws the figures.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from carl_sumo.channel import Impairments
 from carl_sumo.config import SCENARIO
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
@@ -71,7 +73,7 @@ def run_task(task: dict[str, Any]) -> dict[str, Any]:
     per_event, norms, series = [], [], {}
     samples: dict[str, list[np.ndarray]] = {k: [] for k in SAMPLE_KEYS}
     for event, traj in event_trajectories(task["controller"], task["events"], task["followers"],
-                                          task["net"]):
+                                          task["net"], impairments=task.get("impairments")):
         per_event.append(score_event(traj))
         norms.append(acceleration_norms(traj))
         if task["samples"]:
@@ -105,9 +107,13 @@ def plan_tasks(suite: Suite, net: str) -> list[dict]:
                 flags = jobs.setdefault(job, {"samples": False, "series": False})
                 if spec.figures and i == 0:
                     flags["samples"] = flags["series"] = True
+    from carl_sumo.simulate import impairable
+
     tasks = []
     for job, flags in jobs.items():
         set_key, controller, n = job
+        impairments = suite.impairments if suite.impairments is not None and \
+            impairable(controller) else None
         events = suite.events[set_key]
         chunk = len(events) if controller == "human" else max(1, 400 // max(n, 10))
         wanted = {suite.figure_events[set_key]} if flags["series"] else set()
@@ -116,6 +122,7 @@ def plan_tasks(suite: Suite, net: str) -> list[dict]:
             tasks.append({"job": job, "index": index, "controller": controller, "followers": n,
                           "events": part, "net": net, "samples": flags["samples"],
                           "series": wanted & {e.event_id for e in part},
+                          "impairments": impairments,
                           "cost": _cost(controller, sum(e.n_samples for e in part), n)})
     tasks.sort(key=lambda t: -t["cost"])
     return tasks
@@ -203,7 +210,10 @@ def evaluate(suite: str = "paper", out: Path = Path("results"), data: str | None
              quick: bool = False, events: int | None = None, policies: Path | None = None,
              net: str | Path = "networks/i80.net.xml", workers: int = 2,
              progress: bool = False, command: str = "", all_seeds: bool = False,
-             seeds: bool = False) -> dict:
-    """Plan and run a suite (see the module docstring); the table rows and timings."""
+             seeds: bool = False, impairments: Impairments | None = None) -> dict:
+    """Plan and run a suite (see the module docstring); the table rows and timings. With
+    ``impairments`` every controller that runs in carl-sumo (Ploeg, idm-external, the policies)
+    has them; SUMO's native models and the recorded human run as they are."""
     planned = plan_suite(suite, data, quick, events, policies, net, all_seeds, seeds)
+    planned = replace(planned, impairments=impairments)
     return run_suite(planned, Path(out), workers, net, progress, command)

@@ -131,13 +131,18 @@ def event_trajectories(controller_name: str, events: Sequence[Event], n_follower
         yield e, run_event(sim, e, n_followers, controller, impairments=impairments)
 
 
+def impairable(controller_name: str) -> bool:
+    """Whether a controller runs in carl-sumo and so can have impairments (not SUMO's native
+    models, whose V2V and sensing are inside SUMO, nor the recorded human follower)."""
+    return resolve_controller(controller_name)[0] == "external"
+
+
 def check_impairable(controller_name: str, impairments: Impairments | None) -> None:
     """InputError for impairments on a controller that cannot have them: SUMO's native models
     (their V2V and sensing are inside SUMO) and the recorded human follower."""
     if impairments is None or not impairments.active:
         return
-    follower_model, _ = resolve_controller(controller_name)
-    if follower_model != "external":
+    if not impairable(controller_name):
         raise InputError(f"{controller_name}: impairments (--comm-*, --sensor-noise) apply to "
                          "controllers that run in carl-sumo (idm-external, ploeg, a policy "
                          "file), not to SUMO's native models or the recorded follower")

@@ -32,6 +32,7 @@ from typing import Sequence
 
 import numpy as np
 
+from carl_sumo.channel import Impairments
 from carl_sumo.data import load_events
 from carl_sumo.data.events import Event
 from carl_sumo.data.synthetic import stop_and_go_event
@@ -118,6 +119,7 @@ class Suite:
     figure_events: dict[str, str]  # event-set key -> the event drawn in the time figures
     data: str
     quick: bool
+    impairments: Impairments | None = None  # V2V and sensors of the carl-sumo controllers
 
 
 @dataclass

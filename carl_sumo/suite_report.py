@@ -188,6 +188,13 @@ def _load() -> str:
         return "unknown"
 
 
+def _impairments(imp) -> str:
+    """One line of the impairments a suite ran with."""
+    return (f"delay {imp.delay_s:g} s, loss {imp.loss:g} (bursts of {imp.burst:g} steps), "
+            f"timeout {imp.timeout_s:g} s, fade {imp.fade_s:g} s, "
+            f"sensor noise {'on' if imp.sensor_noise else 'off'}, impairment seed {imp.seed}")
+
+
 def suite_readme(suite: Suite, sections: list[str], figure_files: list[tuple[str, str]],
                  wall: float, simulated: float, cpu: float, workers: int, n_tasks: int,
                  command: str) -> str:
@@ -203,6 +210,10 @@ def suite_readme(suite: Suite, sections: list[str], figure_files: list[tuple[str
              f"- load average when it ended: {_load()}",
              "- metric definitions: `docs/metrics.md` of carl-sumo; the human row is the "
              "recorded NGSIM follower alone (1 follower)",
+             *([f"- impairments (`docs/robustness.md`): {_impairments(suite.impairments)} for "
+                "every controller that runs in carl-sumo (Ploeg, the policies); SUMO's native "
+                "models (IDM, Krauss, CACC) and the human row run without them"]
+               if suite.impairments is not None else []),
              "- policy files (sha256, first 12 hex digits): " + ", ".join(
                  f"`{Path(f).name}` {_sha(f)}" for m in suite.models.values() for f in m.files),
              "- figure event (time series, time-space): "

@@ -298,6 +298,9 @@ def test_evaluate_bad_input_is_one_line_exit_2(capsys, tmp_path, monkeypatch):
         (["evaluate", "--quick", "--policies", tmp_path], "does not exist"),
         (["evaluate", "--quick", "--events", "0"], "at least 1"),
         (["evaluate", "--quick", "--workers", "0"], "at least 1"),
+        (["evaluate", "--quick", "--comm-loss", "2"], "--comm-loss is a probability"),
+        (["evaluate", "--suite", "robustness", "--quick", "--comm-loss", "0.3"],
+         "its own grid of impairments"),
     ]
     for argv, message in cases:
         code, out, err = run(capsys, *argv, "--out", tmp_path / "out")
@@ -355,3 +358,26 @@ def test_quick_suite_through_ray_writes_the_same_tables(quick_suite, tmp_path):
     for name in compared:
         assert (out / name).read_bytes() == (quick_suite / name).read_bytes(), name
     assert {p.name for p in out.iterdir()} == {p.name for p in quick_suite.iterdir()}
+
+
+def test_an_impaired_suite_impairs_the_carl_sumo_controllers_only():
+    from dataclasses import replace
+
+    from carl_sumo.channel import Impairments
+    from carl_sumo.evaluate import plan_tasks, run_task
+    from carl_sumo.suite import plan_suite
+    from carl_sumo.suite_report import _impairments
+
+    lossy = Impairments(loss=1.0)
+    suite = replace(plan_suite(quick=True, events=1, net=NET), impairments=lossy)
+    tasks = plan_tasks(suite, str(NET))
+    native = {t["controller"] for t in tasks if t["impairments"] is None}
+    impaired = {t["controller"] for t in tasks if t["impairments"] == lossy}
+    assert {"idm", "krauss", "sumo-cacc", "human"} <= native
+    assert any(c.startswith("ploeg") for c in impaired) and any(c.endswith(".pt") for c in impaired)
+    assert native.isdisjoint(impaired)
+    assert native | impaired == {t["controller"] for t in tasks}
+    ploeg = next(t for t in tasks if t["controller"] == "ploeg:h=0.8")
+    lost, clean = run_task(ploeg), run_task({**ploeg, "impairments": None})
+    assert lost["per_event"][0]["jerk_mps3"] != clean["per_event"][0]["jerk_mps3"]
+    assert "loss 1" in _impairments(lossy)
