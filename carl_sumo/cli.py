@@ -13,6 +13,7 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from carl_sumo.cli_common import (Parser, add_common, add_impairments, add_ray, check_ray, fmt,
                                    impairments_from, positive, ray_session, workers_for)
@@ -23,6 +24,9 @@ from carl_sumo.cli_sweep import _sweep_parser, cmd_sweep
 from carl_sumo.errors import InputError
 from carl_sumo.files import check_output_dir, check_output_file, write_text_atomic
 from carl_sumo.workers import WorkerError
+
+if TYPE_CHECKING:
+    from carl_sumo.channel import Impairments
 
 EXIT_BAD_INPUT = 2
 
@@ -171,7 +175,8 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
         _run_evaluate(args, workers_for(args, os.cpu_count() or 1), impairments)
 
 
-def _run_evaluate(args: argparse.Namespace, workers: int, impairments) -> None:
+def _run_evaluate(args: argparse.Namespace, workers: int, impairments: Impairments | None
+                  ) -> None:
     from carl_sumo.evaluate import evaluate
 
     if args.suite == "robustness":
