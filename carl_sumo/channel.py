@@ -114,12 +114,23 @@ class Impairments:
         """Steps over which a held message fades into the fallback after the timeout."""
         return int(math.floor(self.fade_s / DT_S + 1e-9))
 
-    def held_weight(self, age_steps: np.ndarray | int) -> np.ndarray:
-        """w of a held message of this age (steps): 1 up to the timeout, then falling linearly
+    def held_weight(self, age_steps: np.ndarray) -> np.ndarray:
+        """w of held messages of these ages (steps): 1 up to the timeout, then falling linearly
         to 0 over the fade (see the module docstring)."""
         t, f = self.timeout_steps, self.fade_steps
         w = (t + f + 1 - np.asarray(age_steps, dtype=np.float64)) / (f + 1)
         return np.maximum(np.minimum(w, 1.0), 0.0)  # np.clip costs more on a few links
+
+    @classmethod
+    def from_options(cls, options) -> Impairments | None:
+        """The impairments of an object with the option names as attributes (``comm_delay``,
+        ``comm_loss``, ``comm_burst``, ``comm_timeout``, ``comm_fade``, ``sensor_noise``,
+        ``impairment_seed``: parsed CLI options or a training config); None when all is perfect.
+        InputError for a bad value."""
+        imp = cls(delay_s=options.comm_delay, loss=options.comm_loss, burst=options.comm_burst,
+                  timeout_s=options.comm_timeout, fade_s=options.comm_fade,
+                  sensor_noise=options.sensor_noise, seed=options.impairment_seed)
+        return imp if imp.active else None
 
     @property
     def perfect_channel(self) -> bool:
@@ -139,9 +150,10 @@ BURSTY_CHANNEL = Impairments(delay_s=0.2, loss=0.3, burst=3.0)
 
 
 def _faded(held: np.ndarray, weight: np.ndarray, fallback: np.ndarray | None) -> np.ndarray:
-    """w·held + (1 - w)·fallback per row (fallback None: zeros)."""
-    if weight.min(initial=1.0) >= 1.0:  # nothing is fading (most steps)
-        return held.copy()
+    """w·held + (1 - w)·fallback per row (fallback None: zeros); ``held`` itself when nothing
+    fades (most steps)."""
+    if weight.min(initial=1.0) >= 1.0:
+        return held
     out = held * weight[:, None]
     if fallback is not None:
         out += (1.0 - weight)[:, None] * np.asarray(fallback, dtype=np.float64)
@@ -213,7 +225,7 @@ class Channel:
             if d == 0:
                 mode = np.where(self._lost, mode, LIVE)
             self._mode = mode
-        return self._mode.copy(), _faded(self.held, self._weight, fallback)
+        return self._mode, _faded(self.held, self._weight, fallback)
 
     def send(self, k: int, messages: np.ndarray) -> None:
         """The messages (n, dim) sent at step k (after :meth:`receive` of step k)."""
@@ -241,6 +253,8 @@ class KeyedChannel:
         self.k = -1
         self._lost: dict[str, bool] = {}
         self._to_bad = to_bad_probability(impairments.loss, impairments.burst)
+        self._last_full = impairments.timeout_steps  # the oldest message used whole (steps)
+        self._fade = impairments.fade_steps
 
     def _draw(self, receiver: str) -> bool:
         loss, burst = self.cfg.loss, self.cfg.burst
@@ -273,10 +287,10 @@ class KeyedChannel:
             if receiver not in self._lost:
                 self._lost[receiver] = self._draw(receiver)
             got = self.held.get(receiver)
-            if got is not None and got[0] == sender:
-                weight[j] = self.cfg.held_weight(k - got[2])
-                if weight[j] > 0:
-                    modes[j], held[j] = HELD, got[1]
+            if got is not None and got[0] == sender:  # the held_weight of one link, in Python
+                w = (self._last_full + self._fade + 1 - (k - got[2])) / (self._fade + 1)
+                if w > 0:
+                    modes[j], held[j], weight[j] = HELD, got[1], min(w, 1.0)
             if self.cfg.delay_steps == 0 and not self._lost[receiver]:
                 modes[j] = LIVE
         return modes, _faded(held, weight, fallback)

@@ -52,10 +52,7 @@ def impairments_from(args: argparse.Namespace):
     None when everything is perfect."""
     from carl_sumo.channel import Impairments
 
-    imp = Impairments(delay_s=args.comm_delay, loss=args.comm_loss, burst=args.comm_burst,
-                      timeout_s=args.comm_timeout, fade_s=args.comm_fade,
-                      sensor_noise=args.sensor_noise, seed=args.impairment_seed)
-    return imp if imp.active else None
+    return Impairments.from_options(args)
 
 
 def positive(value: int, name: str) -> int:

@@ -105,10 +105,7 @@ class TrainConfig:
     @property
     def fixed_impairments(self) -> Impairments | None:
         """The fixed impairments of every training episode (``--comm-loss`` ...), or None."""
-        imp = Impairments(delay_s=self.comm_delay, loss=self.comm_loss, burst=self.comm_burst,
-                          timeout_s=self.comm_timeout, fade_s=self.comm_fade,
-                          sensor_noise=self.sensor_noise, seed=self.impairment_seed)
-        return imp if imp.active else None
+        return Impairments.from_options(self)
 
     @property
     def reward(self) -> RewardConfig:
@@ -214,7 +211,7 @@ def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: flo
                 ", a_ahead m/s^2]" if agent.cfg.observe_ahead else "]"),
             "reward": asdict(cfg.reward), "comm_randomize": cfg.comm_randomize,
             "randomize_sensors": cfg.randomize_sensors,
-            "impairments": asdict(cfg.fixed_impairments) if cfg.fixed_impairments else None,
+            "impairments": asdict(fixed) if (fixed := cfg.fixed_impairments) else None,
             "val_impaired": cfg.val_impaired,
             "validation": {k: float(v) for k, v in val.items()},
             "validation_base": {k: float(v) for k, v in (baseline or {}).items()},
@@ -346,11 +343,12 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
             next_obs, reward, term, trunc, final = vec.step(
                 action, channels.upcoming if channels is not None else None)
             noise.reset(term | trunc)
-            next_links = channels.receive(_boundaries(agent)) if channels is not None else None  # at o' = final
+            fallbacks = _boundaries(agent) if channels is not None else None
+            next_links = channels.receive(fallbacks) if channels is not None else None  # at o'
             buffer.add(obs, action, reward, final, term.astype(np.float32), links, next_links)
             if channels is not None:  # a new episode's links, else this step's preview holds
                 channels.episodes_ended(term | trunc)
-                links = channels.receive(_boundaries(agent)) if (term | trunc).any() else next_links
+                links = channels.receive(fallbacks) if (term | trunc).any() else next_links
             recent.append(float(reward.mean()))
             obs = next_obs
             if step >= cfg.learning_starts and (step - cfg.learning_starts) % cfg.update_every == 0:
