@@ -30,9 +30,8 @@ lost, in the good state none; bad → good with probability 1/L per step (bursts
 steps) and good → bad with probability P / (L·(1 - P)), so that the long-run loss rate is P. The
 first state is drawn from that long-run distribution. P = 1 loses everything.
 
-**Sensor noise** (``sensor_noise``): the gap and the relative speed a follower measures itself get
-Gaussian noise with standard deviations :data:`GAP_NOISE_M` and :data:`REL_SPEED_NOISE_MPS`, drawn
-anew every step; the metrics stay on the true state.
+**Sensors** (``sensor_noise``, ``sensor_filter``): noise on the gap and the relative speed a
+follower measures itself, and the tracker that filters it: :mod:`carl_sumo.sensors`.
 
 All draws come from ``seed`` and the event's ID, so the same seed gives the same losses and noise
 on an event whichever worker runs it.
@@ -58,13 +57,6 @@ import numpy as np
 from carl_sumo.config import DT_S
 from carl_sumo.errors import InputError
 
-GAP_NOISE_M = 0.1
-"""σ of the measured bumper gap (m): the order of the range accuracy of automotive long-range
-radars (about ±0.1 m)."""
-
-REL_SPEED_NOISE_MPS = 0.1
-"""σ of the measured relative speed (m/s): the order of their range-rate accuracy (about ±0.1 m/s)."""
-
 LIVE, HELD, FALLBACK = 0, 1, 2
 """How a receiver gets its message this step: the one sent this step, the last one held, none."""
 
@@ -72,8 +64,8 @@ LIVE, HELD, FALLBACK = 0, 1, 2
 @dataclass(frozen=True)
 class Impairments:
     """What ``--comm-delay``, ``--comm-loss``, ``--comm-burst``, ``--comm-timeout``,
-    ``--comm-fade`` and ``--sensor-noise`` ask for (units in the names); the defaults are a
-    perfect channel."""
+    ``--comm-fade``, ``--sensor-noise`` and ``--sensor-filter`` ask for (units in the names); the
+    defaults are a perfect channel and perfect sensors."""
 
     delay_s: float = 0.0
     loss: float = 0.0
@@ -81,6 +73,7 @@ class Impairments:
     timeout_s: float = 1.0
     fade_s: float = 1.0
     sensor_noise: bool = False
+    sensor_filter: bool = False  # the followers track their noisy measurements (sensors.py)
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -125,11 +118,12 @@ class Impairments:
     def from_options(cls, options) -> Impairments | None:
         """The impairments of an object with the option names as attributes (``comm_delay``,
         ``comm_loss``, ``comm_burst``, ``comm_timeout``, ``comm_fade``, ``sensor_noise``,
-        ``impairment_seed``: parsed CLI options or a training config); None when all is perfect.
+        ``sensor_filter``, ``impairment_seed``: parsed CLI options or a training config); None when all is perfect.
         InputError for a bad value."""
         imp = cls(delay_s=options.comm_delay, loss=options.comm_loss, burst=options.comm_burst,
                   timeout_s=options.comm_timeout, fade_s=options.comm_fade,
-                  sensor_noise=options.sensor_noise, seed=options.impairment_seed)
+                  sensor_noise=options.sensor_noise, sensor_filter=options.sensor_filter,
+                  seed=options.impairment_seed)
         return imp if imp.active else None
 
     @property
@@ -313,10 +307,11 @@ MAX_RANDOM_DELAY_STEPS = 5
 """Randomised training delays: 0 to this many 0.1 s steps (0.5 s, the suite's largest)."""
 
 
-def random_impairments(rng: np.random.Generator, sensor_noise_share: float = 0.5
-                       ) -> Impairments:
+def random_impairments(rng: np.random.Generator, sensor_noise_share: float = 0.5,
+                       sensor_filter: bool = False) -> Impairments:
     """One training episode's impairments, drawn as the module docstring says (sensor noise in
-    ``sensor_noise_share`` of the impaired episodes; the channel draws do not depend on it)."""
+    ``sensor_noise_share`` of the impaired episodes, filtered by the followers' trackers when
+    ``sensor_filter``; the channel draws do not depend on either)."""
     seed = int(rng.integers(2 ** 31))
     if rng.random() < PERFECT_SHARE:
         return Impairments(seed=seed)
@@ -324,7 +319,8 @@ def random_impairments(rng: np.random.Generator, sensor_noise_share: float = 0.5
     loss = float(rng.random())
     burst = float(rng.uniform(1.0, 5.0)) if rng.random() < 0.5 else 1.0
     return Impairments(delay_s=delay_s, loss=loss, burst=burst,
-                       sensor_noise=bool(rng.random() < sensor_noise_share), seed=seed)
+                       sensor_noise=bool(rng.random() < sensor_noise_share),
+                       sensor_filter=sensor_filter, seed=seed)
 
 
 class PlatoonLinks:
@@ -354,17 +350,3 @@ class PlatoonLinks:
         self.forward.send(self.k, np.vstack([forward_messages[1:], zero]))  # to i from i+1
         self.backward.send(self.k, np.vstack([zero, backward_messages[:self.n - 1]]))
         self.k += 1
-
-
-class Sensors:
-    """Noisy own measurements of one event: gap and relative speed (see the module docstring)."""
-
-    def __init__(self, rng: np.random.Generator):
-        self.rng = rng
-
-    def measure(self, obs: np.ndarray) -> np.ndarray:
-        """Observations [v, a, d, Δv, ...] with noise on d (kept ≥ 0.01 m) and Δv."""
-        out = np.array(obs, dtype=np.float64)
-        out[:, 2] = np.maximum(out[:, 2] + self.rng.normal(0.0, GAP_NOISE_M, len(out)), 0.01)
-        out[:, 3] += self.rng.normal(0.0, REL_SPEED_NOISE_MPS, len(out))
-        return out

@@ -43,6 +43,9 @@ def add_impairments(p: argparse.ArgumentParser) -> None:
                         "over S seconds (default 1; 0: a hard switch)")
     p.add_argument("--sensor-noise", action="store_true",
                    help="Gaussian noise on the measured gap (0.1 m) and relative speed (0.1 m/s)")
+    p.add_argument("--sensor-filter", action="store_true",
+                   help="with --sensor-noise: every follower filters its measured gap and "
+                        "relative speed with a Kalman tracker (docs/robustness.md)")
     p.add_argument("--impairment-seed", type=int, default=0,
                    help="seed of the losses and the noise (default 0)")
 
@@ -52,6 +55,9 @@ def impairments_from(args: argparse.Namespace):
     None when everything is perfect."""
     from carl_sumo.channel import Impairments
 
+    if args.sensor_filter and not args.sensor_noise and not getattr(args, "comm_randomize", None):
+        raise InputError("--sensor-filter filters noisy measurements: give it with --sensor-noise"
+                         + (" or --comm-randomize" if hasattr(args, "comm_randomize") else ""))
     return Impairments.from_options(args)
 
 

@@ -179,7 +179,7 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_sc
                    "batch_size", "imitate", "imitate_updates", "observe_ahead",
                    "shield_ttc", "comm_randomize", "randomize_sensors", "val_impaired",
                    "comm_delay", "comm_loss", "comm_burst", "comm_timeout", "comm_fade",
-                   "sensor_noise", "impairment_seed")
+                   "sensor_noise", "sensor_filter", "impairment_seed")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 

@@ -21,9 +21,10 @@ from pettingzoo import ParallelEnv
 from carl_sumo.config import BOUNDS, IDM, REWARD, SCENARIO, ControlBounds, IDMParams, \
     RewardConfig, ScenarioConfig
 from carl_sumo import controllers, reward as reward_module
-from carl_sumo.channel import Impairments, Sensors
+from carl_sumo.channel import Impairments
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
+from carl_sumo.sensors import Sensors
 from carl_sumo.sumo import DEFAULT_NET, PlatoonSim, check_fits
 
 
@@ -87,9 +88,7 @@ class PlatoonEnv(ParallelEnv):
         self.event = event if event is not None else \
             self.events[int(self._rng.integers(len(self.events)))]
         self.sim.reset(self.event, self.n_followers)
-        self._sensors = None
-        if impairments is not None and impairments.sensor_noise:
-            self._sensors = Sensors(impairments.rng(self.event.event_id, 0))
+        self._sensors = Sensors.of(impairments, self.event.event_id)
         if self._base is not None:
             self._base.reset(self.n_followers)
             if impairments is not None and not impairments.perfect_channel:

@@ -29,16 +29,19 @@ class RandomisedChannels:
     """The current and the next episode's impairments of ``num_envs`` environments of ``n``
     followers, and the CA links (messages of ``message_dim`` numbers; 0: an actor without
     messages, sensor noise only). ``sensor_noise`` False: the channel alone is randomised (the
-    same channel draws), the sensors stay clean. ``fixed``: every episode has these impairments
+    same channel draws), the sensors stay clean; ``sensor_filter``: the noisy ones are filtered
+    (:mod:`carl_sumo.sensors`). ``fixed``: every episode has these impairments
     instead (``train --comm-loss ...``), with its own loss and noise draws (seeded by the training
     seed and ``fixed.seed``)."""
 
     def __init__(self, num_envs: int, n: int, message_dim: int, seed: int,
-                 sensor_noise: bool = True, fixed: Impairments | None = None):
+                 sensor_noise: bool = True, fixed: Impairments | None = None,
+                 sensor_filter: bool = False):
         self.n, self.message_dim, self.fixed = n, message_dim, fixed
         self.rng = np.random.default_rng([seed, STREAM] if fixed is None
                                          else [seed, STREAM, fixed.seed])
         self.noise_share = 0.5 if sensor_noise else 0.0
+        self.sensor_filter = sensor_filter
         self.current = [self._draw() for _ in range(num_envs)]
         self.upcoming = [self._draw() for _ in range(num_envs)]
         self.links = [self._links(imp) for imp in self.current]
@@ -46,7 +49,7 @@ class RandomisedChannels:
     def _draw(self) -> Impairments:
         if self.fixed is not None:
             return replace(self.fixed, seed=int(self.rng.integers(2 ** 31)))
-        return random_impairments(self.rng, self.noise_share)
+        return random_impairments(self.rng, self.noise_share, self.sensor_filter)
 
     def _links(self, impairments: Impairments) -> PlatoonLinks | None:
         if not self.message_dim:

@@ -20,11 +20,12 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from carl_sumo.cacc import is_ploeg_name, ploeg_controller
-from carl_sumo.channel import Impairments, Sensors
+from carl_sumo.channel import Impairments
 from carl_sumo.controllers import AccelerationController, Controller, ZeroAdjustment, \
     applied_acceleration
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
+from carl_sumo.sensors import Sensors
 from carl_sumo.files import atomic_output
 from carl_sumo.metrics import PlatoonTrajectory, aggregate, score_event
 from carl_sumo.sumo import DEFAULT_NET, PlatoonSim, close_sumo, use_gui
@@ -76,8 +77,7 @@ def run_event(sim: PlatoonSim, event: Event, n_followers: int,
     if impairments is not None and controller is not None:
         if not impairments.perfect_channel and hasattr(controller, "connect"):
             controller.connect(impairments, event.event_id)
-        if impairments.sensor_noise:
-            sensors = Sensors(impairments.rng(event.event_id, 0))
+        sensors = Sensors.of(impairments, event.event_id)
     sim.reset(event, n_followers, fcd_path)
     obs = sim.observation()
     leader, speeds, gaps = [sim.leader_speed], [obs[:, 0]], [obs[:, 2]]

@@ -54,10 +54,11 @@ import numpy as np
 
 from carl_sumo.config import DT_S, HEADWAY_MIN_SPEED_MPS
 from carl_sumo.cacc import PloegChains, is_ploeg_name, parse_ploeg
-from carl_sumo.channel import Impairments, KeyedChannel, Sensors
+from carl_sumo.channel import Impairments, KeyedChannel
 from carl_sumo.config import BOUNDS
 from carl_sumo.controllers import adjustment_bounds, shield_adjustment, total_acceleration
 from carl_sumo.errors import InputError
+from carl_sumo.sensors import Sensors
 from carl_sumo.files import write_text_atomic
 from carl_sumo.study_chains import cacc_observations, form_chains, merging_lanes, zipper_ahead
 from carl_sumo.study_results import RunResult, markdown_table, run_name, summarise, write_csv
@@ -282,12 +283,10 @@ def run_one(cfg: StudyConfig, penetration: float, seed: int, out_dir: Path) -> R
         if kind == "external":
             ls.vehicletype.setTau(CACC_TYPES["external"], insertion_tau_s())
         set_human_variability(ls, cfg.human_sigma)
-        sensors = None
-        if cfg.impairments is not None:  # every run its own draws: keyed by its name
-            if not cfg.impairments.perfect_channel and hasattr(controller, "connect"):
-                controller.connect(cfg.impairments, name)
-            if cfg.impairments.sensor_noise:
-                sensors = Sensors(cfg.impairments.rng(name, 0))
+        sensors = Sensors.of(cfg.impairments, name)  # every run its own draws: by its name
+        if cfg.impairments is not None and not cfg.impairments.perfect_channel \
+                and hasattr(controller, "connect"):
+            controller.connect(cfg.impairments, name)
         try:
             acc, heat, timing = _simulate(ls, cfg, kind, controller, routes.cacc_ids, lane_chain,
                                           sensors)
@@ -389,8 +388,9 @@ def _simulate(ls, cfg: StudyConfig, kind: str,
                                                  [accel[i] for i in cidx], cahead, speed_of,
                                                  min_gap, lookahead)
             chains = form_chains(cids, chain_ahead, cfg.v2v_range_m)
-            if sensors is not None:
-                obs = sensors.measure(obs)
+            if sensors is not None:  # a track per vehicle and its current predecessor
+                obs = sensors.measure(obs, cids, [None if c is None else c[0]
+                                                  for c in chain_ahead])
             accel_cmd = controller.acceleration(obs, chains, cids, chain_ahead, prev_acc)
             for vid, v, a in zip(cids, obs[:, 0].tolist(), accel_cmd.tolist()):
                 v += a * DT_S

@@ -97,6 +97,7 @@ class TrainConfig:
     comm_timeout: float = 1.0
     comm_fade: float = 1.0
     sensor_noise: bool = False
+    sensor_filter: bool = False    # noisy measurements are tracked (sensors.py), fixed or random
     impairment_seed: int = 0
     imitate: str | None = None     # a Ploeg CACC the actor copies first (carl_sumo.imitation)
     imitate_updates: int = 4_000   # behaviour-cloning gradient steps at learning_starts
@@ -173,13 +174,15 @@ def _upgrade_log(path: Path) -> None:
 def validation_conditions(cfg: TrainConfig) -> tuple:
     """What validation runs every event under: a perfect channel, and with ``--val-impaired``
     also :data:`carl_sumo.selection.VALIDATION_IMPAIRMENTS` (with clean sensors for a run
-    randomised without sensor noise), or a run's fixed impairments (impairment seed 0)."""
+    randomised without sensor noise, filtered with ``--sensor-filter``), or a run's fixed
+    impairments (impairment seed 0)."""
     if not cfg.val_impaired:
         return (None,)
     if cfg.fixed_impairments is not None:
         return (None, replace(cfg.fixed_impairments, seed=0))
-    return (None, VALIDATION_IMPAIRMENTS if not cfg.comm_randomize or cfg.randomize_sensors
-            else replace(VALIDATION_IMPAIRMENTS, sensor_noise=False))
+    noisy = not cfg.comm_randomize or cfg.randomize_sensors
+    return (None, replace(VALIDATION_IMPAIRMENTS, sensor_noise=noisy,
+                          sensor_filter=noisy and cfg.sensor_filter))
 
 
 def seed_everything(seed: int) -> None:
@@ -210,7 +213,7 @@ def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: flo
                 ", a_base m/s^2]" if agent.cfg.residual else
                 ", a_ahead m/s^2]" if agent.cfg.observe_ahead else "]"),
             "reward": asdict(cfg.reward), "comm_randomize": cfg.comm_randomize,
-            "randomize_sensors": cfg.randomize_sensors,
+            "randomize_sensors": cfg.randomize_sensors, "sensor_filter": cfg.sensor_filter,
             "impairments": asdict(fixed) if (fixed := cfg.fixed_impairments) else None,
             "val_impaired": cfg.val_impaired,
             "validation": {k: float(v) for k, v in val.items()},
@@ -257,7 +260,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     fixed = cfg.fixed_impairments
     channels = RandomisedChannels(cfg.num_envs, n, cfg.message_dim if
                                   agent.cfg.communication_aware else 0, cfg.seed,
-                                  cfg.randomize_sensors, fixed) \
+                                  cfg.randomize_sensors, fixed, cfg.sensor_filter) \
         if cfg.comm_randomize or fixed is not None else None
     buffer = ReplayBuffer(cfg.buffer_size, n, agent.cfg.obs_dim,
                           channels.message_dim if channels is not None else 0)
