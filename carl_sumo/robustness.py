@@ -4,7 +4,7 @@
 Every controller runs the NGSIM test split with 10 followers at each impairment setting of
 :func:`settings` (:mod:`carl_sumo.channel`): message loss from 0 to 100 % at no delay, delay from
 0 to 0.5 s without loss, the bursty point (30 % loss in bursts of 3 steps with 0.2 s delay),
-and sensor noise alone and with the bursty point. IDM (computed in carl-sumo, ``idm-external``)
+and sensor noise, raw and filtered by the followers' trackers (:mod:`carl_sumo.sensors`). IDM (computed in carl-sumo, ``idm-external``)
 sends no messages, so it runs only where its sensors change: the perfect setting and the noisy
 ones. The paper configuration's nominal and robust CA-TD3 (:data:`SEED_POLICIES`) run with their
 training seeds 0-4 (one recipe each): their cells are seed means with a 95 % t interval over
@@ -21,7 +21,7 @@ from __future__ import annotations
 import csv
 import io
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -69,7 +69,7 @@ def settings(quick: bool = False) -> list[Setting]:
     out += [Setting(f"delay {d:g} s", Impairments(delay_s=d)) for d in DELAYS_S[1:]]
     out += [Setting(BURSTY, BURSTY_CHANNEL),
             Setting("sensor noise", Impairments(sensor_noise=True)),
-            Setting(f"sensor noise, {BURSTY}", replace(BURSTY_CHANNEL, sensor_noise=True))]
+            Setting("sensor noise, filtered", Impairments(sensor_noise=True, sensor_filter=True))]
     if quick:
         keep = {"perfect", "loss 0.3", "delay 0.2 s", "sensor noise"}
         out = [s for s in out if s.label in keep]
@@ -113,7 +113,8 @@ def run_robustness(out: Path, data: str | None = None, quick: bool = False,
             head = {"setting": setting.label, "controller": name,
                     "loss": setting.impairments.loss, "delay_s": setting.impairments.delay_s,
                     "burst": setting.impairments.burst,
-                    "sensor_noise": setting.impairments.sensor_noise, "events": len(events),
+                    "sensor_noise": setting.impairments.sensor_noise,
+                    "sensor_filter": setting.impairments.sensor_filter, "events": len(events),
                     "seeds": len(per_file)}
             rows.append({**head, **_cell_values(per_file)})
             if len(per_file) > 1:
@@ -179,7 +180,7 @@ def _cell(row: dict, key: str) -> str:
 def _markdown(rows: list[dict], data: str, n_events: int, wall: float, command: str) -> str:
     head = ("| setting | controller | seeds | headway (s) | jerk (m/s³) | speed (m/s) | TTC<4 s "
             "| TTC<1.5 s | dampening | collisions |\n|---|---|---|---|---|---|---|---|---|---|")
-    lines = [f"# Robustness: V2V delay and loss, sensor noise\n",
+    lines = ["# Robustness: V2V delay and loss, sensor noise\n",
              f"command: `{command}`\n" if command else "",
              f"{n_events} events of the test split of {data}, 10 followers; wall time "
              f"{wall:.0f} s; impairment seed 0. Cells with one seed: the file's aggregate over "
