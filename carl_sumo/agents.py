@@ -243,6 +243,12 @@ class Agent(nn.Module):
         return np.clip(action + noise.reshape(action.shape), -self.cfg.adj_max, self.cfg.adj_max)
 
     # ---------------------------------------------------------------------------- learning
+    def start_from(self, actor_state: dict[str, torch.Tensor]) -> None:
+        """A warm start: the actor and its target take these weights (a policy file's
+        ``actor``); the critics stay as they are."""
+        self.actor.load_state_dict(actor_state)
+        self.actor_target.load_state_dict(actor_state)
+
     def imitate(self, obs: torch.Tensor, target: torch.Tensor, updates: int, lr: float,
                 batch_size: int, rng: np.random.Generator) -> float:
         """Behaviour cloning: fit the actor to target a_adj (m/s², (N, n)) on platoon

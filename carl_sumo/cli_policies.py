@@ -53,6 +53,13 @@ def check_train_args(args: argparse.Namespace) -> Path:
     if impairments_from(args) is not None and args.comm_randomize:
         raise InputError("--comm-randomize draws every episode's impairments itself; give it or "
                          "fixed --comm-*/--sensor-noise options, not both")
+    if args.init is not None:
+        if args.resume is not None or args.imitate is not None:
+            raise InputError("--init starts a new run from a policy; --resume continues a run "
+                             "and --imitate starts from a teacher: give one of them")
+        from carl_sumo.policy import read_policy_payload
+
+        read_policy_payload(args.init)
     if args.imitate is not None:
         from carl_sumo.imitation import teacher
 
@@ -143,6 +150,11 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
                         "to it before RL, e.g. ploeg:h=1.1:kp=2.278:kd=10.6313")
     p.add_argument("--imitate-updates", type=int, default=None,
                    help="behaviour-cloning gradient steps of --imitate (default 4000)")
+    p.add_argument("--init", default=None, metavar="POLICY.pt",
+                   help="warm start from a trained policy of the same configuration: its actor "
+                        "drives from the first step and is the first candidate, kept unless a "
+                        "trained checkpoint validates better; the critics start fresh (give "
+                        "--critic-burn-in)")
     p.add_argument("--base", default=None,
                    help="base model under the learned adjustment: idm (default, the paper's) or "
                         "a classical CACC such as ploeg-tuned:h=0.8 (the actor starts at a_adj = 0)")
@@ -176,7 +188,7 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_sc
                    "hidden", "actor_lr", "critic_lr", "noise", "noise_correlation", "smooth_jerk",
                    "smooth_accel", "eval_events", "val_seed", "val_source", "gamma",
                    "adj_max", "base", "critic_burn_in", "braking_events", "update_every",
-                   "batch_size", "imitate", "imitate_updates", "observe_ahead",
+                   "batch_size", "imitate", "imitate_updates", "init", "observe_ahead",
                    "shield_ttc", "comm_randomize", "randomize_sensors", "val_impaired",
                    "comm_delay", "comm_loss", "comm_burst", "comm_timeout", "comm_fade",
                    "sensor_noise", "sensor_filter", "impairment_seed")

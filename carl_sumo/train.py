@@ -99,6 +99,7 @@ class TrainConfig:
     sensor_noise: bool = False
     sensor_filter: bool = False    # noisy measurements are tracked (sensors.py), fixed or random
     impairment_seed: int = 0
+    init: str | None = None        # a policy file whose actor starts the run (a warm start)
     imitate: str | None = None     # a Ploeg CACC the actor copies first (carl_sumo.imitation)
     imitate_updates: int = 4_000   # behaviour-cloning gradient steps at learning_starts
     imitate_lr: float = 1e-3       # their Adam learning rate
@@ -215,7 +216,7 @@ def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: flo
             "reward": asdict(cfg.reward), "comm_randomize": cfg.comm_randomize,
             "randomize_sensors": cfg.randomize_sensors, "sensor_filter": cfg.sensor_filter,
             "impairments": asdict(fixed) if (fixed := cfg.fixed_impairments) else None,
-            "val_impaired": cfg.val_impaired,
+            "val_impaired": cfg.val_impaired, "init": cfg.init,
             "validation": {k: float(v) for k, v in val.items()},
             "validation_base": {k: float(v) for k, v in (baseline or {}).items()},
             "validation_events": [e.event_id for e in val_events],
@@ -241,6 +242,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
 
     train_events, val_events = held_out_split(events, cfg)  # InputError before any file
     teacher = _teacher(cfg)  # InputError before any file
+    init_actor = initial_actor(cfg)  # InputError before any file
     out = Path(cfg.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     ckpt_path = out.with_suffix(".ckpt")
@@ -257,6 +259,13 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                               gamma=cfg.gamma, adj_max=cfg.adj_max, base=cfg.base,
                               batch_size=cfg.batch_size, observe_ahead=cfg.observe_ahead,
                               shield_ttc_s=cfg.shield_ttc))
+    if init_actor is not None and resume is None:
+        try:
+            agent.start_from(init_actor)
+        except RuntimeError as exc:
+            raise InputError(f"--init {cfg.init}: its actor does not fit this run's network "
+                             f"(--message-dim, --hidden); give a policy trained with the same "
+                             "ones") from None
     fixed = cfg.fixed_impairments
     channels = RandomisedChannels(cfg.num_envs, n, cfg.message_dim if
                                   agent.cfg.communication_aware else 0, cfg.seed,
@@ -295,7 +304,13 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     baseline = {"val_reward": base_reward, **aggregate(baseline_events)}
     log(f"validation baseline ({cfg.base}): "
         + ", ".join(f"{k}={v:.3f}" for k, v in baseline.items()))
-    if agent.cfg.residual and resume is None:
+    if init_actor is not None and resume is None:
+        # the warm start is the policy to beat: kept unless a trained checkpoint scores better
+        best, start = _validate_and_keep(cfg, agent, val_env, val_events, baseline,
+                                         baseline_events, out)
+        log(f"validation of --init {cfg.init}: "
+            + ", ".join(f"{k}={v:.3f}" for k, v in start.items()))
+    elif agent.cfg.residual and resume is None:
         # the untrained actor is its base exactly (a_adj = 0): the policy to beat, kept unless a
         # trained checkpoint scores better on validation
         start = {**baseline, **improvement_z(baseline_events, baseline_events)}
@@ -330,12 +345,14 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
             if step == cfg.learning_starts and teacher is not None:
                 best = _clone_teacher(cfg, agent, teacher, buffer, rng, val_env, val_events,
                                       baseline, baseline_events, out, log)
+            # a warm-started actor drives from the first step, others after learning_starts
+            acting = step >= cfg.learning_starts or init_actor is not None
             if links is not None:  # the CA actor's messages cross impaired links
-                exploring = step >= cfg.learning_starts
+                exploring = acting
                 action, sent_f, sent_b = agent.act_over(obs, links,
                                                         noise.sample() if exploring else None)
                 channels.send(sent_f, sent_b)
-            if step < cfg.learning_starts:  # the base (or the teacher) plus exploration noise
+            if not acting:  # the base (or the teacher) plus exploration noise
                 action = noise.sample()
                 if teacher is not None:
                     action = action + teacher_adjustment(teacher, obs, agent.cfg.adj_max,
@@ -427,13 +444,42 @@ def _clone_teacher(cfg: TrainConfig, agent: Agent, teacher, buffer: ReplayBuffer
     obs, target = imitation.dataset(teacher, buffer.obs[:buffer.size], agent.cfg.adj_max,
                                     cfg.observe_ahead)
     mse = agent.imitate(obs, target, cfg.imitate_updates, cfg.imitate_lr, 256, rng)
+    score, val = _validate_and_keep(cfg, agent, val_env, val_events, baseline, baseline_events,
+                                    out)
+    log(f"imitated {cfg.imitate} on {len(obs)} platoon states (mse {mse:.4f} m²/s⁴): "
+        + ", ".join(f"{k}={v:.3f}" for k, v in val.items()))
+    return score
+
+
+def _validate_and_keep(cfg: TrainConfig, agent: Agent, val_env: PlatoonEnv,
+                       val_events: Sequence[Event], baseline: dict[str, float],
+                       baseline_events: list[dict], out: Path) -> tuple[float, dict[str, float]]:
+    """Validate the actor as it is, write it as the run's first candidate; its selection score
+    and validation metrics."""
     val_reward, per_event = validate_events(agent, val_env, val_events, validation_conditions(cfg))
     val = {"val_reward": val_reward, **aggregate(per_event),
            **improvement_z(per_event, baseline_events)}
-    log(f"imitated {cfg.imitate} on {len(obs)} platoon states (mse {mse:.4f} m²/s⁴): "
-        + ", ".join(f"{k}={v:.3f}" for k, v in val.items()))
     save_policy(agent, out, _metadata(cfg, agent, val, 0.0, baseline, val_events))
-    return selection_score(val, cfg.select, baseline)
+    return selection_score(val, cfg.select, baseline), val
+
+
+def initial_actor(cfg: TrainConfig) -> dict | None:
+    """The actor weights of ``--init`` (None without it); InputError when the file is not a
+    policy of this run's algorithm, base and observation."""
+    if cfg.init is None:
+        return None
+    from carl_sumo.policy import read_policy_payload
+
+    payload = read_policy_payload(Path(cfg.init))
+    theirs = payload["agent_config"]
+    ours = {"algo": cfg.algo, "base": cfg.base, "observe_ahead": cfg.observe_ahead,
+            "adj_max": cfg.adj_max}
+    differ = [f"{k} {theirs.get(k)!r}" for k, v in ours.items() if theirs.get(k) != v]
+    if differ:
+        raise InputError(f"--init {cfg.init} is a policy of another configuration "
+                         f"({', '.join(differ)}); give one trained with this run's --algo, "
+                         "--base, --observe-ahead and --adj-max")
+    return payload["actor"]
 
 
 def _tensorboard(logdir: Path):

@@ -312,3 +312,37 @@ def test_update_every_k_steps_with_a_larger_batch(tmp_path):
     state = load_torch(tmp_path / "t.ckpt", "checkpoint")
     assert state["updates"] == 200 // 4
     assert load_policy(tmp_path / "t.pt")[0].cfg.batch_size == 64
+
+
+def test_a_warm_start_keeps_its_actor_until_a_trained_checkpoint_validates_better(tmp_path):
+    """--init: the run starts from the policy's actor, which is validated and written as the
+    first candidate; with no update before the end it is the file the run keeps."""
+    torch.manual_seed(3)
+    start = Agent(AgentConfig(algo="ca-td3", n_vehicles=3))
+    save_policy(start, tmp_path / "start.pt", {})
+    cfg = TrainConfig(algo="ca-td3", n_vehicles=3, steps=40, learning_starts=1000, eval_every=40,
+                      eval_events=1, checkpoint_every=40, net=str(NET), init=str(tmp_path / "start.pt"),
+                      out=str(tmp_path / "warm.pt"))
+    lines = []
+    train(cfg, [cruise_event(100), cruise_event(100, 10.0, 14.0)], progress=False,
+          log=lines.append)
+    kept, meta = load_policy(tmp_path / "warm.pt")
+    for name, tensor in start.actor.state_dict().items():
+        assert torch.equal(kept.actor.state_dict()[name], tensor)
+    assert meta["init"] == str(tmp_path / "start.pt")
+    assert any(line.startswith("validation of --init") for line in lines)
+
+
+def test_a_warm_start_from_another_configuration_is_refused(tmp_path, capsys):
+    from carl_sumo.cli import main
+
+    save_policy(Agent(AgentConfig(algo="ca-td3", n_vehicles=3)), tmp_path / "start.pt", {})
+    cfg = TrainConfig(algo="ca-td3", n_vehicles=3, base="ploeg:h=0.8", net=str(NET),
+                      init=str(tmp_path / "start.pt"), out=str(tmp_path / "x.pt"))
+    with pytest.raises(InputError, match="--init"):
+        train(cfg, [cruise_event(100)], progress=False)
+    assert not (tmp_path / "x.pt").exists()
+    code = main(["train", "--init", str(tmp_path / "start.pt"), "--resume", str(tmp_path / "c"),
+                 "--out", str(tmp_path / "y.pt")])
+    err = capsys.readouterr().err
+    assert code == 2 and "--init" in err and len(err.strip().splitlines()) == 1
