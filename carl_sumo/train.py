@@ -471,10 +471,10 @@ def initial_actor(cfg: TrainConfig) -> dict | None:
     from carl_sumo.policy import read_policy_payload
 
     payload = read_policy_payload(Path(cfg.init))
-    theirs = payload["agent_config"]
+    theirs = AgentConfig(**payload["agent_config"])  # older files: the defaults they had
     ours = {"algo": cfg.algo, "base": cfg.base, "observe_ahead": cfg.observe_ahead,
             "adj_max": cfg.adj_max}
-    differ = [f"{k} {theirs.get(k)!r}" for k, v in ours.items() if theirs.get(k) != v]
+    differ = [f"{k} {getattr(theirs, k)!r}" for k, v in ours.items() if getattr(theirs, k) != v]
     if differ:
         raise InputError(f"--init {cfg.init} is a policy of another configuration "
                          f"({', '.join(differ)}); give one trained with this run's --algo, "
