@@ -13,6 +13,7 @@ A spec (TOML) names fixed ``train`` options and the options searched over::
     [train]                       # anything `carl-sumo train` takes, without the dashes
     algo = "ca-td3"
     steps = 10000
+    init = "policies/seeds/ca_td3_10_seed{seed}.pt"  # {seed}: the trial's seed
 
     [grid]                        # lists: every combination runs (a configuration per non-seed
     seed = [0, 1, 2]              # combination; its seeds are its repetitions)
@@ -197,7 +198,8 @@ def plan_trials(spec: SweepSpec) -> list[Trial]:
             tag = "".join(f"_{k.replace('_', '-')}{_label(v)}" for k, v in values.items()
                           if k != "seed")
             config = spec.name + tag
-            options = {**spec.train, **values, "seed": seed}
+            options = {k: v.replace("{seed}", str(seed)) if isinstance(v, str) else v
+                       for k, v in {**spec.train, **values, "seed": seed}.items()}
             trials.append(Trial(f"{config}_seed{seed}", config, seed, values,
                                 _argv(options) + ["--out", str(spec.out / f"{config}_seed{seed}.pt")]))
     names = [t.name for t in trials]

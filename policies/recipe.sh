@@ -1,7 +1,7 @@
 # The training recipes of the shipped policies, sourced by the per-model scripts beside it.
 # paper_recipe: the paper's configuration (base IDM), every algorithm alike.
 # product_recipe: CA-TD3 on the tuned Ploeg CACC (h = 0.8 s), with the safety shield below a 4 s TTC.
-# train_seeds STEM SEEDS... RECIPE_ARGS: trains each seed into policies/seeds/STEM_seedK.pt, two at
+# train_seeds STEM SEEDS... RECIPE_ARGS ({seed} in them: the seed): trains each seed into policies/seeds/STEM_seedK.pt, two at
 # a time (the 2-core machine), then ships the run that validation ranks first (`carl-sumo rank`,
 # the recipe's --select rule: never a test-split number) as policies/STEM.pt with its curve.
 set -euo pipefail
@@ -17,7 +17,7 @@ train_seeds() {  # STEM "SEEDS" TRAIN_ARGS...
   [[ $args == *"--select comfort"* ]] && select=comfort
   mkdir -p policies/seeds
   for seed in $seeds; do
-    echo "carl-sumo train $args --seed $seed --out policies/seeds/${stem}_seed$seed.pt"
+    echo "carl-sumo train ${args//\{seed\}/$seed} --seed $seed --out policies/seeds/${stem}_seed$seed.pt"
   done | xargs -P 2 -I{} bash -c '{} > /dev/null'
   local best
   best=$(carl-sumo rank --select "$select" --best-only policies/seeds/"${stem}"_seed*.pt)

@@ -205,3 +205,16 @@ def test_shipped_specs_run_the_recipes_of_the_shipped_seed_files(spec):
         for options in (recorded, planned):
             options.pop("out")
         assert planned == recorded, trial.name
+
+
+def test_seed_in_a_string_option_is_the_trials_seed(tmp_path):
+    """A warm start per seed: {seed} in a [train] string becomes each trial's seed."""
+    from carl_sumo.sweep import load_spec, plan_trials
+
+    spec = write_spec(tmp_path, extra="")
+    text = spec.read_text().replace('[train]\n', '[train]\ninit = "policies/seeds/x_seed{seed}.pt"\n')
+    spec.write_text(text)
+    trials = plan_trials(load_spec(spec))
+    for trial in trials:
+        i = trial.argv.index("--init")
+        assert trial.argv[i + 1] == f"policies/seeds/x_seed{trial.seed}.pt"
