@@ -76,6 +76,20 @@ def read_policy_payload(path: Path) -> dict[str, Any]:
     return payload
 
 
+def policy_fingerprint(path: Path) -> str:
+    """A digest of what a policy file computes: its agent configuration and actor weights (not
+    its metadata), so two files that drive alike have the same one."""
+    import hashlib
+    import json
+
+    payload = read_policy_payload(path)
+    digest = hashlib.sha256(json.dumps(payload["agent_config"], sort_keys=True).encode())
+    for name, tensor in sorted(payload["actor"].items()):
+        digest.update(name.encode())
+        digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
+    return digest.hexdigest()
+
+
 def load_policy(path: Path) -> tuple[Agent, dict[str, Any]]:
     """The agent (actor loaded) and metadata of a policy file; InputError if it is not one."""
     payload = read_policy_payload(path)

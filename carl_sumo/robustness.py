@@ -9,7 +9,9 @@ sends no messages, so it runs only where its sensors change: the perfect setting
 ones. The paper configuration's nominal and robust CA-TD3 (:data:`SEED_POLICIES`) run with their
 training seeds 0-4 (one recipe each): their cells are seed means with a 95 % t interval over
 seeds. Every other cell is one file's aggregate over events with a 95 % bootstrap interval over
-events (:func:`carl_sumo.metrics.bootstrap_ci`). Draws use impairment seed 0.
+events (:func:`carl_sumo.metrics.bootstrap_ci`). Draws use impairment seed 0. Files that compute
+the same policy (:func:`carl_sumo.policy.policy_fingerprint`: the same configuration and actor
+weights, e.g. robust seeds whose validation kept their warm start) run once per setting.
 
 Writes ``robustness.md`` (with the targets of the robust policy checked), ``robustness.csv``,
 ``robustness_seeds.csv`` (every seed's run) and two figures (each metric against loss and against
@@ -31,6 +33,7 @@ from carl_sumo.data import load_events
 from carl_sumo.errors import InputError
 from carl_sumo.files import write_text_atomic
 from carl_sumo.metrics import bootstrap_ci
+from carl_sumo.policy import policy_fingerprint
 from carl_sumo.simulate import check_impairable, simulate_jobs
 from carl_sumo.suite import DEFAULT_NGSIM
 
@@ -97,12 +100,19 @@ def run_robustness(out: Path, data: str | None = None, quick: bool = False,
     jobs = [(setting, name, path) for setting in settings(quick) for name in controllers
             if not (name == "idm-external" and setting.channel_only)  # sends no messages
             for path in runs[name]]
+    # files that compute the same policy (e.g. robust seeds that kept their warm start) run once
+    same = {path: policy_fingerprint(Path(path)) if path.endswith(".pt") else path
+            for paths in runs.values() for path in paths}
+    unique = {}
+    for setting, _, path in jobs:
+        unique.setdefault((setting.label, same[path]), (setting, path))
     start = time.perf_counter()
     results = simulate_jobs([(path, setting.impairments if setting.label != "perfect" else None)
-                             for setting, _, path in jobs], events, 10, net, workers,
+                             for setting, path in unique.values()], events, 10, net, workers,
                             chunks=max(1, min(2 * workers, len(events) // 20)), progress=progress)
-    per_job = {(setting.label, name, path): result
-               for (setting, name, path), result in zip(jobs, results)}
+    by_key = dict(zip(unique, results))
+    per_job = {(setting.label, name, path): by_key[(setting.label, same[path])]
+               for setting, name, path in jobs}
     rows, seed_rows = [], []
     for setting in settings(quick):
         for name in controllers:

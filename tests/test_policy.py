@@ -119,3 +119,22 @@ def test_policy_table_lists_the_seed_files_and_the_base(tmp_path):
     row = policy_table([tmp_path / "r.pt"]).splitlines()[-1]
     assert row.startswith("| `r.pt` | ca-td3 | ploeg:h=0.8 | 10 | 2, 10 (2) | 100 | 6 (max 10) |")
     assert "| 1.100 | 0.200 | 0.500 | 1.000 / 0.300 / 0.600 |" in row
+
+
+def test_the_fingerprint_is_what_a_policy_computes_not_its_metadata(tmp_path):
+    import torch
+
+    from carl_sumo.agents import Agent, AgentConfig
+    from carl_sumo.policy import policy_fingerprint, save_policy
+
+    torch.manual_seed(0)
+    agent = Agent(AgentConfig(algo="ca-td3", n_vehicles=3))
+    save_policy(agent, tmp_path / "a.pt", {"seed": 0})
+    save_policy(agent, tmp_path / "b.pt", {"seed": 1, "command": "another run"})
+    shielded = Agent(AgentConfig(algo="ca-td3", n_vehicles=3, shield_ttc_s=4.0))
+    shielded.actor.load_state_dict(agent.actor.state_dict())
+    save_policy(shielded, tmp_path / "c.pt", {"seed": 0})
+    other = Agent(AgentConfig(algo="ca-td3", n_vehicles=3))
+    save_policy(other, tmp_path / "d.pt", {"seed": 0})
+    a, b, c, d = (policy_fingerprint(tmp_path / f"{x}.pt") for x in "abcd")
+    assert a == b and a != c and a != d
