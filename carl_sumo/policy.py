@@ -83,7 +83,8 @@ def policy_fingerprint(path: Path) -> str:
     import json
 
     payload = read_policy_payload(path)
-    digest = hashlib.sha256(json.dumps(payload["agent_config"], sort_keys=True).encode())
+    config = asdict(AgentConfig(**payload["agent_config"]))  # older files: their defaults
+    digest = hashlib.sha256(json.dumps(config, sort_keys=True).encode())
     for name, tensor in sorted(payload["actor"].items()):
         digest.update(name.encode())
         digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
