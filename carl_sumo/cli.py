@@ -161,8 +161,6 @@ def _evaluate_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> None:
-    from carl_sumo.evaluate import evaluate
-
     if args.workers is not None:
         positive(args.workers, "--workers")
     impairments = impairments_from(args)

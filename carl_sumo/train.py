@@ -262,9 +262,9 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     if init_actor is not None and resume is None:
         try:
             agent.start_from(init_actor)
-        except RuntimeError as exc:
+        except RuntimeError:
             raise InputError(f"--init {cfg.init}: its actor does not fit this run's network "
-                             f"(--message-dim, --hidden); give a policy trained with the same "
+                             "(--message-dim, --hidden); give a policy trained with the same "
                              "ones") from None
     fixed = cfg.fixed_impairments
     channels = RandomisedChannels(cfg.num_envs, n, cfg.message_dim if
