@@ -17,9 +17,9 @@ acceleration over that step, a_k, is known; SUMO advances positions with the new
     a_pred,k = a_pred,k-1 + w,   w: the predecessor's unknown jerk over the step
 
 The jerk is white noise of σ = :data:`TRACKER_JERK_MPS3` (the discrete white-noise-jerk model:
-Q = σ² g gᵀ with g = [dt³/6, dt²/2, dt]). The measurements z = [d, Δv] have the noise of
-:mod:`carl_sumo.channel` (R = diag(σ_d², σ_Δv²)). The gain is the filter's steady-state Kalman gain
-K (3×2, from iterating the Riccati equation once at import): every step
+Q = σ² g gᵀ with g = [dt³/6, dt²/2, dt]). The measurements z = [d, Δv] have the noise above
+(R = diag(σ_d², σ_Δv²)). The gain is the filter's steady-state Kalman gain K (3×2, from iterating
+the Riccati equation, once per σ): every step
 
     x⁻ = F x + B a_k,     x = x⁻ + K (z - H x⁻),
 
@@ -31,6 +31,7 @@ within sensing range, the track starts again.
 from __future__ import annotations
 
 from collections.abc import Hashable, Sequence
+from functools import lru_cache
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -52,10 +53,12 @@ TRACKER_JERK_MPS3 = 2.0
 acceleration to change. Chosen on NGSIM training events (docs/robustness.md)."""
 
 
+@lru_cache(maxsize=8)
 def steady_state_gain(jerk_mps3: float = TRACKER_JERK_MPS3, dt: float = DT_S,
                       gap_noise_m: float = GAP_NOISE_M,
                       rel_speed_noise_mps: float = REL_SPEED_NOISE_MPS) -> np.ndarray:
-    """The steady-state Kalman gain K (3×2) of the model in the module docstring."""
+    """The steady-state Kalman gain K (3×2, read-only: cached) of the model in the module
+    docstring."""
     f = np.array([[1.0, dt, dt * dt], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
     g = np.array([dt ** 3 / 6.0, dt * dt / 2.0, dt])
     q = jerk_mps3 ** 2 * np.outer(g, g)
@@ -70,6 +73,7 @@ def steady_state_gain(jerk_mps3: float = TRACKER_JERK_MPS3, dt: float = DT_S,
         if np.abs(gain_new - gain).max() < 1e-12:
             break
         gain = gain_new
+    gain_new.flags.writeable = False
     return gain_new
 
 
@@ -80,9 +84,6 @@ class PredecessorTracker:
         self.gain = steady_state_gain(TRACKER_JERK_MPS3 if jerk_mps3 is None else jerk_mps3)
         self._tracks: dict[Hashable, tuple[Hashable, np.ndarray]] = {}
 
-    def reset(self) -> None:
-        self._tracks = {}
-
     def estimate(self, obs: np.ndarray, vehicles: Sequence[Hashable] | None = None,
                  predecessors: Sequence[Hashable | None] | None = None) -> np.ndarray:
         """Observations [v, a, d, Δv, ...] (n, 4+) with the measured d and Δv replaced by the
@@ -92,7 +93,7 @@ class PredecessorTracker:
         n = len(obs)
         keys = range(n) if vehicles is None else vehicles
         preds = [0] * n if predecessors is None else predecessors
-        prior = np.empty((n, 3))
+        prior = np.zeros((n, 3))  # fresh rows: replaced by their measurement below
         fresh = np.zeros(n, dtype=bool)
         tracks = self._tracks
         for row, (key, pred) in enumerate(zip(keys, preds)):
@@ -113,11 +114,8 @@ class PredecessorTracker:
                                v_prior + k[1, 0] * innov_d + k[1, 1] * innov_v,
                                prior[:, 2] + k[2, 0] * innov_d + k[2, 1] * innov_v])
         est[fresh] = np.column_stack([z_d[fresh], z_v[fresh], np.zeros(int(fresh.sum()))])
-        if vehicles is None and predecessors is None:
-            self._tracks = {row: (0, est[row]) for row in range(n)}
-        else:
-            self._tracks = {key: (pred, est[row]) for row, (key, pred) in enumerate(zip(keys, preds))
-                            if pred is not None}
+        self._tracks = {key: (pred, est[row]) for row, (key, pred) in enumerate(zip(keys, preds))
+                        if pred is not None}
         out = np.array(obs, dtype=np.float64)
         out[:, 2] = np.maximum(est[:, 0], 0.01)
         out[:, 3] = est[:, 1]

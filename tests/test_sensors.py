@@ -56,7 +56,7 @@ def test_the_tracker_filters_the_noise_and_finds_the_predecessors_acceleration()
         diff_raw - np.diff(true[settled, 3]) / DT_S)
 
 
-def test_the_gain_is_the_fixed_point_of_the_riccati_recursion():
+def test_the_gain_is_finite_and_trusts_the_measurements_more_for_a_livelier_predecessor():
     k = steady_state_gain(2.0)
     assert k.shape == (3, 2) and np.all(np.isfinite(k))
     assert 0 < k[0, 0] < 1 and 0 < k[1, 1] < 1
