@@ -33,6 +33,10 @@ Links = tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]
 (:meth:`carl_sumo.models.CommunicationAware.forward_over`)."""
 
 ALGOS = ("ca-td3", "ca-ddpg", "td3", "ddpg", "maddpg")
+COMM_FALLBACKS = ("boundary", "base")
+"""What a CA vehicle does when it hears no neighbour (past the timeout; :mod:`carl_sumo.channel`):
+``boundary``: its CA module takes the learned boundary messages and it acts as a chain end;
+``base``: that, and its adjustment fades out with its messages, so it drives on its base alone."""
 
 OBS_SCALE = (20.0, 3.0, 50.0, 5.0)
 """Observations [v (m/s), a (m/s²), d (m), Δv (m/s)] are divided by these before the networks."""
@@ -71,6 +75,8 @@ class AgentConfig:
     base: str = "idm"             # base model under a_adj: idm, or a classical CACC name
     observe_ahead: bool = False   # o has a fifth column a_ahead (IDM base; controllers.AheadAcceleration)
     shield_ttc_s: float = 0.0     # no a_adj > 0 while closing in below this TTC (s; 0: off)
+    comm_fallback: str = "boundary"  # hearing no neighbour: "boundary" (act as a chain end) or
+                                     # also "base" (a_adj fades out with the messages; channel.py)
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -78,6 +84,12 @@ class AgentConfig:
         if self.observe_ahead and self.base != "idm":
             raise InputError("--observe-ahead is for the IDM base; a classical base's command "
                              "a_base already carries its predecessor's acceleration")
+        if self.comm_fallback not in COMM_FALLBACKS:
+            raise InputError(f"unknown --comm-fallback {self.comm_fallback!r}; choose one of "
+                             f"{', '.join(COMM_FALLBACKS)}")
+        if self.comm_fallback != "boundary" and not self.communication_aware:
+            raise InputError("--comm-fallback is for CA models (ca-td3, ca-ddpg), whose vehicles "
+                             "exchange messages; the others hear nothing to lose")
 
     @property
     def residual(self) -> bool:

@@ -24,6 +24,13 @@ controller's predecessor input u_{i-1} (i-1 → i). Each link, every 0.1 s step 
   switch, 0.193 with a 0.5 s fade and 0.191 with 1 s (0.187 on a perfect channel, IDM 0.196),
   with the same headway and dampening.
 
+**Degraded mode** (a policy trained with ``--comm-fallback base``): a CA vehicle that hears
+none of its neighbours also drops its learned adjustment and drives on its base model alone, as
+Ploeg's CACC drops to ACC. Its a_adj is scaled by the larger weight w of its links (1 for a live
+message, :meth:`Channel.heard`), so it fades out with its messages after the timeout and is back
+in full with the first message that arrives; with every message lost the platoon is its base.
+The CA module still computes with the boundary messages, so its neighbours' inputs are unchanged.
+
 **Loss.** ``burst`` = 1: every message is lost independently with probability P = ``loss``. With
 ``burst`` = L > 1 a two-state Gilbert-Elliott channel per link: in the bad state every message is
 lost, in the good state none; bad → good with probability 1/L per step (bursts of mean length L
@@ -200,6 +207,7 @@ class Channel:
         self._lost = np.zeros(n, dtype=bool)
         self._mode = np.full(n, FALLBACK)
         self._weight = np.zeros(n)
+        self.heard = np.zeros(n)  # per receiver this step: 1 live, else the held message's weight w
 
     def receive(self, k: int, fallback: np.ndarray | None = None
                 ) -> tuple[np.ndarray, np.ndarray]:
@@ -219,6 +227,7 @@ class Channel:
             if d == 0:
                 mode = np.where(self._lost, mode, LIVE)
             self._mode = mode
+            self.heard = np.where(mode == LIVE, 1.0, self._weight)
         return self._mode, _faded(self.held, self._weight, fallback)
 
     def send(self, k: int, messages: np.ndarray) -> None:
@@ -249,6 +258,7 @@ class KeyedChannel:
         self._to_bad = to_bad_probability(impairments.loss, impairments.burst)
         self._last_full = impairments.timeout_steps  # the oldest message used whole (steps)
         self._fade = impairments.fade_steps
+        self.heard = np.zeros(0)  # per pair of the last receive, as Channel.heard
 
     def _draw(self, receiver: str) -> bool:
         loss, burst = self.cfg.loss, self.cfg.burst
@@ -287,6 +297,7 @@ class KeyedChannel:
                     modes[j], held[j], weight[j] = HELD, got[1], min(w, 1.0)
             if self.cfg.delay_steps == 0 and not self._lost[receiver]:
                 modes[j] = LIVE
+        self.heard = np.where(modes == LIVE, 1.0, weight)
         return modes, _faded(held, weight, fallback)
 
     def send(self, k: int, pairs: list[tuple[str, str]], messages: np.ndarray) -> None:
@@ -323,6 +334,17 @@ def random_impairments(rng: np.random.Generator, sensor_noise_share: float = 0.5
                        sensor_filter=sensor_filter, seed=seed)
 
 
+def heard_weights(forward: np.ndarray, backward: np.ndarray, n: int) -> np.ndarray:
+    """(n,) per follower of a chain: the larger of its forward (from i+1, rows 0..n-2) and
+    backward (from i-1, rows 1..n-1) link weights; 1 for a chain of one, which has no link."""
+    if n == 1:
+        return np.ones(1)
+    out = np.zeros(n)
+    out[:n - 1] = forward[:n - 1]
+    out[1:] = np.maximum(out[1:], backward[1:])
+    return out
+
+
 class PlatoonLinks:
     """The CA messages of one platoon of ``n`` followers over impaired links: forward (i+1 → i,
     link stream 2 of the event) and backward (i-1 → i, stream 3). Per step: :meth:`receive`, the
@@ -343,6 +365,12 @@ class PlatoonLinks:
         f_mode, f_held = self.forward.receive(self.k, forward_fallback)
         b_mode, b_held = self.backward.receive(self.k, backward_fallback)
         return f_mode, f_held, b_mode, b_held
+
+    def heard(self) -> np.ndarray:
+        """How much each follower hears its neighbours this step (n,), in [0, 1]: the larger
+        weight of its links (1 live or held within the timeout, fading to 0 over the fade; a chain
+        end has one link, a platoon of one has none and hears fully). After :meth:`receive`."""
+        return heard_weights(self.forward.heard, self.backward.heard, self.n)
 
     def send(self, forward_messages: np.ndarray, backward_messages: np.ndarray) -> None:
         """Every follower's forward and backward message (n, dim) of this step; the step ends."""

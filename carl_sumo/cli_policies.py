@@ -48,6 +48,9 @@ def check_train_args(args: argparse.Namespace) -> Path:
                                             and args.shield_ttc >= 0):
         raise InputError(f"--shield-ttc must be a time to collision of 0 s or more (0: off), "
                          f"got {args.shield_ttc}")
+    if args.comm_fallback == "base" and not args.algo.startswith("ca-"):
+        raise InputError("--comm-fallback is for CA models (ca-td3, ca-ddpg), whose vehicles "
+                         "exchange messages; the others hear nothing to lose")
     if args.randomize_sensors is False and not args.comm_randomize:
         raise InputError("--no-sensor-randomize narrows --comm-randomize; give both, or neither")
     if impairments_from(args) is not None and args.comm_randomize:
@@ -101,6 +104,11 @@ def _add_robust_training_options(p: argparse.ArgumentParser) -> None:
                         "delay and sensor noise (clean sensors with --no-sensor-randomize; with "
                         "fixed --comm-* options: under those), and keep the checkpoint that is "
                         "best over both")
+    p.add_argument("--comm-fallback", choices=("boundary", "base"), default=None,
+                   help="what a CA vehicle does at run time when it hears no neighbour past "
+                        "--comm-timeout: boundary (default: it acts as a chain end) or base (it "
+                        "also drops its adjustment, fading out with the messages, and drives on "
+                        "its base, as Ploeg's CACC drops to ACC); part of the policy file")
 
 
 def _train_parser(sub: argparse._SubParsersAction) -> None:
@@ -189,7 +197,7 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_sc
                    "smooth_accel", "eval_events", "val_seed", "val_source", "gamma",
                    "adj_max", "base", "critic_burn_in", "braking_events", "update_every",
                    "batch_size", "imitate", "imitate_updates", "init", "observe_ahead",
-                   "shield_ttc", "comm_randomize", "randomize_sensors", "val_impaired",
+                   "shield_ttc", "comm_fallback", "comm_randomize", "randomize_sensors", "val_impaired",
                    "comm_delay", "comm_loss", "comm_burst", "comm_timeout", "comm_fade",
                    "sensor_noise", "sensor_filter", "impairment_seed")
 """Training options that, when given, override the defaults of TrainConfig."""

@@ -18,7 +18,7 @@ from numba import njit
 from torch import nn
 
 from carl_sumo.agents import BASE_SCALE, GAP_CLIP_M, OBS_SCALE, Agent
-from carl_sumo.channel import KeyedChannel, PlatoonLinks
+from carl_sumo.channel import KeyedChannel, PlatoonLinks, heard_weights
 from carl_sumo.models import CommunicationAware, PerAgentActors, PerVehicle
 
 _OBS_SCALE = np.array(OBS_SCALE, dtype=np.float64)
@@ -164,6 +164,7 @@ class CompiledActor:
         self.adj_max = float(agent.cfg.adj_max)
         self.fixed_length = agent.cfg.n_vehicles if agent.cfg.algo == "maddpg" else None
         self._check_length = agent.check_length
+        self.fallback_to_base = agent.cfg.comm_fallback == "base"
         actor = agent.actor
         if isinstance(actor, CommunicationAware):
             self._act = _communication_aware_act
@@ -186,12 +187,16 @@ class CompiledActor:
 
     def act_over(self, obs: np.ndarray, links: PlatoonLinks) -> np.ndarray:
         """a_adj (m/s², shape (n,)) of a CA actor when its messages cross impaired ``links``
-        (:class:`carl_sumo.channel.PlatoonLinks`); sends this step's messages."""
+        (:class:`carl_sumo.channel.PlatoonLinks`; with ``comm_fallback`` "base" scaled by how
+        much each vehicle hears, :meth:`~carl_sumo.channel.PlatoonLinks.heard`); sends this
+        step's messages."""
         obs = np.ascontiguousarray(obs, dtype=np.float64)
         f_mode, f_held, b_mode, b_held = links.receive(self._weights[0], self._weights[1])
         action, f_out, b_out = _communication_aware_act_channel(
             obs, self.adj_max, f_mode.astype(np.int64), f_held, b_mode.astype(np.int64), b_held,
             *self._weights)
+        if self.fallback_to_base:
+            action = action * links.heard()
         links.send(f_out, b_out)
         return action
 
@@ -199,7 +204,8 @@ class CompiledActor:
                   backward: KeyedChannel, k: int) -> np.ndarray:
         """a_adj (m/s², shape (n,)) of a CA actor on a chain of vehicles ``ids`` (head first) at
         step k, its messages crossing the vehicle-keyed links of the study
-        (:class:`carl_sumo.channel.KeyedChannel`); sends this step's messages."""
+        (:class:`carl_sumo.channel.KeyedChannel`; the fallback as in :meth:`act_over`); sends
+        this step's messages."""
         obs = np.ascontiguousarray(obs, dtype=np.float64)
         n = len(ids)
         f_pairs = [(ids[j], ids[j + 1]) for j in range(n - 1)]  # i hears i+1
@@ -211,6 +217,10 @@ class CompiledActor:
         action, f_out, b_out = _communication_aware_act_channel(
             obs, self.adj_max, f_mode.astype(np.int64), f_held, b_mode.astype(np.int64), b_held,
             *self._weights)
+        if self.fallback_to_base:
+            heard_f, heard_b = np.zeros(n), np.zeros(n)
+            heard_f[:n - 1], heard_b[1:] = forward.heard, backward.heard
+            action = action * heard_weights(heard_f, heard_b, n)
         forward.send(k, f_pairs, f_out[1:])
         backward.send(k, b_pairs, b_out[:n - 1])
         return action

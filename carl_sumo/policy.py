@@ -76,14 +76,18 @@ def read_policy_payload(path: Path) -> dict[str, Any]:
     return payload
 
 
-def policy_fingerprint(path: Path) -> str:
+def policy_fingerprint(path: Path, over_links: bool = True) -> str:
     """A digest of what a policy file computes: its agent configuration and actor weights (not
-    its metadata), so two files that drive alike have the same one."""
+    its metadata), so two files that drive alike have the same one. ``over_links=False``: as
+    it drives on a perfect channel, where what it does on hearing no neighbour
+    (``comm_fallback``) never happens, so that setting does not count."""
     import hashlib
     import json
 
     payload = read_policy_payload(path)
     config = asdict(AgentConfig(**payload["agent_config"]))  # older files: their defaults
+    if not over_links:
+        config.pop("comm_fallback")
     digest = hashlib.sha256(json.dumps(config, sort_keys=True).encode())
     for name, tensor in sorted(payload["actor"].items()):
         digest.update(name.encode())

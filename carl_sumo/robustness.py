@@ -11,7 +11,8 @@ training seeds 0-4 (one recipe each): their cells are seed means with a 95 % t i
 seeds. Every other cell is one file's aggregate over events with a 95 % bootstrap interval over
 events (:func:`carl_sumo.metrics.bootstrap_ci`). Draws use impairment seed 0. Files that compute
 the same policy (:func:`carl_sumo.policy.policy_fingerprint`: the same configuration and actor
-weights, e.g. robust seeds whose validation kept their warm start) run once per setting.
+weights, e.g. robust seeds whose validation kept their warm start; at the settings with a perfect
+channel, whatever they do on hearing no neighbour) run once per setting.
 
 Writes ``robustness.md`` (with the targets of the robust policy checked), ``robustness.csv``,
 ``robustness_seeds.csv`` (every seed's run) and two figures (each metric against loss and against
@@ -100,18 +101,24 @@ def run_robustness(out: Path, data: str | None = None, quick: bool = False,
     jobs = [(setting, name, path) for setting in settings(quick) for name in controllers
             if not (name == "idm-external" and setting.channel_only)  # sends no messages
             for path in runs[name]]
-    # files that compute the same policy (e.g. robust seeds that kept their warm start) run once
-    same = {path: policy_fingerprint(Path(path)) if path.endswith(".pt") else path
-            for paths in runs.values() for path in paths}
+    # files that compute the same policy (e.g. robust seeds that kept their warm start) run once;
+    # on a perfect channel what a policy does on hearing nobody does not count
+    paths = {path for names in runs.values() for path in names}
+    same = {(path, links): policy_fingerprint(Path(path), links) if path.endswith(".pt") else path
+            for path in paths for links in (True, False)}
+
+    def key(setting: Setting, path: str) -> tuple[str, str]:
+        return setting.label, same[path, not setting.impairments.perfect_channel]
+
     unique = {}
     for setting, _, path in jobs:
-        unique.setdefault((setting.label, same[path]), (setting, path))
+        unique.setdefault(key(setting, path), (setting, path))
     start = time.perf_counter()
     results = simulate_jobs([(path, setting.impairments if setting.label != "perfect" else None)
                              for setting, path in unique.values()], events, 10, net, workers,
                             chunks=max(1, min(2 * workers, len(events) // 20)), progress=progress)
     by_key = dict(zip(unique, results))
-    per_job = {(setting.label, name, path): by_key[(setting.label, same[path])]
+    per_job = {(setting.label, name, path): by_key[key(setting, path)]
                for setting, name, path in jobs}
     rows, seed_rows = [], []
     for setting in settings(quick):

@@ -88,6 +88,7 @@ class TrainConfig:
     base: str = AgentConfig.base          # base model under a_adj: idm or a classical CACC name
     observe_ahead: bool = False    # o has a fifth column a_ahead (controllers.AheadAcceleration)
     shield_ttc: float = 0.0        # safety shield of the policy (s; controllers.shield_adjustment)
+    comm_fallback: str = AgentConfig.comm_fallback  # run time, hearing no neighbour (agents.py)
     comm_randomize: bool = False   # every episode its own V2V delay/loss and sensor noise (randomize.py)
     randomize_sensors: bool = True  # with comm_randomize: sensor noise in half the episodes
     val_impaired: bool = False     # validate also under selection.VALIDATION_IMPAIRMENTS
@@ -258,7 +259,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                               smooth_jerk=cfg.smooth_jerk, smooth_accel=cfg.smooth_accel,
                               gamma=cfg.gamma, adj_max=cfg.adj_max, base=cfg.base,
                               batch_size=cfg.batch_size, observe_ahead=cfg.observe_ahead,
-                              shield_ttc_s=cfg.shield_ttc))
+                              shield_ttc_s=cfg.shield_ttc, comm_fallback=cfg.comm_fallback))
     if init_actor is not None and resume is None:
         try:
             agent.start_from(init_actor)
@@ -516,7 +517,8 @@ def export_policy(checkpoint: Path, out: Path) -> dict[str, Any]:
     agent = Agent(AgentConfig(algo=cfg.algo, n_vehicles=cfg.n_vehicles,
                               message_dim=cfg.message_dim, hidden=cfg.hidden,
                               gamma=cfg.gamma, adj_max=cfg.adj_max, base=cfg.base,
-                              observe_ahead=cfg.observe_ahead, shield_ttc_s=cfg.shield_ttc))
+                              observe_ahead=cfg.observe_ahead, shield_ttc_s=cfg.shield_ttc,
+                              comm_fallback=cfg.comm_fallback))
     agent.load_state_dict(state["agent"])
     meta = _metadata(cfg, agent, {}, float(state["wall_s"]))
     meta["exported_from"] = f"{Path(checkpoint).name} at step {int(state['step'])}"

@@ -226,3 +226,82 @@ def test_keyed_links_lose_at_the_requested_rate_and_repeat_with_the_seed():
     assert abs(lost.mean() - 0.3) < 0.02
     runs = np.diff(np.flatnonzero(np.diff(np.concatenate([[0], lost[:, 0], [0]]))))[::2]
     assert abs(runs.mean() - 3.0) < 0.3  # bursts of the requested mean length
+
+
+def test_a_follower_hears_its_freshest_link_and_a_chain_end_its_only_one():
+    from carl_sumo.channel import PlatoonLinks, heard_weights
+
+    f, b = np.array([1.0, 0.5, 0.2, 0.9]), np.array([0.7, 0.0, 0.6, 0.3])
+    assert heard_weights(f, b, 4).tolist() == [1.0, 0.5, 0.6, 0.3]  # 0: f only, 3: b only
+    assert heard_weights(np.zeros(1), np.zeros(1), 1).tolist() == [1.0]  # no link to lose
+    imp = Impairments(loss=1.0, timeout_s=0.3, fade_s=0.3)
+    links = PlatoonLinks(3, 2, imp, "e")
+    for ch in (links.forward, links.backward):
+        ch.sent_at[:] = 0  # every link last heard at step 0, then nothing arrives
+    got = []
+    for _ in range(8):
+        links.receive()
+        got.append(links.heard().tolist())
+        links.send(np.zeros((3, 2)), np.zeros((3, 2)))
+    w = [1, 1, 1, 1, 0.75, 0.5, 0.25, 0]  # the held messages' weights at ages 0..7 (T = F = 3)
+    assert got == [[x] * 3 for x in w]
+    live = PlatoonLinks(3, 2, Impairments(loss=0.0, delay_s=0.0, seed=3), "e")
+    live.receive()
+    assert live.heard().tolist() == [1.0, 1.0, 1.0]  # heard live from the first step on
+
+
+def test_with_every_message_lost_a_base_fallback_policy_drives_as_its_base(tmp_path):
+    """--comm-fallback base: hearing nobody, the learned adjustment is gone (IDM alone, as
+    idm-external); with the boundary fallback the same actor still adjusts."""
+    import torch
+
+    from carl_sumo.agents import Agent, AgentConfig
+    from carl_sumo.controllers import ZeroAdjustment
+    from carl_sumo.policy import load_controller, save_policy
+
+    lost = Impairments(loss=1.0)
+    base = _trajectory(ZeroAdjustment(), lost)
+    runs = {}
+    for fallback in ("base", "boundary"):
+        torch.manual_seed(0)
+        path = tmp_path / f"{fallback}.pt"
+        save_policy(Agent(AgentConfig(algo="ca-td3", n_vehicles=4, adj_max=1.0,
+                                      comm_fallback=fallback)), path, {})
+        runs[fallback] = _trajectory(load_controller(path), lost)
+    np.testing.assert_array_equal(runs["base"].speed, base.speed)
+    assert not np.array_equal(runs["boundary"].speed, base.speed)
+    perfect = [_trajectory(load_controller(tmp_path / f"{f}.pt")) for f in ("base", "boundary")]
+    np.testing.assert_array_equal(perfect[0].speed, perfect[1].speed)  # only when unheard
+
+
+def test_comm_fallback_is_for_ca_models():
+    from carl_sumo.agents import AgentConfig
+    from carl_sumo.cli import main
+
+    with pytest.raises(InputError, match="unknown --comm-fallback"):
+        AgentConfig(algo="ca-td3", comm_fallback="acc")
+    with pytest.raises(InputError, match="for CA models"):
+        AgentConfig(algo="td3", comm_fallback="base")
+    assert main(["train", "--algo", "td3", "--comm-fallback", "base", "--steps", "10"]) == 2
+
+
+def test_in_the_study_a_base_fallback_vehicle_that_hears_nobody_has_no_adjustment():
+    import torch
+
+    from carl_sumo.agents import Agent, AgentConfig
+    from carl_sumo.channel import KeyedChannel
+    from carl_sumo.inference import CompiledActor
+
+    obs = np.array([[10.0, 0.2, 15.0, 0.5], [9.0, -0.1, 12.0, -0.3], [11.0, 0.0, 20.0, 0.1]])
+    ids = ["a", "b", "c"]
+    for fallback, loss in (("base", 1.0), ("boundary", 1.0), ("base", 0.0)):
+        torch.manual_seed(0)
+        actor = CompiledActor(Agent(AgentConfig(algo="ca-td3", n_vehicles=3, adj_max=1.0,
+                                                comm_fallback=fallback)))
+        imp = Impairments(loss=loss, seed=2)
+        channels = [KeyedChannel(actor.message_dim, imp, imp.rng("s", j)) for j in (2, 3)]
+        action = actor.act_keyed(obs, ids, *channels, 0)
+        if fallback == "base" and loss == 1.0:
+            assert action.tolist() == [0.0, 0.0, 0.0]
+        else:
+            assert np.all(np.abs(action) > 0)

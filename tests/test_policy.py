@@ -141,3 +141,9 @@ def test_the_fingerprint_is_what_a_policy_computes_not_its_metadata(tmp_path):
     torch.save(older, tmp_path / "e.pt")
     a, b, c, d, e = (policy_fingerprint(tmp_path / f"{x}.pt") for x in "abcde")
     assert a == b == e and a != c and a != d
+    falls_back = Agent(AgentConfig(algo="ca-td3", n_vehicles=3, comm_fallback="base"))
+    falls_back.actor.load_state_dict(agent.actor.state_dict())
+    save_policy(falls_back, tmp_path / "f.pt", {"seed": 0})
+    f = tmp_path / "f.pt"
+    assert policy_fingerprint(f) != a  # over impaired links it drives otherwise
+    assert policy_fingerprint(f, over_links=False) == policy_fingerprint(tmp_path / "a.pt", False)
