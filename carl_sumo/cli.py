@@ -15,8 +15,9 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from carl_sumo.cli_common import (Parser, add_common, add_impairments, add_ray, check_ray, fmt,
-                                   impairments_from, positive, ray_session, workers_for)
+from carl_sumo.cli_common import (Parser, add_common, add_impairments, add_ray, add_warmup,
+                                   check_ray, fmt, impairments_from, positive, ray_session,
+                                   warmup_from, workers_for)
 from carl_sumo.cli_policies import (_export_parser, _policy_info_parser, _rank_parser,
                                     _train_parser, _tune_parser, cmd_export, cmd_policy_info,
                                     cmd_rank, cmd_train, cmd_tune)
@@ -58,6 +59,7 @@ def _simulate_parser(sub: argparse._SubParsersAction) -> None:
                         "with --ray: the cluster's CPUs)")
     add_ray(p)
     add_impairments(p)
+    add_warmup(p)
 
 
 def cmd_simulate(args: argparse.Namespace) -> None:
@@ -66,6 +68,7 @@ def cmd_simulate(args: argparse.Namespace) -> None:
 
     positive(args.vehicles, "--vehicles")
     impairments = impairments_from(args)
+    warmup_s = warmup_from(args)
     if args.json is not None:
         check_output_file(args.json, "--json")
     if args.events is not None:
@@ -83,7 +86,8 @@ def cmd_simulate(args: argparse.Namespace) -> None:
     if args.workers is not None:
         positive(args.workers, "--workers")
     check_ray(args)
-    events = load_events(args.data, args.split, limit=args.events)
+    events = [e.with_warmup(warmup_s) for e in load_events(args.data, args.split,
+                                                             limit=args.events)]
     start = time.perf_counter()
     with ray_session(args, args.workers or os.cpu_count()):
         workers = workers_for(args, min(2, os.cpu_count() or 1))
@@ -109,6 +113,7 @@ def _replay_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--gui", action="store_true",
                    help="show the run in sumo-gui (needs a display; closes when you close it)")
     add_impairments(p)
+    add_warmup(p)
 
 
 def cmd_replay(args: argparse.Namespace) -> None:
@@ -119,10 +124,12 @@ def cmd_replay(args: argparse.Namespace) -> None:
 
     positive(args.vehicles, "--vehicles")
     impairments = impairments_from(args)
+    warmup_s = warmup_from(args)
     check_output_file(args.fcd, "--fcd")
     if args.gui and not has_display():
         use_gui(True)  # raises the one-line "no display" error before anything runs
     (event,) = load_events(args.data, args.split, event_ids=[args.event])
+    event = event.with_warmup(warmup_s)  # the FCD file has the warm-up, the metrics do not
     metrics = replay(args.controller, event, args.vehicles, args.fcd, args.net, gui=args.gui,
                      impairments=impairments)
     print(f"wrote {args.fcd}: event {event.event_id}, {args.vehicles} followers, "
@@ -158,6 +165,7 @@ def _evaluate_parser(sub: argparse._SubParsersAction) -> None:
                    help="run the seed files of CA-TD3, CA-DDPG, TD3 and DDPG too, in Table 1 "
                         "(and its 10-follower rows of Table 2), and compare them across seeds "
                         "(default: the shipped policy files only)")
+    add_warmup(p)
 
 
 def cmd_evaluate(args: argparse.Namespace) -> None:
@@ -167,6 +175,9 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
     if impairments is not None and args.suite == "robustness":
         raise InputError("--suite robustness runs its own grid of impairments; leave out "
                          "--comm-* and --sensor-noise, or run --suite paper with them")
+    if warmup_from(args) and args.suite == "robustness":
+        raise InputError("--warmup is for --suite paper; the robustness suite keeps its own "
+                         "protocol")
     check_output_dir(args.out, "--out")
     check_ray(args)
     with ray_session(args, args.workers or os.cpu_count()):
@@ -192,7 +203,7 @@ def _run_evaluate(args: argparse.Namespace, workers: int, impairments: Impairmen
     result = evaluate(args.suite, args.out, args.data, args.quick, args.events, args.policies,
                       args.net, workers, progress=sys.stderr.isatty(),
                       command="carl-sumo " + " ".join(sys.argv[1:]), all_seeds=args.all_seeds,
-                      seeds=args.seeds, impairments=impairments)
+                      seeds=args.seeds, impairments=impairments, warmup_s=args.warmup)
     for key, rows in result["rows"].items():
         print(f"wrote {args.out / (key + '.md')} and .csv ({len(rows)} rows)")
     print(f"wrote {args.out / 'README.md'}, per_event.csv, timing.csv and "

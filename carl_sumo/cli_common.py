@@ -50,6 +50,29 @@ def add_impairments(p: argparse.ArgumentParser) -> None:
                    help="seed of the losses and the noise (default 0)")
 
 
+def add_warmup(p: argparse.ArgumentParser) -> None:
+    """``--warmup S``: a settling run before every event (:meth:`Event.with_warmup`)."""
+    p.add_argument("--warmup", type=float, default=0.0, metavar="S",
+                   help="run every event S seconds (a multiple of 0.1) longer at its start, the "
+                        "leader holding its initial speed, so the platoon settles at its own "
+                        "spacing before the recorded leader starts; metrics score the recorded "
+                        "part only (default 0: the platoon starts at the recorded gap)")
+
+
+def warmup_from(args: argparse.Namespace) -> float:
+    """The checked ``--warmup`` (s); InputError for a negative value or one that is not a whole
+    number of 0.1 s steps."""
+    from carl_sumo.config import DT_S
+
+    s = args.warmup
+    if not (math.isfinite(s) and s >= 0):
+        raise InputError(f"--warmup must be 0 s or more, got {s}")
+    if abs(s / DT_S - round(s / DT_S)) > 1e-6:
+        raise InputError(f"--warmup {s} is not a multiple of the {DT_S} s step; give e.g. "
+                         f"{round(s / DT_S) * DT_S:g}")
+    return float(s)
+
+
 def impairments_from(args: argparse.Namespace):
     """The :class:`carl_sumo.channel.Impairments` of parsed options (InputError if invalid), or
     None when everything is perfect."""

@@ -52,6 +52,16 @@ class PlatoonTrajectory:
     collisions: int = 0
     dt: float = DT_S
 
+    def scored(self, first: int) -> PlatoonTrajectory:
+        """The samples from ``first`` on (an event's warm-up cut off,
+        :meth:`carl_sumo.data.events.Event.with_warmup`); a run that ended earlier (a collision
+        in the warm-up) keeps its last sample and its collisions."""
+        if first <= 0:
+            return self
+        k = min(first, len(self.leader_speed) - 1)
+        return PlatoonTrajectory(self.event_id, self.leader_speed[k:], self.speed[k:],
+                                 self.gap[k:], self.collisions, self.dt)
+
 
 def _norm(x: np.ndarray) -> np.ndarray:
     return np.sqrt(np.sum(x * x, axis=0))

@@ -61,14 +61,16 @@ def human_trajectory(event: Event) -> PlatoonTrajectory:
     """The recorded follower of an event as a one-vehicle platoon."""
     return PlatoonTrajectory(event.event_id, event.leader_speed_mps,
                              event.follower_speed_mps[:, None], event.gap_m[:, None],
-                             collisions=int(np.any(event.gap_m <= 0)), dt=event.dt)
+                             collisions=int(np.any(event.gap_m <= 0)),
+                             dt=event.dt).scored(event.scored_from)
 
 
 def run_event(sim: PlatoonSim, event: Event, n_followers: int,
               controller: Controller | AccelerationController | None,
               fcd_path: Path | None = None,
               impairments: Impairments | None = None) -> PlatoonTrajectory:
-    """Run one event in SUMO to its end or to the first collision; the trajectory. With
+    """Run one event in SUMO to its end or to the first collision; the trajectory (from the
+    event's ``scored_from`` on: a warm-up is run but not returned). With
     ``impairments`` (:mod:`carl_sumo.channel`) the controller's V2V messages cross impaired links
     and it sees noisy own measurements; the trajectory is the true one."""
     if controller is not None:
@@ -96,7 +98,7 @@ def run_event(sim: PlatoonSim, event: Event, n_followers: int,
             collisions = int((obs[:, 2] <= 0.0).sum())
             break
     return PlatoonTrajectory(event.event_id, np.array(leader), np.array(speeds), np.array(gaps),
-                             collisions)
+                             collisions).scored(event.scored_from)
 
 
 _SIMS: dict[tuple[str, str], PlatoonSim] = {}

@@ -120,6 +120,7 @@ class Suite:
     data: str
     quick: bool
     impairments: Impairments | None = None  # V2V and sensors of the carl-sumo controllers
+    warmup_s: float = 0.0  # seconds every event runs before it is scored (Event.with_warmup)
 
 
 @dataclass
@@ -233,29 +234,31 @@ def discover_model(stem: str, directory: Path) -> Model:
     return Model(stem, name, tuple(files), tuple(seeds), trained, fixed)
 
 
-def _events(es: EventSet, quick: bool) -> list[Event]:
+def _events(es: EventSet, quick: bool, warmup_s: float = 0.0) -> list[Event]:
     if es.data == "stop-and-go":
-        return [stop_and_go_event(cycles=1, cruise_s=5.0) if quick else stop_and_go_event()]
-    return load_events(es.data, es.split, limit=es.limit)
+        events = [stop_and_go_event(cycles=1, cruise_s=5.0) if quick else stop_and_go_event()]
+    else:
+        events = load_events(es.data, es.split, limit=es.limit)
+    return [e.with_warmup(warmup_s) for e in events]
 
 
 def figure_event(events: Sequence[Event]) -> str:
     """The event drawn in the time figures: the largest leader speed range among events of at
     least 30 s (among all events if none is that long)."""
-    long = [e for e in events if e.duration_s >= 30.0] or list(events)
+    long = [e for e in events if e.duration_s - e.scored_from * e.dt >= 30.0] or list(events)
     return max(long, key=lambda e: float(np.ptp(e.leader_speed_mps))).event_id
 
 
 def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = False,
                events: int | None = None, policies: Path | None = None,
                net: str | Path = "networks/i80.net.xml", all_seeds: bool = False,
-               seeds: bool = False) -> Suite:
+               seeds: bool = False, warmup_s: float = 0.0) -> Suite:
     """Resolve data, events, policies and tables; InputError on anything missing or wrong.
 
     ``seeds``: the seed files of :data:`SEED_MODELS` run in Table 1 and in Table 2 at 10 followers
     (those are Table 1's runs), not in Table 3 or the cross-site table; ``all_seeds`` runs every model's
     seed files in every row (slower); with neither, no seed file runs (the shipped policies
-    alone)."""
+    alone). ``warmup_s``: every event runs that long first, unscored (``Event.with_warmup``)."""
     if all_seeds and seeds:
         raise InputError("--all-seeds and --seeds exclude each other; give one")
     if suite not in SUITES:
@@ -302,7 +305,7 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
                 models[key] = Model(key, {**BUILTIN_MODELS, **classical}[key]) \
                     if is_classical(key) else discover_model(key, directory)
     event_sets = {spec.events.key: spec.events for spec in tables}
-    loaded = {key: _events(es, quick) for key, es in event_sets.items()}
+    loaded = {key: _events(es, quick, warmup_s) for key, es in event_sets.items()}
     if not loaded["cross_site"]:
         raise InputError(f"{data} has no {cross.split} events for the cross-site table")
     route = lane_route(net)
@@ -311,7 +314,7 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
             check_fits(route, e, max(spec.followers))
     figures = {spec.events.key: figure_event(loaded[spec.events.key]) for spec in tables
                if spec.figures}
-    return Suite(tables, models, loaded, figures, data, quick)
+    return Suite(tables, models, loaded, figures, data, quick, warmup_s=warmup_s)
 
 
 def table_cells(spec: TableSpec, suite: Suite):

@@ -381,3 +381,15 @@ def test_an_impaired_suite_impairs_the_carl_sumo_controllers_only():
     lost, clean = run_task(ploeg), run_task({**ploeg, "impairments": None})
     assert lost["per_event"][0]["jerk_mps3"] != clean["per_event"][0]["jerk_mps3"]
     assert "loss 1" in _impairments(lossy)
+
+
+def test_a_warmed_suite_runs_every_table_warmed_and_says_so():
+    from carl_sumo.suite import plan_suite
+
+    cold = plan_suite(quick=True, events=1, net=NET)
+    warm = plan_suite(quick=True, events=1, net=NET, warmup_s=5.0)
+    assert warm.warmup_s == 5.0 and cold.warmup_s == 0.0
+    for key, events in warm.events.items():
+        assert [e.scored_from for e in events] == [50] * len(events)
+        assert [e.n_samples for e in events] == [e.n_samples + 50 for e in cold.events[key]]
+    assert warm.figure_events == cold.figure_events  # chosen on the recorded part

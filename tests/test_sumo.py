@@ -113,3 +113,36 @@ def test_parallel_workers_give_the_same_metrics():
     one = simulate("idm-external", events, 2, NET, workers=1)
     two = simulate("idm-external", events, 2, NET, workers=2)
     assert one["events"] == two["events"] and one["metrics"] == two["metrics"]
+
+
+def test_a_warmup_extends_the_leader_backwards_and_is_not_scored():
+    from carl_sumo.simulate import cached_sim, human_trajectory
+
+    event = braking_event(v0=12.0, gap=30.0)
+    warm = event.with_warmup(60.0)
+    k = 600
+    assert warm.scored_from == k and warm.n_samples == event.n_samples + k
+    assert np.all(warm.leader_speed_mps[:k + 1] == 12.0)
+    np.testing.assert_allclose(np.diff(warm.leader_pos_m), warm.leader_speed_mps[1:] * DT_S)
+    np.testing.assert_allclose(warm.leader_pos_m[k:] - warm.leader_pos_m[k], event.leader_pos_m)
+    assert event.with_warmup(0.0) is event
+    np.testing.assert_array_equal(human_trajectory(warm).speed, human_trajectory(event).speed)
+    sim = cached_sim(NET, "idm")
+    cold, settled = run_event(sim, event, 4, None), run_event(sim, warm, 4, None)
+    assert settled.speed.shape == cold.speed.shape  # the recorded part only
+    np.testing.assert_array_equal(settled.leader_speed, event.leader_speed_mps)
+    # a 30 m gap at 12 m/s is far below IDM's spacing: without a warm-up the followers brake
+    # to open it in the first seconds, with one they start the event settled
+    cold_change = np.abs(np.diff(cold.speed[:20], axis=0)).max()
+    assert cold_change > 0.05
+    assert np.abs(np.diff(settled.speed[:20], axis=0)).max() < 0.05 * cold_change
+
+
+def test_a_bad_warmup_gets_one_line_and_exit_2(capsys):
+    from carl_sumo.cli import main
+
+    assert main(["simulate", "--warmup", "-1"]) == 2
+    assert main(["simulate", "--warmup", "0.25"]) == 2
+    assert main(["evaluate", "--suite", "robustness", "--warmup", "10", "--quick"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 3 and "multiple of the 0.1 s step" in err

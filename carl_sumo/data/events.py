@@ -7,7 +7,7 @@ and :func:`events_from_table` turns it into :class:`Event` objects.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -86,6 +86,7 @@ class Event:
     gap_m: np.ndarray
     lane: int | None = None
     dt: float = DT_S
+    scored_from: int = 0  # first sample the metrics score; the ones before are a warm-up
 
     @property
     def n_samples(self) -> int:
@@ -102,6 +103,24 @@ class Event:
     @property
     def initial_speed_mps(self) -> float:
         return float(self.follower_speed_mps[0])
+
+    def with_warmup(self, seconds: float) -> Event:
+        """This event after ``seconds`` (a multiple of ``dt``) of warm-up: the leader first drives
+        at its initial speed (its recorded trajectory extended backwards), so the platoon, which
+        starts with the recorded follower's speed and gap, settles at its own controller's
+        spacing; the metrics then score only the recorded part (from :attr:`scored_from` on). The
+        recorded follower is held at its initial state over the warm-up."""
+        k = int(round(seconds / self.dt))
+        if k == 0:
+            return self
+        v0, steps = float(self.leader_speed_mps[0]), np.arange(k, 0, -1)
+        pos = np.concatenate([self.leader_pos_m[0] - v0 * self.dt * steps, self.leader_pos_m])
+        return replace(self, leader_pos_m=pos - pos[0],
+                       leader_speed_mps=np.concatenate([np.full(k, v0), self.leader_speed_mps]),
+                       follower_speed_mps=np.concatenate(
+                           [np.full(k, self.follower_speed_mps[0]), self.follower_speed_mps]),
+                       gap_m=np.concatenate([np.full(k, self.gap_m[0]), self.gap_m]),
+                       scored_from=self.scored_from + k)
 
     @property
     def leader_travel_m(self) -> float:
