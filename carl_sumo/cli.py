@@ -133,7 +133,9 @@ def cmd_replay(args: argparse.Namespace) -> None:
     metrics = replay(args.controller, event, args.vehicles, args.fcd, args.net, gui=args.gui,
                      impairments=impairments)
     print(f"wrote {args.fcd}: event {event.event_id}, {args.vehicles} followers, "
-          f"{event.duration_s:.1f} s, controller {args.controller}")
+          f"{event.duration_s:.1f} s" + (f" ({warmup_s:g} s of it warm-up, not scored)"
+                                         if warmup_s else "")
+          + f", controller {args.controller}")
     print(", ".join(f"{k}={fmt(v)}" for k, v in metrics.items() if not k.startswith("n_")
                     and k != "event_id"))
 
