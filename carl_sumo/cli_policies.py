@@ -12,8 +12,8 @@ import os
 import sys
 from pathlib import Path
 
-from carl_sumo.cli_common import (add_common, add_impairments, add_ray, check_ray, fmt,
-                                 impairments_from, positive, ray_session)
+from carl_sumo.cli_common import (add_common, add_impairments, add_ray, add_warmup, check_ray,
+                                 fmt, impairments_from, positive, ray_session, warmup_from)
 from carl_sumo.errors import InputError
 from carl_sumo.files import check_output_file
 
@@ -48,6 +48,7 @@ def check_train_args(args: argparse.Namespace) -> Path:
                                             and args.shield_ttc >= 0):
         raise InputError(f"--shield-ttc must be a time to collision of 0 s or more (0: off), "
                          f"got {args.shield_ttc}")
+    warmup_from(args)
     if args.comm_fallback == "base" and not args.algo.startswith("ca-"):
         raise InputError("--comm-fallback is for CA models (ca-td3, ca-ddpg), whose vehicles "
                          "exchange messages; the others hear nothing to lose")
@@ -152,6 +153,7 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
                         "more there); part of the policy, in training and wherever it runs "
                         "(default 0: off)")
     _add_robust_training_options(p)
+    add_warmup(p)
     p.add_argument("--imitate", default=None, metavar="PLOEG",
                    help="warm start (IDM base only): the platoons drive with this Ploeg CACC plus "
                         "exploration noise for --learning-starts steps, then the actor is fitted "
@@ -198,7 +200,7 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_sc
                    "adj_max", "base", "critic_burn_in", "braking_events", "update_every",
                    "batch_size", "imitate", "imitate_updates", "init", "observe_ahead",
                    "shield_ttc", "comm_fallback", "comm_randomize", "randomize_sensors", "val_impaired",
-                   "comm_delay", "comm_loss", "comm_burst", "comm_timeout", "comm_fade",
+                   "comm_delay", "comm_loss", "comm_burst", "comm_timeout", "comm_fade", "warmup",
                    "sensor_noise", "sensor_filter", "impairment_seed")
 """Training options that, when given, override the defaults of TrainConfig."""
 

@@ -31,7 +31,7 @@ def validate_events(agent: Agent, env: PlatoonEnv, events: Sequence[Event],
                     ) -> tuple[float, list[dict[str, float]]]:
     """Greedy policy on each event under each of ``conditions`` (None: a perfect channel and
     clean sensors): mean per-vehicle reward and each (condition, event)'s metrics, scored on the
-    true state."""
+    true state (after an event's warm-up, :meth:`carl_sumo.data.events.Event.with_warmup`)."""
     from carl_sumo.inference import CompiledActor
 
     act = CompiledActor(agent) if isinstance(agent, Agent) else agent.act  # numba, ~40 µs a step
@@ -45,18 +45,21 @@ def validate_events(agent: Agent, env: PlatoonEnv, events: Sequence[Event],
                 links = PlatoonLinks(len(obs), act.message_dim, impairments, event.event_id)
             true = env.true_observation
             speeds, gaps, leader = [true[:, 0]], [true[:, 2]], [env.sim.leader_speed]
-            collisions, done = 0, False
+            collisions, done, k = 0, False, 0
             while not done:
                 action = act(obs) if links is None else act.act_over(obs, links)
                 obs, reward, terminated, truncated, _ = env.step_array(action)
                 true = env.true_observation
-                rewards.append(reward.mean())
+                k += 1
+                if k > event.scored_from:  # a warm-up is not scored (Event.with_warmup)
+                    rewards.append(reward.mean())
                 speeds.append(true[:, 0]), gaps.append(true[:, 2])
                 leader.append(env.sim.leader_speed)
                 collisions = int((true[:, 2] <= 0).sum()) if terminated else 0
                 done = terminated or truncated
             per_event.append(score_event(PlatoonTrajectory(
-                event.event_id, np.array(leader), np.array(speeds), np.array(gaps), collisions)))
+                event.event_id, np.array(leader), np.array(speeds), np.array(gaps),
+                collisions).scored(event.scored_from)))
     return float(np.mean(rewards)), per_event
 
 

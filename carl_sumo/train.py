@@ -63,6 +63,7 @@ class TrainConfig:
     val_seed: int | None = None    # seed choosing those events (None: the training seed)
     val_source: str | None = None  # draw them from this event source only (None: any)
     braking_events: int = 0        # synthetic hard-braking leaders added (a quarter validates)
+    warmup: float = 0.0            # s of settling before every event (Event.with_warmup)
     checkpoint_every: int = 5_000  # vector steps between checkpoints
     net: str = str(DEFAULT_NET)
     data: str = "default"
@@ -142,7 +143,8 @@ def split_validation(events: Sequence[Event], k: int, seed: int, source: str | N
 def held_out_split(events: Sequence[Event], cfg: TrainConfig) -> tuple[list[Event], list[Event]]:
     """(training, validation) events of a run: ``cfg.eval_events`` held out with ``cfg.val_seed``
     (the training seed when None), so runs of several seeds can share one validation set, from
-    the events of ``cfg.val_source`` when given (e.g. the source most like the test set)."""
+    the events of ``cfg.val_source`` when given (e.g. the source most like the test set); with
+    ``cfg.warmup`` every event starts with that many seconds of settling."""
     val_seed = cfg.seed if cfg.val_seed is None else cfg.val_seed
     train, val = split_validation(events, cfg.eval_events, val_seed, cfg.val_source)
     if cfg.braking_events > 0:  # hard braking in training, and in the validation's safety check
@@ -151,6 +153,9 @@ def held_out_split(events: Sequence[Event], cfg: TrainConfig) -> tuple[list[Even
         braking = braking_events(cfg.braking_events, val_seed)
         k = max(1, cfg.braking_events // 4)
         train, val = train + braking[k:], val + braking[:k]
+    if cfg.warmup:  # every episode first settles; validation scores the recorded part
+        train = [e.with_warmup(cfg.warmup) for e in train]
+        val = [e.with_warmup(cfg.warmup) for e in val]
     return train, val
 
 

@@ -144,5 +144,6 @@ def test_a_bad_warmup_gets_one_line_and_exit_2(capsys):
     assert main(["simulate", "--warmup", "-1"]) == 2
     assert main(["simulate", "--warmup", "0.25"]) == 2
     assert main(["evaluate", "--suite", "robustness", "--warmup", "10", "--quick"]) == 2
+    assert main(["train", "--warmup", "0.05", "--steps", "10"]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 3 and "multiple of the 0.1 s step" in err
+    assert err.count("\n") == 4 and err.count("multiple of the 0.1 s step") == 2

@@ -346,3 +346,23 @@ def test_a_warm_start_from_another_configuration_is_refused(tmp_path, capsys):
                  "--out", str(tmp_path / "y.pt")])
     err = capsys.readouterr().err
     assert code == 2 and "--init" in err and len(err.strip().splitlines()) == 1
+
+
+def test_training_with_a_warmup_settles_every_event_and_validates_the_recorded_part():
+    from conftest import braking_event
+    from carl_sumo.selection import BaseOnly, validate_events
+    from carl_sumo.simulate import cached_sim, run_event
+
+    events = [dataclasses.replace(braking_event(v0=12.0, gap=30.0), event_id=f"e{i}")
+              for i in range(12)]
+    train_set, val = held_out_split(events, TrainConfig(eval_events=4, val_seed=0, warmup=20.0))
+    assert {e.scored_from for e in train_set + val} == {200}
+    env = PlatoonEnv(val[:1], 3, NET)
+    _, (settled,) = validate_events(BaseOnly(), env, val[:1])
+    # the same numbers as simulate --warmup 20 on that event with idm-external
+    from carl_sumo.controllers import ZeroAdjustment
+    from carl_sumo.metrics import score_event
+
+    expected = score_event(run_event(cached_sim(NET, "external"), val[0], 3, ZeroAdjustment()))
+    assert settled["jerk_mps3"] == pytest.approx(expected["jerk_mps3"], rel=1e-9)
+    assert settled["n_speed"] == expected["n_speed"] == events[0].n_samples * 3
