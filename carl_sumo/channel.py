@@ -27,7 +27,7 @@ controller's predecessor input u_{i-1} (i-1 → i). Each link, every 0.1 s step 
 **Degraded mode** (a policy trained with ``--comm-fallback base``): a CA vehicle that hears
 none of its neighbours also drops its learned adjustment and drives on its base model alone, as
 Ploeg's CACC drops to ACC. Its a_adj is scaled by the larger weight w of its links (1 for a live
-message, :meth:`Channel.heard`), so it fades out with its messages after the timeout and is back
+message, :attr:`Channel.heard`), so it fades out with its messages after the timeout and is back
 in full with the first message that arrives; with every message lost the platoon is its base.
 The CA module still computes with the boundary messages, so its neighbours' inputs are unchanged.
 

@@ -49,9 +49,10 @@ def check_train_args(args: argparse.Namespace) -> Path:
         raise InputError(f"--shield-ttc must be a time to collision of 0 s or more (0: off), "
                          f"got {args.shield_ttc}")
     warmup_from(args)
-    if args.comm_fallback == "base" and not args.algo.startswith("ca-"):
-        raise InputError("--comm-fallback is for CA models (ca-td3, ca-ddpg), whose vehicles "
-                         "exchange messages; the others hear nothing to lose")
+    if args.comm_fallback is not None:  # AgentConfig says what is wrong, before any run
+        from carl_sumo.agents import AgentConfig
+
+        AgentConfig(algo=args.algo, comm_fallback=args.comm_fallback)
     if args.randomize_sensors is False and not args.comm_randomize:
         raise InputError("--no-sensor-randomize narrows --comm-randomize; give both, or neither")
     if impairments_from(args) is not None and args.comm_randomize:
@@ -199,8 +200,9 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_sc
                    "smooth_accel", "eval_events", "val_seed", "val_source", "gamma",
                    "adj_max", "base", "critic_burn_in", "braking_events", "update_every",
                    "batch_size", "imitate", "imitate_updates", "init", "observe_ahead",
-                   "shield_ttc", "comm_fallback", "comm_randomize", "randomize_sensors", "val_impaired",
-                   "comm_delay", "comm_loss", "comm_burst", "comm_timeout", "comm_fade", "warmup",
+                   "shield_ttc", "comm_fallback", "comm_randomize", "randomize_sensors",
+                   "val_impaired", "comm_delay", "comm_loss", "comm_burst", "comm_timeout",
+                   "comm_fade", "warmup",
                    "sensor_noise", "sensor_filter", "impairment_seed")
 """Training options that, when given, override the defaults of TrainConfig."""
 

@@ -215,7 +215,8 @@ def suite_readme(suite: Suite, sections: list[str], figure_files: list[tuple[str
                 "models (IDM, Krauss, CACC) and the human row run without them"]
                if suite.impairments is not None else []),
              *([f"- warm-up: every event first runs {suite.warmup_s:g} s with the leader at its "
-                "initial speed, unscored (`--warmup`, `docs/metrics.md`)"] if suite.warmup_s else []),
+                "initial speed, unscored (`--warmup`, `docs/metrics.md`)"]
+               if suite.warmup_s else []),
              "- policy files (sha256, first 12 hex digits): " + ", ".join(
                  f"`{Path(f).name}` {_sha(f)}" for m in suite.models.values() for f in m.files),
              "- figure event (time series, time-space): "
