@@ -125,8 +125,8 @@ class Impairments:
     def from_options(cls, options) -> Impairments | None:
         """The impairments of an object with the option names as attributes (``comm_delay``,
         ``comm_loss``, ``comm_burst``, ``comm_timeout``, ``comm_fade``, ``sensor_noise``,
-        ``sensor_filter``, ``impairment_seed``: parsed CLI options or a training config); None when all is perfect.
-        InputError for a bad value."""
+        ``sensor_filter``, ``impairment_seed``: parsed CLI options or a training config); None
+        when all is perfect. InputError for a bad value."""
         imp = cls(delay_s=options.comm_delay, loss=options.comm_loss, burst=options.comm_burst,
                   timeout_s=options.comm_timeout, fade_s=options.comm_fade,
                   sensor_noise=options.sensor_noise, sensor_filter=options.sensor_filter,
@@ -334,14 +334,15 @@ def random_impairments(rng: np.random.Generator, sensor_noise_share: float = 0.5
                        sensor_filter=sensor_filter, seed=seed)
 
 
-def heard_weights(forward: np.ndarray, backward: np.ndarray, n: int) -> np.ndarray:
-    """(n,) per follower of a chain: the larger of its forward (from i+1, rows 0..n-2) and
-    backward (from i-1, rows 1..n-1) link weights; 1 for a chain of one, which has no link."""
-    if n == 1:
-        return np.ones(1)
-    out = np.zeros(n)
-    out[:n - 1] = forward[:n - 1]
-    out[1:] = np.maximum(out[1:], backward[1:])
+def heard_weights(forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
+    """(n,) per follower of a chain of n: the larger weight of its links, given the n - 1
+    forward links (i hears i+1, i = 0..n-2) and the n - 1 backward links (i hears i-1,
+    i = 1..n-1); a chain end has one link, a chain of one none (1: nothing to lose)."""
+    out = np.ones(len(forward) + 1)
+    if len(forward):
+        out[:-1] = forward
+        out[-1] = backward[-1]
+        out[1:-1] = np.maximum(out[1:-1], backward[:-1])
     return out
 
 
@@ -370,7 +371,7 @@ class PlatoonLinks:
         """How much each follower hears its neighbours this step (n,), in [0, 1]: the larger
         weight of its links (1 live or held within the timeout, fading to 0 over the fade; a chain
         end has one link, a platoon of one has none and hears fully). After :meth:`receive`."""
-        return heard_weights(self.forward.heard, self.backward.heard, self.n)
+        return heard_weights(self.forward.heard[:self.n - 1], self.backward.heard[1:])
 
     def send(self, forward_messages: np.ndarray, backward_messages: np.ndarray) -> None:
         """Every follower's forward and backward message (n, dim) of this step; the step ends."""

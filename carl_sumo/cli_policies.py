@@ -106,7 +106,7 @@ def _add_robust_training_options(p: argparse.ArgumentParser) -> None:
                         "delay and sensor noise (clean sensors with --no-sensor-randomize; with "
                         "fixed --comm-* options: under those), and keep the checkpoint that is "
                         "best over both")
-    p.add_argument("--comm-fallback", choices=("boundary", "base"), default=None,
+    p.add_argument("--comm-fallback", default=None, metavar="{boundary,base}",
                    help="what a CA vehicle does at run time when it hears no neighbour past "
                         "--comm-timeout: boundary (default: it acts as a chain end) or base (it "
                         "also drops its adjustment, fading out with the messages, and drives on "
@@ -202,8 +202,7 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_sc
                    "batch_size", "imitate", "imitate_updates", "init", "observe_ahead",
                    "shield_ttc", "comm_fallback", "comm_randomize", "randomize_sensors",
                    "val_impaired", "comm_delay", "comm_loss", "comm_burst", "comm_timeout",
-                   "comm_fade", "warmup",
-                   "sensor_noise", "sensor_filter", "impairment_seed")
+                   "comm_fade", "warmup", "sensor_noise", "sensor_filter", "impairment_seed")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 

@@ -218,9 +218,7 @@ class CompiledActor:
             obs, self.adj_max, f_mode.astype(np.int64), f_held, b_mode.astype(np.int64), b_held,
             *self._weights)
         if self.fallback_to_base:
-            heard_f, heard_b = np.zeros(n), np.zeros(n)
-            heard_f[:n - 1], heard_b[1:] = forward.heard, backward.heard
-            action = action * heard_weights(heard_f, heard_b, n)
+            action = action * heard_weights(forward.heard, backward.heard)
         forward.send(k, f_pairs, f_out[1:])
         backward.send(k, b_pairs, b_out[:n - 1])
         return action

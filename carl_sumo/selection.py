@@ -45,13 +45,12 @@ def validate_events(agent: Agent, env: PlatoonEnv, events: Sequence[Event],
                 links = PlatoonLinks(len(obs), act.message_dim, impairments, event.event_id)
             true = env.true_observation
             speeds, gaps, leader = [true[:, 0]], [true[:, 2]], [env.sim.leader_speed]
-            collisions, done, k = 0, False, 0
+            collisions, done = 0, False
             while not done:
                 action = act(obs) if links is None else act.act_over(obs, links)
                 obs, reward, terminated, truncated, _ = env.step_array(action)
                 true = env.true_observation
-                k += 1
-                if k > event.scored_from:  # a warm-up is not scored (Event.with_warmup)
+                if env.sim.k > event.scored_from:  # a warm-up is not scored (Event.with_warmup)
                     rewards.append(reward.mean())
                 speeds.append(true[:, 0]), gaps.append(true[:, 2])
                 leader.append(env.sim.leader_speed)

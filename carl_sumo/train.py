@@ -106,6 +106,17 @@ class TrainConfig:
     imitate_updates: int = 4_000   # behaviour-cloning gradient steps at learning_starts
     imitate_lr: float = 1e-3       # their Adam learning rate
 
+    def agent_config(self) -> AgentConfig:
+        """The agent this run trains."""
+        return AgentConfig(algo=self.algo, n_vehicles=self.n_vehicles,
+                           message_dim=self.message_dim, hidden=self.hidden,
+                           actor_lr=self.actor_lr, critic_lr=self.critic_lr,
+                           exploration_noise=self.noise, noise_correlation=self.noise_correlation,
+                           smooth_jerk=self.smooth_jerk, smooth_accel=self.smooth_accel,
+                           gamma=self.gamma, adj_max=self.adj_max, base=self.base,
+                           batch_size=self.batch_size, observe_ahead=self.observe_ahead,
+                           shield_ttc_s=self.shield_ttc, comm_fallback=self.comm_fallback)
+
     @property
     def fixed_impairments(self) -> Impairments | None:
         """The fixed impairments of every training episode (``--comm-loss`` ...), or None."""
@@ -257,14 +268,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     torch.set_num_threads(1)  # the SUMO workers have the other cores; small nets gain nothing
     keep_heap_memory()  # no page faults on the update's temporaries
     seed_everything(cfg.seed)
-    agent = Agent(AgentConfig(algo=cfg.algo, n_vehicles=n, message_dim=cfg.message_dim,
-                              hidden=cfg.hidden, actor_lr=cfg.actor_lr, critic_lr=cfg.critic_lr,
-                              exploration_noise=cfg.noise,
-                              noise_correlation=cfg.noise_correlation,
-                              smooth_jerk=cfg.smooth_jerk, smooth_accel=cfg.smooth_accel,
-                              gamma=cfg.gamma, adj_max=cfg.adj_max, base=cfg.base,
-                              batch_size=cfg.batch_size, observe_ahead=cfg.observe_ahead,
-                              shield_ttc_s=cfg.shield_ttc, comm_fallback=cfg.comm_fallback))
+    agent = Agent(cfg.agent_config())
     if init_actor is not None and resume is None:
         try:
             agent.start_from(init_actor)
@@ -354,9 +358,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
             # a warm-started actor drives from the first step, others after learning_starts
             acting = step >= cfg.learning_starts or init_actor is not None
             if links is not None:  # the CA actor's messages cross impaired links
-                exploring = acting
                 action, sent_f, sent_b = agent.act_over(obs, links,
-                                                        noise.sample() if exploring else None)
+                                                        noise.sample() if acting else None)
                 channels.send(sent_f, sent_b)
             if not acting:  # the base (or the teacher) plus exploration noise
                 action = noise.sample()
@@ -519,11 +522,7 @@ def export_policy(checkpoint: Path, out: Path) -> dict[str, Any]:
     if state.get("format") != CHECKPOINT_FORMAT:
         raise InputError(f"{checkpoint} is not a carl-sumo training checkpoint")
     cfg = TrainConfig(**state["train_config"])
-    agent = Agent(AgentConfig(algo=cfg.algo, n_vehicles=cfg.n_vehicles,
-                              message_dim=cfg.message_dim, hidden=cfg.hidden,
-                              gamma=cfg.gamma, adj_max=cfg.adj_max, base=cfg.base,
-                              observe_ahead=cfg.observe_ahead, shield_ttc_s=cfg.shield_ttc,
-                              comm_fallback=cfg.comm_fallback))
+    agent = Agent(cfg.agent_config())
     agent.load_state_dict(state["agent"])
     meta = _metadata(cfg, agent, {}, float(state["wall_s"]))
     meta["exported_from"] = f"{Path(checkpoint).name} at step {int(state['step'])}"

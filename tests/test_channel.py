@@ -231,9 +231,9 @@ def test_keyed_links_lose_at_the_requested_rate_and_repeat_with_the_seed():
 def test_a_follower_hears_its_freshest_link_and_a_chain_end_its_only_one():
     from carl_sumo.channel import PlatoonLinks, heard_weights
 
-    f, b = np.array([1.0, 0.5, 0.2, 0.9]), np.array([0.7, 0.0, 0.6, 0.3])
-    assert heard_weights(f, b, 4).tolist() == [1.0, 0.5, 0.6, 0.3]  # 0: f only, 3: b only
-    assert heard_weights(np.zeros(1), np.zeros(1), 1).tolist() == [1.0]  # no link to lose
+    f, b = np.array([1.0, 0.5, 0.2]), np.array([0.0, 0.6, 0.3])  # receivers 0-2 and 1-3
+    assert heard_weights(f, b).tolist() == [1.0, 0.5, 0.6, 0.3]  # 0: f only, 3: b only
+    assert heard_weights(np.zeros(0), np.zeros(0)).tolist() == [1.0]  # no link to lose
     imp = Impairments(loss=1.0, timeout_s=0.3, fade_s=0.3)
     links = PlatoonLinks(3, 2, imp, "e")
     for ch in (links.forward, links.backward):
