@@ -48,6 +48,20 @@ def check_train_args(args: argparse.Namespace) -> Path:
                                             and args.shield_ttc >= 0):
         raise InputError(f"--shield-ttc must be a time to collision of 0 s or more (0: off), "
                          f"got {args.shield_ttc}")
+    if args.tau is not None and not (math.isfinite(args.tau) and 0 < args.tau <= 1):
+        raise InputError(f"--tau is the target networks' soft-update rate per update, in (0, 1], "
+                         f"got {args.tau}")
+    if args.scale_rates:
+        from carl_sumo.agents import AgentConfig
+
+        every = args.update_every or 1
+        if every == 1:
+            raise InputError("--scale-rates multiplies the rates by --update-every K; give "
+                             "--update-every 2 or more, or leave --scale-rates out")
+        if every * (args.tau or AgentConfig.tau) > 1:
+            raise InputError(f"--scale-rates: --tau times --update-every is "
+                             f"{every * (args.tau or AgentConfig.tau):g}, above 1; give a "
+                             f"smaller --tau or --update-every")
     warmup_from(args)
     if args.comm_fallback is not None:  # AgentConfig says what is wrong, before any run
         from carl_sumo.agents import AgentConfig
@@ -113,6 +127,37 @@ def _add_robust_training_options(p: argparse.ArgumentParser) -> None:
                         "its base, as Ploeg's CACC drops to ACC); part of the policy file")
 
 
+def _add_learning_options(p: argparse.ArgumentParser) -> None:
+    """The networks, the optimisers and their update schedule, and the exploration."""
+    p.add_argument("--update-every", type=int, default=None, metavar="K",
+                   help="one round of updates every K steps instead of every step (default 1); "
+                        "fewer, larger updates with --batch-size")
+    p.add_argument("--scale-rates", action="store_true", default=None,
+                   help="with --update-every K: multiply --actor-lr, --critic-lr and --tau by "
+                        "K, so the networks move as far per env step as with an update every "
+                        "step (the same learning at about a third of the update cost with K = "
+                        "3; docs/bench.md)")
+    p.add_argument("--batch-size", type=int, default=None,
+                   help="transitions per gradient update (default 128)")
+    p.add_argument("--message-dim", type=int, default=None, help="V2V message width (CA models)")
+    p.add_argument("--hidden", type=int, default=None, help="hidden layer width")
+    p.add_argument("--actor-lr", type=float, default=None, help="actor learning rate")
+    p.add_argument("--critic-lr", type=float, default=None, help="critic learning rate")
+    p.add_argument("--tau", type=float, default=None,
+                   help="soft-update rate of the target networks per update (default 0.005)")
+    p.add_argument("--noise", type=float, default=None,
+                   help="exploration noise std as a fraction of the a_adj bound")
+    p.add_argument("--noise-correlation", type=float, default=None,
+                   help="AR(1) coefficient of the exploration noise per step (0 = white)")
+    p.add_argument("--gamma", type=float, default=None, help="discount per 0.1 s step (0.98)")
+    p.add_argument("--adj-max", type=float, default=None,
+                   help="bound of the learned adjustment |a_adj| (m/s², default 3)")
+    p.add_argument("--smooth-jerk", type=float, default=None,
+                   help="actor loss weight on the policy's jerk, per (m/s³)² (default 0)")
+    p.add_argument("--smooth-accel", type=float, default=None,
+                   help="actor loss weight on the policy's acceleration, per (m/s²)² (default 0)")
+
+
 def _train_parser(sub: argparse._SubParsersAction) -> None:
     # train options
     p = sub.add_parser("train", help="train a CA-RL (or baseline) agent inside SUMO")
@@ -133,11 +178,6 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
                         "and speed), comfort (the same on jerk and dampening only, at most 5 %% "
                         "above the base's headway), metrics (jerk and dampening relative to the "
                         "base, speed at least the base's) or reward")
-    p.add_argument("--update-every", type=int, default=None, metavar="K",
-                   help="one round of updates every K steps instead of every step (default 1); "
-                        "fewer, larger updates with --batch-size")
-    p.add_argument("--batch-size", type=int, default=None,
-                   help="transitions per gradient update (default 128)")
     p.add_argument("--braking-events", type=int, default=None, metavar="N",
                    help="add N synthetic hard-braking leaders (15-30 m/s, -3 to -6 m/s²) to the "
                         "training events, a quarter of them to the validation events (default 0)")
@@ -170,21 +210,7 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
                    help="base model under the learned adjustment: idm (default, the paper's) or "
                         "a classical CACC such as ploeg-tuned:h=0.8 (the actor starts at a_adj = 0)")
     _add_reward_options(p)
-    p.add_argument("--message-dim", type=int, default=None, help="V2V message width (CA models)")
-    p.add_argument("--hidden", type=int, default=None, help="hidden layer width")
-    p.add_argument("--actor-lr", type=float, default=None, help="actor learning rate")
-    p.add_argument("--critic-lr", type=float, default=None, help="critic learning rate")
-    p.add_argument("--noise", type=float, default=None,
-                   help="exploration noise std as a fraction of the a_adj bound")
-    p.add_argument("--noise-correlation", type=float, default=None,
-                   help="AR(1) coefficient of the exploration noise per step (0 = white)")
-    p.add_argument("--gamma", type=float, default=None, help="discount per 0.1 s step (0.98)")
-    p.add_argument("--adj-max", type=float, default=None,
-                   help="bound of the learned adjustment |a_adj| (m/s², default 3)")
-    p.add_argument("--smooth-jerk", type=float, default=None,
-                   help="actor loss weight on the policy's jerk, per (m/s³)² (default 0)")
-    p.add_argument("--smooth-accel", type=float, default=None,
-                   help="actor loss weight on the policy's acceleration, per (m/s²)² (default 0)")
+    _add_learning_options(p)
     p.add_argument("--eval-events", type=int, default=None,
                    help="held-out training events used for validation (default 8)")
     p.add_argument("--val-seed", type=int, default=None,
@@ -196,10 +222,10 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
 
 
 TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_scale", "message_dim",
-                   "hidden", "actor_lr", "critic_lr", "noise", "noise_correlation", "smooth_jerk",
+                   "hidden", "actor_lr", "critic_lr", "tau", "noise", "noise_correlation", "smooth_jerk",
                    "smooth_accel", "eval_events", "val_seed", "val_source", "gamma",
                    "adj_max", "base", "critic_burn_in", "braking_events", "update_every",
-                   "batch_size", "imitate", "imitate_updates", "init", "observe_ahead",
+                   "scale_rates", "batch_size", "imitate", "imitate_updates", "init", "observe_ahead",
                    "shield_ttc", "comm_fallback", "comm_randomize", "randomize_sensors",
                    "val_impaired", "comm_delay", "comm_loss", "comm_burst", "comm_timeout",
                    "comm_fade", "warmup", "sensor_noise", "sensor_filter", "impairment_seed")

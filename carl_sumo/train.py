@@ -56,6 +56,7 @@ class TrainConfig:
     critic_burn_in: int = 0        # vector steps after learning_starts that train the critics only
     updates_per_step: int = 1
     update_every: int = 1          # vector steps between update rounds (1: every step)
+    scale_rates: bool = False      # learning rates and tau times update_every (agent_config)
     batch_size: int = AgentConfig.batch_size  # transitions per gradient update
     buffer_size: int = 200_000     # platoon transitions
     eval_every: int = 2_000        # vector steps between validations
@@ -79,6 +80,7 @@ class TrainConfig:
     hidden: int = AgentConfig.hidden                      # hidden layer width
     actor_lr: float = AgentConfig.actor_lr
     critic_lr: float = AgentConfig.critic_lr
+    tau: float = AgentConfig.tau                          # target networks' soft-update rate per update
     select: str = "margin"         # how the best checkpoint is chosen: see selection_score
     noise: float = AgentConfig.exploration_noise          # exploration std (fraction of adj_max)
     noise_correlation: float = AgentConfig.noise_correlation
@@ -107,10 +109,15 @@ class TrainConfig:
     imitate_lr: float = 1e-3       # their Adam learning rate
 
     def agent_config(self) -> AgentConfig:
-        """The agent this run trains."""
+        """The agent this run trains. With ``scale_rates`` its learning rates and target
+        soft-update rate are ``update_every`` times the given ones, so that an update every K
+        steps moves the networks about as far per env step as an update every step does
+        (docs/bench.md: the same learning, measured over 10 seeds)."""
+        k = self.update_every if self.scale_rates else 1
         return AgentConfig(algo=self.algo, n_vehicles=self.n_vehicles,
                            message_dim=self.message_dim, hidden=self.hidden,
-                           actor_lr=self.actor_lr, critic_lr=self.critic_lr,
+                           actor_lr=k * self.actor_lr, critic_lr=k * self.critic_lr,
+                           tau=k * self.tau,
                            exploration_noise=self.noise, noise_correlation=self.noise_correlation,
                            smooth_jerk=self.smooth_jerk, smooth_accel=self.smooth_accel,
                            gamma=self.gamma, adj_max=self.adj_max, base=self.base,

@@ -240,3 +240,15 @@ def test_train_refuses_fixed_and_randomised_impairments_together(capsys):
     assert code == 2 and "not both" in err and len(err.strip().splitlines()) == 1
     code, _, err = run(capsys, "train", "--comm-fade", "-1", "--steps", "10")
     assert code == 2 and "--comm-fade" in err
+
+
+@pytest.mark.parametrize("tau", ["0", "1.5", "nan"])
+def test_train_refuses_a_soft_update_rate_outside_0_1(capsys, tau):
+    code, _, err = run(capsys, "train", "--tau", tau, "--steps", "10")
+    assert code == 2 and "--tau" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("argv", [[], ["--update-every", "1"], ["--update-every", "3", "--tau", "0.5"]])
+def test_train_refuses_scaled_rates_without_fewer_updates_or_above_1(capsys, argv):
+    code, _, err = run(capsys, "train", "--scale-rates", *argv, "--steps", "10")
+    assert code == 2 and "--scale-rates" in err and len(err.strip().splitlines()) == 1

@@ -307,11 +307,21 @@ def test_update_every_k_steps_with_a_larger_batch(tmp_path):
     events = [cruise_event(200, 15.0, 30.0)]
     cfg = TrainConfig(algo="td3", n_vehicles=1, steps=240, seed=0, num_envs=2, learning_starts=40,
                       eval_every=240, eval_events=1, checkpoint_every=240, update_every=4,
-                      batch_size=64, net=str(NET), out=str(tmp_path / "t.pt"))
+                      batch_size=64, tau=0.02, net=str(NET), out=str(tmp_path / "t.pt"))
     train(cfg, events, progress=False)
     state = load_torch(tmp_path / "t.ckpt", "checkpoint")
     assert state["updates"] == 200 // 4
-    assert load_policy(tmp_path / "t.pt")[0].cfg.batch_size == 64
+    kept = load_policy(tmp_path / "t.pt")[0].cfg
+    assert (kept.batch_size, kept.tau) == (64, 0.02)
+
+
+def test_scaled_rates_move_the_networks_as_far_per_env_step():
+    """--scale-rates: an update every K steps gets K times the learning rates and tau."""
+    plain = TrainConfig(actor_lr=1e-4, critic_lr=3e-4, update_every=3).agent_config()
+    scaled = TrainConfig(actor_lr=1e-4, critic_lr=3e-4, update_every=3, scale_rates=True).agent_config()
+    assert (plain.actor_lr, plain.critic_lr, plain.tau) == (1e-4, 3e-4, AgentConfig.tau)
+    assert scaled.actor_lr == pytest.approx(3e-4) and scaled.critic_lr == pytest.approx(9e-4)
+    assert scaled.tau == pytest.approx(3 * AgentConfig.tau)
 
 
 def test_a_warm_start_keeps_its_actor_until_a_trained_checkpoint_validates_better(tmp_path):
