@@ -397,6 +397,12 @@ class Agent(nn.Module):
             penalty = penalty + self.cfg.smooth_jerk * ((acc_now - obs[..., 1]) / DT_S) ** 2
         return penalty
 
+    def scale_learning_rates(self, fraction: float) -> None:
+        """Set both optimizers' learning rates to ``fraction`` of the configured ones."""
+        for opt, lr in ((self.actor_opt, self.cfg.actor_lr), (self.critic_opt, self.cfg.critic_lr)):
+            for group in opt.param_groups:
+                group["lr"] = fraction * lr
+
     @torch.no_grad()
     def _soft_update(self) -> None:
         pairs = [(self.actor, self.actor_target), (self.critic1, self.critic1_target)]

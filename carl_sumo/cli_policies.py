@@ -139,6 +139,9 @@ def _add_learning_options(p: argparse.ArgumentParser) -> None:
                         "3; docs/bench.md)")
     p.add_argument("--batch-size", type=int, default=None,
                    help="transitions per gradient update (default 128)")
+    p.add_argument("--lr-decay", action="store_true", default=None,
+                   help="the learning rates fall linearly from their values at "
+                        "--learning-starts to 0 at --steps (default: constant)")
     p.add_argument("--message-dim", type=int, default=None, help="V2V message width (CA models)")
     p.add_argument("--hidden", type=int, default=None, help="hidden layer width")
     p.add_argument("--actor-lr", type=float, default=None, help="actor learning rate")
@@ -225,7 +228,7 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_sc
                    "hidden", "actor_lr", "critic_lr", "tau", "noise", "noise_correlation", "smooth_jerk",
                    "smooth_accel", "eval_events", "val_seed", "val_source", "gamma",
                    "adj_max", "base", "critic_burn_in", "braking_events", "update_every",
-                   "scale_rates", "batch_size", "imitate", "imitate_updates", "init", "observe_ahead",
+                   "scale_rates", "lr_decay", "batch_size", "imitate", "imitate_updates", "init", "observe_ahead",
                    "shield_ttc", "comm_fallback", "comm_randomize", "randomize_sensors",
                    "val_impaired", "comm_delay", "comm_loss", "comm_burst", "comm_timeout",
                    "comm_fade", "warmup", "sensor_noise", "sensor_filter", "impairment_seed")

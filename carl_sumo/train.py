@@ -57,6 +57,7 @@ class TrainConfig:
     updates_per_step: int = 1
     update_every: int = 1          # vector steps between update rounds (1: every step)
     scale_rates: bool = False      # learning rates and tau times update_every (agent_config)
+    lr_decay: bool = False         # learning rates fall linearly to 0 from learning_starts to steps
     batch_size: int = AgentConfig.batch_size  # transitions per gradient update
     buffer_size: int = 200_000     # platoon transitions
     eval_every: int = 2_000        # vector steps between validations
@@ -389,6 +390,9 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
             obs = next_obs
             if step >= cfg.learning_starts and (step - cfg.learning_starts) % cfg.update_every == 0:
                 train_actor = step >= cfg.learning_starts + cfg.critic_burn_in
+                if cfg.lr_decay:
+                    agent.scale_learning_rates(1.0 - (step - cfg.learning_starts)
+                                               / max(1, cfg.steps - cfg.learning_starts))
                 for _ in range(cfg.updates_per_step):
                     agent.update(buffer.sample(agent.cfg.batch_size, rng), train_actor)
             done_steps = step + 1

@@ -315,6 +315,20 @@ def test_update_every_k_steps_with_a_larger_batch(tmp_path):
     assert (kept.batch_size, kept.tau) == (64, 0.02)
 
 
+def test_decayed_learning_rates_fall_linearly_to_zero_at_the_last_step(tmp_path):
+    from carl_sumo.policy import load_torch
+
+    events = [cruise_event(200, 15.0, 30.0)]
+    cfg = TrainConfig(algo="td3", n_vehicles=1, steps=120, seed=0, num_envs=2, learning_starts=40,
+                      eval_every=120, eval_events=1, checkpoint_every=120, lr_decay=True,
+                      actor_lr=1e-3, critic_lr=2e-3, net=str(NET), out=str(tmp_path / "t.pt"))
+    train(cfg, events, progress=False)
+    state = load_torch(tmp_path / "t.ckpt", "checkpoint")
+    # the last update (step 119) ran at 1 - 79/80 of the rates
+    assert state["actor_opt"]["param_groups"][0]["lr"] == pytest.approx(1e-3 / 80)
+    assert state["critic_opt"]["param_groups"][0]["lr"] == pytest.approx(2e-3 / 80)
+
+
 def test_scaled_rates_move_the_networks_as_far_per_env_step():
     """--scale-rates: an update every K steps gets K times the learning rates and tau."""
     plain = TrainConfig(actor_lr=1e-4, critic_lr=3e-4, update_every=3).agent_config()
