@@ -131,12 +131,12 @@ def _add_learning_options(p: argparse.ArgumentParser) -> None:
     """The networks, the optimisers and their update schedule, and the exploration."""
     p.add_argument("--update-every", type=int, default=None, metavar="K",
                    help="one round of updates every K steps instead of every step (default 1); "
-                        "fewer, larger updates with --batch-size")
+                        "give --scale-rates too to learn as much per env step")
     p.add_argument("--scale-rates", action="store_true", default=None,
                    help="with --update-every K: multiply --actor-lr, --critic-lr and --tau by "
                         "K, so the networks move as far per env step as with an update every "
-                        "step (the same learning at about a third of the update cost with K = "
-                        "3; docs/bench.md)")
+                        "step (with K = 3: the same learning, measured, at a third of the "
+                        "updates; docs/bench.md)")
     p.add_argument("--batch-size", type=int, default=None,
                    help="transitions per gradient update (default 128)")
     p.add_argument("--lr-decay", action="store_true", default=None,
