@@ -3,7 +3,8 @@ benchmarks/curves/update_every/ (validation every 500 steps on the recipes' 64 h
 
 Recipes (`carl-sumo train ... --seed S`, policies/recipe.sh):
 - ``ca_td3_ploeg_10``: the product recipe before the safety shield (`--select comfort`), 10 seeds;
-- ``ca_td3_10``: the paper configuration's CA-TD3 recipe (`--select margin`), 5 seeds.
+- ``ca_td3_10``, ``ca_ddpg_10``: the paper configuration's CA-TD3 and CA-DDPG recipes
+  (`--select margin`), 5 seeds.
 Schedules: ``every1`` an update every step (the recipes'), ``every3`` `--update-every 3`,
 ``every3scaled`` `--update-every 3 --scale-rates` (learning rates and tau three times the
 recipe's; the curves were made with the equivalent `--actor-lr`, `--critic-lr`, `--tau` values).
@@ -20,7 +21,8 @@ import numpy as np
 
 CURVES = Path(__file__).parent / "curves" / "update_every"
 RECIPES = {"ca_td3_ploeg_10": ("comfort", ("every1", "every3", "every3scaled")),
-           "ca_td3_10": ("margin", ("every1", "every3scaled"))}
+           "ca_td3_10": ("margin", ("every1", "every3scaled")),
+           "ca_ddpg_10": ("margin", ("every1", "every3scaled"))}
 
 
 def kept(path: str, rule: str) -> tuple[float, float, float, float, bool]:
