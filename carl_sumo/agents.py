@@ -72,6 +72,7 @@ class AgentConfig:
     max_grad_norm: float = 10.0     # gradient norm clipping of actor and critic updates
     smooth_jerk: float = 0.0      # actor loss weight on the policy's jerk, per (m/s³)² (CAPS-style)
     smooth_accel: float = 0.0     # actor loss weight on the policy's acceleration, per (m/s²)²
+    adj_l2: float = 0.0           # actor loss weight on the adjustment itself, per (m/s²)²
     base: str = "idm"             # base model under a_adj: idm, or a classical CACC name
     observe_ahead: bool = False   # o has a fifth column a_ahead (IDM base; controllers.AheadAcceleration)
     shield_ttc_s: float = 0.0     # no a_adj > 0 while closing in below this TTC (s; 0: off)
@@ -335,7 +336,7 @@ class Agent(nn.Module):
             q = self._q([self.critic1], x, action_now, mask, detach_params=True)[0]
             per_vehicle = cfg.preactivation_l2 * pre ** 2 - q + self._residual_smoothness(
                 obs, next_obs, stored_action, action_now)
-            return self._actor_step(per_vehicle, maskf)
+            return self._actor_step(per_vehicle + cfg.adj_l2 * action_now ** 2, maskf)
         jerk = cfg.smooth_jerk > 0
         if jerk:  # the actor on o and o' in one pass (rows are independent)
             both_links = None if links is None else \
@@ -348,7 +349,7 @@ class Agent(nn.Module):
             action_now, pre = self._act_normalised(self.actor, x, mask, True, links)
             action_next = None
         q = self._q([self.critic1], x, action_now, mask, detach_params=True)[0]
-        per_vehicle = cfg.preactivation_l2 * pre ** 2 - q
+        per_vehicle = cfg.preactivation_l2 * pre ** 2 - q + cfg.adj_l2 * action_now ** 2
         if jerk or cfg.smooth_accel > 0:
             per_vehicle = per_vehicle + self._smoothness(obs, next_obs, action_now, mask,
                                                           action_next, next_links)

@@ -159,6 +159,9 @@ def _add_learning_options(p: argparse.ArgumentParser) -> None:
                    help="actor loss weight on the policy's jerk, per (m/s³)² (default 0)")
     p.add_argument("--smooth-accel", type=float, default=None,
                    help="actor loss weight on the policy's acceleration, per (m/s²)² (default 0)")
+    p.add_argument("--adj-l2", type=float, default=None,
+                   help="actor loss weight on the adjustment itself, W·a_adj² per (m/s²)²: keeps "
+                        "the learned term near its base (default 0)")
 
 
 def _train_parser(sub: argparse._SubParsersAction) -> None:
@@ -226,7 +229,7 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
 
 TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_scale", "message_dim",
                    "hidden", "actor_lr", "critic_lr", "tau", "noise", "noise_correlation", "smooth_jerk",
-                   "smooth_accel", "eval_events", "val_seed", "val_source", "gamma",
+                   "smooth_accel", "adj_l2", "eval_events", "val_seed", "val_source", "gamma",
                    "adj_max", "base", "critic_burn_in", "braking_events", "update_every",
                    "scale_rates", "lr_decay", "batch_size", "imitate", "imitate_updates", "init", "observe_ahead",
                    "shield_ttc", "comm_fallback", "comm_randomize", "randomize_sensors",

@@ -89,6 +89,7 @@ class TrainConfig:
     adj_max: float = AgentConfig.adj_max                  # |a_adj| bound of the actor (m/s²)
     smooth_jerk: float = AgentConfig.smooth_jerk          # actor smoothness terms (agents.py)
     smooth_accel: float = AgentConfig.smooth_accel
+    adj_l2: float = AgentConfig.adj_l2                    # actor loss weight on a_adj² (agents.py)
     base: str = AgentConfig.base          # base model under a_adj: idm or a classical CACC name
     observe_ahead: bool = False    # o has a fifth column a_ahead (controllers.AheadAcceleration)
     shield_ttc: float = 0.0        # safety shield of the policy (s; controllers.shield_adjustment)
@@ -121,6 +122,7 @@ class TrainConfig:
                            tau=k * self.tau,
                            exploration_noise=self.noise, noise_correlation=self.noise_correlation,
                            smooth_jerk=self.smooth_jerk, smooth_accel=self.smooth_accel,
+                           adj_l2=self.adj_l2,
                            gamma=self.gamma, adj_max=self.adj_max, base=self.base,
                            batch_size=self.batch_size, observe_ahead=self.observe_ahead,
                            shield_ttc_s=self.shield_ttc, comm_fallback=self.comm_fallback)

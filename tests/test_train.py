@@ -168,6 +168,30 @@ def test_smoothness_terms_lower_the_policy_jerk():
     assert policy_jerk() < 0.7 * before
 
 
+def test_the_adjustment_penalty_pulls_the_learned_term_towards_its_base():
+    """--adj-l2: with the critic frozen, a heavy W·a_adj² in the actor loss shrinks a_adj."""
+    torch.manual_seed(0)
+    rng = np.random.default_rng(1)
+    obs = torch.tensor(rng.uniform([5, 0, 10, -1], [15, 0, 40, 1], (64, 3, 4)), dtype=torch.float32)
+    batch = {"obs": obs, "next_obs": obs, "action": torch.zeros(64, 3), "reward": torch.zeros(64, 3),
+             "done": torch.zeros(64), "mask": torch.ones(64, 3, dtype=torch.bool)}
+
+    def mean_adjustment(agent: Agent) -> float:
+        with torch.no_grad():
+            return float(agent._act(agent.actor, obs, None).abs().mean())
+
+    sizes = {}
+    for weight in (0.0, 100.0):
+        torch.manual_seed(0)
+        agent = Agent(AgentConfig(algo="ca-td3", n_vehicles=3, adj_l2=weight, actor_lr=1e-3,
+                                  critic_lr=0.0))
+        for _ in range(60):
+            agent.update(batch)
+        sizes[weight] = mean_adjustment(agent)
+    assert sizes[100.0] < 0.5 * sizes[0.0]
+    assert TrainConfig(adj_l2=2.0).agent_config().adj_l2 == 2.0
+
+
 def test_killed_run_resumes_from_checkpoint(tmp_path):
     data = tmp_path / "events.csv"
     event_table([cruise_event(150, 12.0, 20.0)]).to_csv(data, index=False)
