@@ -8,11 +8,13 @@ first K events of a split, 10 followers, recorded start, and prints the suite's 
   u_in = (1 - BETA)·u_{i-1} + BETA·a_lead (0: the law);
 - ``gap-ramp TC``: joining; each follower's spacing reference starts at its recorded gap and
   reaches s0 + h·v with time constant TC s (a gap-closing manoeuvre).
+- ``ff-gain K``: every follower feeds forward K times what it hears (K = 1: the law).
 
 Usage (from the repository root, the NGSIM data beside it):
     python benchmarks/ploeg_variants.py train 150 ploeg-tuned:h=0.8 head-filter 0,0.3,1,-1
     python benchmarks/ploeg_variants.py train 150 ploeg-tuned:h=0.8 multi-hop 0,0.3,0.6,1
     python benchmarks/ploeg_variants.py train 150 ploeg-tuned:h=0.8 gap-ramp 3,10,30
+    python benchmarks/ploeg_variants.py train 150 ploeg-tuned:h=0.8 ff-gain 0.5,0.7,0.85
 """
 import sys
 
@@ -63,6 +65,8 @@ class Variant(PloegController):
             u_in = u_pred
             if self.variant == "multi-hop" and i > 0:
                 u_in = (1 - self.value) * u_pred + self.value * u_lead
+            if self.variant == "ff-gain":
+                u_in = self.value * u_in
             u_old = u[i]
             u[i] = min(u_old + (DT_S / p.time_gap_s) * (-u_old + p.kp * e + p.kd * e_dot + u_in),
                        CRUISE_GAIN_PER_S * (IDM.desired_speed_mps - obs[i, 0]))
