@@ -31,7 +31,7 @@ def _add_reward_options(p: argparse.ArgumentParser) -> None:
 
 def check_train_args(args: argparse.Namespace) -> Path:
     """InputError for any bad ``train`` option (before anything runs); the policy file path."""
-    from carl_sumo.agents import ALGOS
+    from carl_sumo.agents import ALGOS, AgentConfig
 
     if args.algo not in ALGOS:
         raise InputError(f"unknown algorithm {args.algo!r}; choose one of {', '.join(ALGOS)}")
@@ -52,20 +52,16 @@ def check_train_args(args: argparse.Namespace) -> Path:
         raise InputError(f"--tau is the target networks' soft-update rate per update, in (0, 1], "
                          f"got {args.tau}")
     if args.scale_rates:
-        from carl_sumo.agents import AgentConfig
-
         every = args.update_every or 1
+        scaled_tau = every * (args.tau or AgentConfig.tau)
         if every == 1:
             raise InputError("--scale-rates multiplies the rates by --update-every K; give "
                              "--update-every 2 or more, or leave --scale-rates out")
-        if every * (args.tau or AgentConfig.tau) > 1:
-            raise InputError(f"--scale-rates: --tau times --update-every is "
-                             f"{every * (args.tau or AgentConfig.tau):g}, above 1; give a "
-                             f"smaller --tau or --update-every")
+        if scaled_tau > 1:
+            raise InputError(f"--scale-rates: --tau times --update-every is {scaled_tau:g}, "
+                             "above 1; give a smaller --tau or --update-every")
     warmup_from(args)
     if args.comm_fallback is not None:  # AgentConfig says what is wrong, before any run
-        from carl_sumo.agents import AgentConfig
-
         AgentConfig(algo=args.algo, comm_fallback=args.comm_fallback)
     if args.randomize_sensors is False and not args.comm_randomize:
         raise InputError("--no-sensor-randomize narrows --comm-randomize; give both, or neither")
@@ -227,14 +223,15 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
                         "file's `source` column), e.g. the one most like the test set")
 
 
-TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_scale", "message_dim",
-                   "hidden", "actor_lr", "critic_lr", "tau", "noise", "noise_correlation", "smooth_jerk",
-                   "smooth_accel", "adj_l2", "eval_events", "val_seed", "val_source", "gamma",
-                   "adj_max", "base", "critic_burn_in", "braking_events", "update_every",
-                   "scale_rates", "lr_decay", "batch_size", "imitate", "imitate_updates", "init", "observe_ahead",
-                   "shield_ttc", "comm_fallback", "comm_randomize", "randomize_sensors",
-                   "val_impaired", "comm_delay", "comm_loss", "comm_burst", "comm_timeout",
-                   "comm_fade", "warmup", "sensor_noise", "sensor_filter", "impairment_seed")
+TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_scale",
+                   "message_dim", "hidden", "actor_lr", "critic_lr", "tau", "noise",
+                   "noise_correlation", "smooth_jerk", "smooth_accel", "adj_l2", "eval_events",
+                   "val_seed", "val_source", "gamma", "adj_max", "base", "critic_burn_in",
+                   "braking_events", "update_every", "scale_rates", "lr_decay", "batch_size",
+                   "imitate", "imitate_updates", "init", "observe_ahead", "shield_ttc",
+                   "comm_fallback", "comm_randomize", "randomize_sensors", "val_impaired",
+                   "comm_delay", "comm_loss", "comm_burst", "comm_timeout", "comm_fade", "warmup",
+                   "sensor_noise", "sensor_filter", "impairment_seed")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 
