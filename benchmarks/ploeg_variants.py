@@ -6,14 +6,18 @@ first K events of a split, 10 followers, recorded start, and prints the suite's 
   filter of time constant TAU s (0: as the law, the raw acceleration; -1: none, an ACC head);
 - ``multi-hop BETA``: every follower also hears the leader's acceleration, broadcast:
   u_in = (1 - BETA)·u_{i-1} + BETA·a_lead (0: the law);
-- ``gap-ramp TC``: joining; each follower's spacing reference starts at its recorded gap and
-  reaches s0 + h·v with time constant TC s (a gap-closing manoeuvre).
+- ``gap-ramp TC [P]``: joining; each follower's spacing reference starts at its recorded gap and
+  reaches s0 + h·v with time constant TC·i^P s for the i-th follower (a gap-closing manoeuvre;
+  P = 0, the default: the same for all; P > 0: slower down the chain).
+- ``gap-smooth T [P]``: the same joining along a smooth (quintic, rest-to-rest) path that ends
+  after T·i^P s; only a gap above the reference is closed slowly.
 - ``ff-gain K``: every follower feeds forward K times what it hears (K = 1: the law).
 
 Usage (from the repository root, the NGSIM data beside it):
     python benchmarks/ploeg_variants.py train 150 ploeg-tuned:h=0.8 head-filter 0,0.3,1,-1
     python benchmarks/ploeg_variants.py train 150 ploeg-tuned:h=0.8 multi-hop 0,0.3,0.6,1
     python benchmarks/ploeg_variants.py train 150 ploeg-tuned:h=0.8 gap-ramp 3,10,30
+    python benchmarks/ploeg_variants.py train 150 ploeg-tuned:h=0.8 gap-ramp 1,2,3 0.667
     python benchmarks/ploeg_variants.py train 150 ploeg-tuned:h=0.8 ff-gain 0.5,0.7,0.85
 """
 import sys
@@ -35,13 +39,13 @@ KEYS = ("headway_s", "jerk_mps3", "speed_mps", "dampening_ratio", "worst_success
 class Variant(PloegController):
     """The Ploeg law (carl_sumo.cacc) with one of the variants above, in plain Python."""
 
-    def __init__(self, params, variant: str, value: float):
+    def __init__(self, params, variant: str, value: float, exponent: float = 0.0):
         super().__init__(params)
-        self.variant, self.value = variant, value
+        self.variant, self.value, self.exponent = variant, value, exponent
 
     def reset(self, n: int) -> None:
         super().reset(n)
-        self.lead_filtered, self.offset = 0.0, None
+        self.lead_filtered, self.offset, self.t = 0.0, None, 0.0
 
     def step(self, obs, u, u_lead, adjustment=None, pred_mode=None, pred_held=None):
         p, b = self.params, self.bounds
@@ -56,7 +60,14 @@ class Variant(PloegController):
             if self.offset is None:  # the recorded gap's spacing error, decaying
                 self.offset = gaps - p.standstill_gap_m - p.time_gap_s * obs[:, 0]
             gaps -= self.offset
-            self.offset = self.offset * np.exp(-DT_S / self.value)
+            time_constants = self.value * np.arange(1, len(gaps) + 1) ** self.exponent
+            self.offset = self.offset * np.exp(-DT_S / time_constants)
+        if self.variant == "gap-smooth":
+            if self.offset is None:  # closing only: a gap below the reference opens at once
+                self.offset = np.maximum(gaps - p.standstill_gap_m - p.time_gap_s * obs[:, 0], 0)
+            x = np.minimum(self.t / (self.value * np.arange(1, len(gaps) + 1) ** self.exponent), 1)
+            gaps -= self.offset * (1 - x ** 3 * (10 - 15 * x + 6 * x ** 2))
+            self.t += DT_S
         out = np.empty(len(u))
         u_pred = head_in
         for i in range(len(u)):
@@ -77,10 +88,11 @@ class Variant(PloegController):
 
 if __name__ == "__main__":
     split, n_events, name, variant, values = sys.argv[1:6]
+    exponent = float(sys.argv[6]) if len(sys.argv) > 6 else 0.0
     events = load_events(DATA, split)[:int(n_events)]
     sim = cached_sim(DEFAULT_NET, "external")
     for value in (float(v) for v in values.split(",")):
-        controller = Variant(parse_ploeg(name), variant, value)
+        controller = Variant(parse_ploeg(name), variant, value, exponent)
         m = aggregate([score_event(run_event(sim, e, 10, controller)) for e in events])
-        print(f"{name} {variant}={value:g}: " + "  ".join(f"{k} {m[k]:.4f}" for k in KEYS),
+        print(f"{name} {variant}={value:g} P={exponent:g}: " + "  ".join(f"{k} {m[k]:.4f}" for k in KEYS),
               flush=True)
