@@ -1,6 +1,6 @@
 """Three variants of the Ploeg CACC's information, measured beside the law itself (issue 21: where
 could a learned adjustment find comfort that the tuned law leaves?). Each runs in SUMO on the
-first K events of a split, 10 followers, recorded start, and prints the suite's metrics.
+first K events of a split (or the stop-and-go leader: split ``stop-and-go``), 10 followers, recorded start, and prints the suite's metrics.
 
 - ``head-filter TAU``: the first follower hears the leader's acceleration through a first-order
   filter of time constant TAU s (0: as the law, the raw acceleration; -1: none, an ACC head);
@@ -89,7 +89,8 @@ class Variant(PloegController):
 if __name__ == "__main__":
     split, n_events, name, variant, values = sys.argv[1:6]
     exponent = float(sys.argv[6]) if len(sys.argv) > 6 else 0.0
-    events = load_events(DATA, split)[:int(n_events)]
+    events = (load_events("stop-and-go") if split == "stop-and-go"  # the Table 3 leader
+              else load_events(DATA, split))[:int(n_events)]
     sim = cached_sim(DEFAULT_NET, "external")
     for value in (float(v) for v in values.split(",")):
         controller = Variant(parse_ploeg(name), variant, value, exponent)
