@@ -1,6 +1,7 @@
-"""Three variants of the Ploeg CACC's information, measured beside the law itself (issue 21: where
-could a learned adjustment find comfort that the tuned law leaves?). Each runs in SUMO on the
-first K events of a split (or the stop-and-go leader: split ``stop-and-go``), 10 followers, recorded start, and prints the suite's metrics.
+"""Variants of the Ploeg CACC's information and spacing, measured beside the law itself (issue 21:
+where could a learned adjustment find comfort that the tuned law leaves?). Each runs in SUMO on the
+first K events of a split (or the stop-and-go leader: split ``stop-and-go``), 10 followers,
+recorded start, and prints the suite's metrics.
 
 - ``head-filter TAU``: the first follower hears the leader's acceleration through a first-order
   filter of time constant TAU s (0: as the law, the raw acceleration; -1: none, an ACC head);
@@ -47,6 +48,20 @@ class Variant(PloegController):
         super().reset(n)
         self.lead_filtered, self.offset, self.t = 0.0, None, 0.0
 
+    def _joining(self, error):
+        """The part of the first step's spacing error (m, per follower) that the spacing
+        reference still holds this step: decaying with TC·i^P (gap-ramp), or closed along a
+        quintic path of T·i^P s, a gap below the reference opening at once (gap-smooth)."""
+        times = self.value * np.arange(1, len(error) + 1) ** self.exponent  # s
+        if self.offset is None:
+            self.offset = error if self.variant == "gap-ramp" else np.maximum(error, 0)
+        if self.variant == "gap-ramp":
+            held, self.offset = self.offset, self.offset * np.exp(-DT_S / times)
+            return held
+        x = np.minimum(self.t / times, 1)
+        self.t += DT_S
+        return self.offset * (1 - x ** 3 * (10 - 15 * x + 6 * x ** 2))
+
     def step(self, obs, u, u_lead, adjustment=None, pred_mode=None, pred_held=None):
         p, b = self.params, self.bounds
         head_in = u_lead
@@ -56,18 +71,8 @@ class Variant(PloegController):
             self.lead_filtered += (DT_S / self.value) * (u_lead - self.lead_filtered)
             head_in = self.lead_filtered
         gaps = obs[:, 2].copy()
-        if self.variant == "gap-ramp":
-            if self.offset is None:  # the recorded gap's spacing error, decaying
-                self.offset = gaps - p.standstill_gap_m - p.time_gap_s * obs[:, 0]
-            gaps -= self.offset
-            time_constants = self.value * np.arange(1, len(gaps) + 1) ** self.exponent
-            self.offset = self.offset * np.exp(-DT_S / time_constants)
-        if self.variant == "gap-smooth":
-            if self.offset is None:  # closing only: a gap below the reference opens at once
-                self.offset = np.maximum(gaps - p.standstill_gap_m - p.time_gap_s * obs[:, 0], 0)
-            x = np.minimum(self.t / (self.value * np.arange(1, len(gaps) + 1) ** self.exponent), 1)
-            gaps -= self.offset * (1 - x ** 3 * (10 - 15 * x + 6 * x ** 2))
-            self.t += DT_S
+        if self.variant in ("gap-ramp", "gap-smooth"):
+            gaps -= self._joining(gaps - p.standstill_gap_m - p.time_gap_s * obs[:, 0])
         out = np.empty(len(u))
         u_pred = head_in
         for i in range(len(u)):
@@ -95,5 +100,5 @@ if __name__ == "__main__":
     for value in (float(v) for v in values.split(",")):
         controller = Variant(parse_ploeg(name), variant, value, exponent)
         m = aggregate([score_event(run_event(sim, e, 10, controller)) for e in events])
-        print(f"{name} {variant}={value:g} P={exponent:g}: " + "  ".join(f"{k} {m[k]:.4f}" for k in KEYS),
-              flush=True)
+        print(f"{name} {variant}={value:g} P={exponent:g}: "
+              + "  ".join(f"{k} {m[k]:.4f}" for k in KEYS), flush=True)

@@ -8,11 +8,12 @@ and sensor noise, raw and filtered by the followers' trackers (:mod:`carl_sumo.s
 (computed in carl-sumo, ``idm-external``) sends no messages, so it runs only where its sensors
 change: the perfect setting and the noisy ones. The paper configuration's nominal and robust
 CA-TD3 (:data:`SEED_POLICIES`) run with their training seeds 0-4 (one recipe each): their cells
-are seed means with a 95 % t interval over seeds. Every other cell is one file's aggregate over events with a 95 % bootstrap interval over
-events (:func:`carl_sumo.metrics.bootstrap_ci`). Draws use impairment seed 0. Files that compute
-the same policy (:func:`carl_sumo.policy.policy_fingerprint`: the same configuration and actor
-weights, e.g. robust seeds whose validation kept their warm start; at the settings with a perfect
-channel, whatever they do on hearing no neighbour) run once per setting.
+are seed means with a 95 % t interval over seeds. Every other cell is one file's aggregate over
+events with a 95 % bootstrap interval over events (:func:`carl_sumo.metrics.bootstrap_ci`).
+Draws use impairment seed 0. Files that compute the same policy
+(:func:`carl_sumo.policy.policy_fingerprint`: the same configuration and actor weights, e.g.
+robust seeds whose validation kept their warm start; at the settings with a perfect channel,
+whatever they do on hearing no neighbour) run once per setting.
 
 Writes ``robustness.md`` (with the targets of the robust policy checked), ``robustness.csv``,
 ``robustness_seeds.csv`` (every seed's run) and two figures (each metric against loss and against

@@ -81,7 +81,7 @@ class TrainConfig:
     hidden: int = AgentConfig.hidden                      # hidden layer width
     actor_lr: float = AgentConfig.actor_lr
     critic_lr: float = AgentConfig.critic_lr
-    tau: float = AgentConfig.tau                          # target networks' soft-update rate per update
+    tau: float = AgentConfig.tau                          # targets' soft-update rate per update
     select: str = "margin"         # how the best checkpoint is chosen: see selection_score
     noise: float = AgentConfig.exploration_noise          # exploration std (fraction of adj_max)
     noise_correlation: float = AgentConfig.noise_correlation
