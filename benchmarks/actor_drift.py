@@ -15,8 +15,8 @@ import sys
 
 import numpy as np
 
-from carl_sumo.policy import load_policy, load_torch
-from carl_sumo.replay import ReplayBuffer
+from carl_sumo.learn.policy import load_policy, load_torch
+from carl_sumo.learn.replay_buffer import ReplayBuffer
 
 COLUMNS = (("v", 0.1), ("a", 0.1), ("d", 0.5), ("dv", 0.1), ("a_base", 0.1))  # name, step
 

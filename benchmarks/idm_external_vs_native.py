@@ -12,10 +12,10 @@ import argparse
 
 import numpy as np
 
-from carl_sumo.controllers import ZeroAdjustment
+from carl_sumo.control.controllers import ZeroAdjustment
 from carl_sumo.data import load_events
-from carl_sumo.simulate import run_event
-from carl_sumo.sumo import DEFAULT_NET, PlatoonSim
+from carl_sumo.experiments.simulate import run_event
+from carl_sumo.sim.sumo import DEFAULT_NET, PlatoonSim
 
 
 def leader_replay_error(sim: PlatoonSim, event, n: int) -> tuple[float, float]:

@@ -1,6 +1,6 @@
 """Would the paper configuration follow closer and smoother if its adjustment entered through a
 filter? (issue 21). The best any actor could do on the IDM base is to copy a classical CACC:
-a_adj = a_Ploeg - a_IDM (``carl_sumo.imitation``, the head hearing nothing). Here that perfect
+a_adj = a_Ploeg - a_IDM (``carl_sumo.learn.imitation``, the head hearing nothing). Here that perfect
 teacher drives in SUMO with its adjustment applied at once (TAU = 0, the paper's action) or
 through a first-order filter of time constant TAU s, z += (dt/TAU)·(a_adj - z), a = a_IDM + z;
 10 followers, recorded start, the first K events of a split, beside IDM and the CACC itself.
@@ -13,14 +13,14 @@ import sys
 
 import numpy as np
 
-from carl_sumo.cacc import ploeg_controller
+from carl_sumo.control.cacc import ploeg_controller
 from carl_sumo.config import DT_S
-from carl_sumo.controllers import ZeroAdjustment, adjustment_bounds
+from carl_sumo.control.controllers import ZeroAdjustment, adjustment_bounds
 from carl_sumo.data import load_events
-from carl_sumo.imitation import teacher_adjustment
-from carl_sumo.metrics import aggregate, score_event
-from carl_sumo.simulate import cached_sim, run_event
-from carl_sumo.sumo import DEFAULT_NET
+from carl_sumo.learn.imitation import teacher_adjustment
+from carl_sumo.sim.metrics import aggregate, score_event
+from carl_sumo.experiments.simulate import cached_sim, run_event
+from carl_sumo.sim.sumo import DEFAULT_NET
 
 DATA = "../shared/data/ngsim/ngsim_cf_events.csv.gz"
 KEYS = ("headway_s", "jerk_mps3", "speed_mps", "dampening_ratio", "worst_successive_ratio",

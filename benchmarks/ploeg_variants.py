@@ -25,12 +25,12 @@ import sys
 
 import numpy as np
 
-from carl_sumo.cacc import CRUISE_GAIN_PER_S, PloegController, parse_ploeg
+from carl_sumo.control.cacc import CRUISE_GAIN_PER_S, PloegController, parse_ploeg
 from carl_sumo.config import DT_S, IDM
 from carl_sumo.data import load_events
-from carl_sumo.metrics import aggregate, score_event
-from carl_sumo.simulate import cached_sim, run_event
-from carl_sumo.sumo import DEFAULT_NET
+from carl_sumo.sim.metrics import aggregate, score_event
+from carl_sumo.experiments.simulate import cached_sim, run_event
+from carl_sumo.sim.sumo import DEFAULT_NET
 
 DATA = "../shared/data/ngsim/ngsim_cf_events.csv.gz"
 KEYS = ("headway_s", "jerk_mps3", "speed_mps", "dampening_ratio", "worst_successive_ratio",
@@ -38,7 +38,7 @@ KEYS = ("headway_s", "jerk_mps3", "speed_mps", "dampening_ratio", "worst_success
 
 
 class Variant(PloegController):
-    """The Ploeg law (carl_sumo.cacc) with one of the variants above, in plain Python."""
+    """The Ploeg law (carl_sumo.control.cacc) with one of the variants above, in plain Python."""
 
     def __init__(self, params, variant: str, value: float, exponent: float = 0.0):
         super().__init__(params)

@@ -15,8 +15,8 @@ from typing import Callable
 import numpy as np
 import torch
 
-from carl_sumo.agents import Agent, AgentConfig
-from carl_sumo.inference import CompiledActor
+from carl_sumo.learn.agents import Agent, AgentConfig
+from carl_sumo.learn.inference import CompiledActor
 
 
 def us_per_call(act: Callable[[np.ndarray], np.ndarray], observations: list[np.ndarray]) -> float:

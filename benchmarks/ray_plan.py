@@ -40,8 +40,8 @@ def makespan(costs: list[float], slots: int) -> float:
 
 def suite_costs(timing: Path) -> list[float]:
     """Per-task cost (s) of the --all-seeds suite from a measured run's per-job seconds."""
-    from carl_sumo.evaluate import plan_tasks
-    from carl_sumo.suite import plan_suite
+    from carl_sumo.experiments.evaluate import plan_tasks
+    from carl_sumo.experiments.suite import plan_suite
 
     measured = {}
     for row in csv.DictReader(open(timing)):

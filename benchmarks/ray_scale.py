@@ -38,7 +38,7 @@ def run_cli(extra: list[str], out: Path, controllers: str = README_CONTROLLERS
             ) -> tuple[float, str]:
     """Wall time (s) of one ``simulate`` command in a fresh process, and its stderr."""
     start = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "carl_sumo.cli", *command(controllers),
+    proc = subprocess.run([sys.executable, "-m", "carl_sumo", *command(controllers),
                            "--json", str(out),
                            *extra], capture_output=True, text=True, timeout=900)
     wall = time.perf_counter() - start
@@ -65,10 +65,10 @@ def overhead(rounds: int, controllers: str) -> None:
 
 def tasks() -> None:
     """Per-task cost with warm workers, and the start-up of the pool and of Ray."""
-    from carl_sumo import cluster
+    from carl_sumo.scale import cluster
     from carl_sumo.data import load_events
-    from carl_sumo.simulate import _score_events
-    from carl_sumo.workers import run_parallel
+    from carl_sumo.experiments.simulate import _score_events
+    from carl_sumo.scale.workers import run_parallel
 
     events = load_events(DATA, "test")[:160]
     items = [("idm-external", events[i::8], 10, "networks/i80.net.xml") for i in range(8)]

@@ -11,7 +11,7 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from carl_sumo.study import StudyConfig, run_one
+from carl_sumo.study.run import StudyConfig, run_one
 
 
 def main() -> None:

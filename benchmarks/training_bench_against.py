@@ -1,4 +1,4 @@
-"""The training bench of this checkout's ``carl_sumo/bench.py`` run against whichever
+"""The training bench of this checkout's ``carl_sumo/experiments/bench.py`` run against whichever
 ``carl_sumo`` package Python imports, so an older commit is measured by the same harness:
 
     git worktree add /tmp/before <commit>
@@ -19,7 +19,7 @@ from pathlib import Path
 if __name__ == "__main__":  # the SUMO workers are spawned: they re-import this file
     import carl_sumo
 
-    harness = Path(__file__).resolve().parents[1] / "carl_sumo" / "bench.py"
+    harness = Path(__file__).resolve().parents[1] / "carl_sumo" / "experiments" / "bench.py"
     spec = importlib.util.spec_from_file_location("bench_harness", harness)
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)

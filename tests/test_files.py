@@ -26,7 +26,7 @@ def test_write_text_atomic_creates_folders_and_leaves_no_temporary(tmp_path):
 
 
 def test_every_writer_imports_the_file_helpers_from_files():
-    import carl_sumo.sumo as sumo
+    import carl_sumo.sim.sumo as sumo
 
     assert not HELPERS & set(vars(sumo)), "sumo.py still holds file helpers"
     for path in sorted(PACKAGE.rglob("*.py")):
@@ -42,10 +42,10 @@ def _must_not_run(*args, **kwargs):
     raise AssertionError("the long work started before the output path was checked")
 
 
-LONG_WORK = ("carl_sumo.simulate.simulate", "carl_sumo.simulate.replay",
-             "carl_sumo.evaluate.evaluate", "carl_sumo.train.train",
-             "carl_sumo.train.export_policy", "carl_sumo.tune.tune_ploeg",
-             "carl_sumo.study.run_study", "carl_sumo.network.build_network",
+LONG_WORK = ("carl_sumo.experiments.simulate.simulate", "carl_sumo.experiments.simulate.replay",
+             "carl_sumo.experiments.evaluate.evaluate", "carl_sumo.learn.train.train",
+             "carl_sumo.learn.train.export_policy", "carl_sumo.experiments.tune.tune_ploeg",
+             "carl_sumo.study.run.run_study", "carl_sumo.sim.network.build_network",
              "carl_sumo.data.default_set.make_default_set")
 
 BAD_OUTPUTS = {
@@ -97,7 +97,7 @@ def test_the_command_itself_exits_2_on_an_unwritable_json(tmp_path):
     import subprocess
     import sys
 
-    result = subprocess.run([sys.executable, "-m", "carl_sumo.cli", "simulate", "--json",
+    result = subprocess.run([sys.executable, "-m", "carl_sumo", "simulate", "--json",
                              "/proc/x/y.json"], capture_output=True, text=True, timeout=120)
     assert result.returncode == 2 and result.stdout == ""
     assert result.stderr.count("\n") == 1 and "cannot write --json /proc/x/y.json" in result.stderr

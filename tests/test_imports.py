@@ -1,5 +1,7 @@
-"""The package's layering: every module imports, and no chain of imports inside carl_sumo returns
-to where it started (imports inside functions and under TYPE_CHECKING count too)."""
+"""The package's layering: every module imports, subpackages import only downward (cli -> study ->
+experiments -> learn -> scale -> control -> sim -> data, config, errors, files), no chain of imports
+inside carl_sumo returns to where it started (imports inside functions and under TYPE_CHECKING count
+too), no module is over 500 lines and no function over 80; the old flat module paths still import."""
 
 from __future__ import annotations
 
@@ -45,7 +47,7 @@ def import_graph() -> dict[str, set[str]]:
                     for _ in range(node.level - 1):
                         package = package.rpartition(".")[0]
                     base = f"{package}.{base}".rstrip(".")
-                for alias in node.names:  # `from carl_sumo import figures` imports a module
+                for alias in node.names:  # `from carl_sumo.experiments import figures` imports a module
                     full = f"{base}.{alias.name}"
                     deps.add(full if full in mods else resolve(base))
         graph[name] = {d for d in deps if d is not None and d.startswith("carl_sumo")} - {name}
@@ -82,7 +84,7 @@ def test_every_module_imports(name):
 
 def test_the_import_graph_has_no_cycle():
     graph = import_graph()
-    assert "carl_sumo.figures" in graph["carl_sumo.evaluate"]  # the graph sees lazy imports
+    assert "carl_sumo.experiments.figures" in graph["carl_sumo.experiments.evaluate"]  # the graph sees lazy imports
     cycle = find_cycle(graph)
     assert cycle is None, "import cycle: " + " -> ".join(cycle)
 
@@ -90,3 +92,67 @@ def test_the_import_graph_has_no_cycle():
 def test_the_cycle_finder_finds_one():
     assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert find_cycle({"a": {"b"}, "b": set()}) is None
+
+
+#: the layers from the bottom: a module imports only from its own layer and the ones below
+LAYERS = ["", "sim", "control", "scale", "learn", "experiments", "study", "cli"]
+
+
+def layer(module: str) -> int:
+    """The rank of a module's layer: 0 for the root modules (config, errors, files) and data."""
+    sub = module.split(".")[1] if "." in module else ""
+    if sub == "__main__":
+        return LAYERS.index("cli")
+    return LAYERS.index(sub) if sub in LAYERS else 0
+
+
+def test_subpackages_import_only_downward():
+    upward = sorted(f"{a} -> {b}" for a, deps in import_graph().items() for b in deps
+                    if layer(b) > layer(a))
+    assert not upward, "imports against the layering: " + "; ".join(upward)
+
+
+def test_the_layer_check_sees_an_upward_import():
+    assert layer("carl_sumo.sim.sumo") < layer("carl_sumo.learn.train") < layer("carl_sumo.cli")
+    assert layer("carl_sumo.config") == layer("carl_sumo.data.events") == 0
+
+
+def test_every_subpackage_is_a_layer():
+    subs = {p.name for p in PACKAGE.iterdir() if (p / "__init__.py").is_file()} - {"data"}
+    assert subs == set(LAYERS) - {""}
+
+
+MAX_MODULE_LINES, MAX_FUNCTION_LINES = 500, 80
+
+
+def test_modules_and_functions_stay_short():
+    long = []
+    for name, path in modules().items():
+        text = path.read_text()
+        if len(text.splitlines()) > MAX_MODULE_LINES:
+            long.append(f"{name}: {len(text.splitlines())} lines")
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                size = node.end_lineno - node.lineno + 1
+                if size > MAX_FUNCTION_LINES:
+                    long.append(f"{name}.{node.name}: {size} lines")
+    assert not long, "too long: " + "; ".join(long)
+
+
+@pytest.mark.parametrize("old", sorted(carl_sumo.MOVED))
+def test_old_module_paths_import_the_moved_module(old):
+    moved = importlib.import_module(f"carl_sumo.{old}")
+    assert moved is importlib.import_module(f"carl_sumo.{carl_sumo.MOVED[old]}")
+    assert f"{old}.py" not in {p.name for p in PACKAGE.glob("*.py")}  # no second copy
+
+
+def test_the_public_api_of_the_docs_imports():
+    from carl_sumo.agents import Agent, AgentConfig  # noqa: F401
+    from carl_sumo.cacc import PloegController, ploeg_controller  # noqa: F401
+    from carl_sumo.cli import main  # noqa: F401
+    from carl_sumo.metrics import aggregate, score_event  # noqa: F401
+    from carl_sumo.policy import load_policy, load_torch  # noqa: F401
+    from carl_sumo.replay import ReplayBuffer  # noqa: F401
+    from carl_sumo.simulate import cached_sim, run_event, simulate  # noqa: F401
+    from carl_sumo.study import StudyConfig, run_one  # noqa: F401
+    from carl_sumo.sumo import DEFAULT_NET, PlatoonSim  # noqa: F401

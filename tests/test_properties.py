@@ -10,7 +10,7 @@ from carl_sumo.cli import main
 from carl_sumo.data import load_events
 from carl_sumo.data.events import REQUIRED_COLUMNS
 from carl_sumo.errors import InputError
-from carl_sumo.policy import load_policy
+from carl_sumo.learn.policy import load_policy
 
 from conftest import NET
 

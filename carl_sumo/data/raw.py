@@ -196,6 +196,21 @@ def _implausible(pairs: pd.DataFrame) -> np.ndarray:
             | (pairs["gap_m"].to_numpy(float) > MAX_GAP_M))
 
 
+def _follower_leader_pairs(traj: pd.DataFrame) -> pd.DataFrame:
+    """Every frame of a follower with its leader present in the same frame and lane and a bumper
+    gap ``gap_m`` > 0 m, ordered by follower and frame."""
+    cols = list(TRAJ_COLUMNS)
+    follower = traj.loc[traj["leader"] != 0, cols]
+    leader = traj[["vehicle", "frame", "pos_m", "speed_mps", "acc_mps2", "length_m", "lane"]]
+    leader = leader.rename(columns={"vehicle": "leader", "pos_m": "leader_pos_m",
+                                    "speed_mps": "leader_speed_mps", "acc_mps2": "leader_acc_mps2",
+                                    "length_m": "leader_length_m", "lane": "leader_lane"})
+    pairs = follower.merge(leader, on=["frame", "leader"], how="inner", validate="many_to_one")
+    pairs["gap_m"] = pairs["leader_pos_m"] - pairs["leader_length_m"] - pairs["pos_m"]
+    pairs = pairs[(pairs["leader_lane"] == pairs["lane"]) & (pairs["gap_m"] > 0)]
+    return pairs.sort_values(["vehicle", "frame"], kind="mergesort").reset_index(drop=True)
+
+
 def extract_events(traj: pd.DataFrame, source: str, site: str, period: str = "unknown",
                    id_prefix: str | None = None,
                    min_samples: int = MIN_EVENT_SAMPLES) -> pd.DataFrame:
@@ -216,16 +231,7 @@ def extract_events(traj: pd.DataFrame, source: str, site: str, period: str = "un
     if min_samples < 2:
         raise InputError(f"min_samples must be at least 2, got {min_samples}")
     prefix = source if id_prefix is None else id_prefix
-    cols = list(TRAJ_COLUMNS)
-    follower = traj.loc[traj["leader"] != 0, cols]
-    leader = traj[["vehicle", "frame", "pos_m", "speed_mps", "acc_mps2", "length_m", "lane"]]
-    leader = leader.rename(columns={"vehicle": "leader", "pos_m": "leader_pos_m",
-                                    "speed_mps": "leader_speed_mps", "acc_mps2": "leader_acc_mps2",
-                                    "length_m": "leader_length_m", "lane": "leader_lane"})
-    pairs = follower.merge(leader, on=["frame", "leader"], how="inner", validate="many_to_one")
-    pairs["gap_m"] = pairs["leader_pos_m"] - pairs["leader_length_m"] - pairs["pos_m"]
-    pairs = pairs[(pairs["leader_lane"] == pairs["lane"]) & (pairs["gap_m"] > 0)]
-    pairs = pairs.sort_values(["vehicle", "frame"], kind="mergesort").reset_index(drop=True)
+    pairs = _follower_leader_pairs(traj)
     if pairs.empty:
         return pd.DataFrame({c: pd.Series(dtype=object) for c in EVENT_COLUMNS})
 

@@ -1,0 +1,372 @@
+"""``carl-sumo`` commands that make and inspect policies: train, tune, export, policy-info, rank.
+
+Each subcommand's options are defined beside the command (``_<command>_parser`` above
+``cmd_<command>``); :mod:`carl_sumo.cli` assembles the parser.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+from pathlib import Path
+
+from carl_sumo.cli.common import (add_common, add_impairments, add_ray, add_warmup, check_ray,
+                                 fmt, impairments_from, positive, ray_session, warmup_from)
+from carl_sumo.errors import InputError
+from carl_sumo.files import check_output_file
+
+
+def _add_reward_options(p: argparse.ArgumentParser) -> None:
+    """The reward's weights (defaults: carl_sumo.config.REWARD)."""
+    p.add_argument("--w-gap", type=float, default=None, help="reward weight of the headway term")
+    p.add_argument("--w-safe", type=float, default=None, help="reward weight of the TTC term")
+    p.add_argument("--w-comfort", type=float, default=None, help="reward weight of the jerk term")
+    p.add_argument("--w-accel", type=float, default=None,
+                   help="weight of the optional control-effort term -w·a² (default 0: off)")
+    p.add_argument("--jerk-scale", type=float, default=None,
+                   help="jerk that normalises the comfort term (m/s³)")
+
+
+def check_train_args(args: argparse.Namespace) -> Path:
+    """InputError for any bad ``train`` option (before anything runs); the policy file path."""
+    from carl_sumo.learn.agents import ALGOS, AgentConfig
+
+    if args.algo not in ALGOS:
+        raise InputError(f"unknown algorithm {args.algo!r}; choose one of {', '.join(ALGOS)}")
+    for name in ("vehicles", "steps", "envs", "eval_every", "checkpoint_every"):
+        positive(getattr(args, name), "--" + name.replace("_", "-"))
+    for name in ("update_every", "batch_size", "imitate_updates"):
+        if getattr(args, name) is not None:
+            positive(getattr(args, name), "--" + name.replace("_", "-"))
+    if args.base is not None:
+        from carl_sumo.control.controllers import check_base
+
+        check_base(args.base)
+    if args.shield_ttc is not None and not (math.isfinite(args.shield_ttc)
+                                            and args.shield_ttc >= 0):
+        raise InputError(f"--shield-ttc must be a time to collision of 0 s or more (0: off), "
+                         f"got {args.shield_ttc}")
+    if args.tau is not None and not (math.isfinite(args.tau) and 0 < args.tau <= 1):
+        raise InputError(f"--tau is the target networks' soft-update rate per update, in (0, 1], "
+                         f"got {args.tau}")
+    if args.scale_rates:
+        every = args.update_every or 1
+        scaled_tau = every * (args.tau or AgentConfig.tau)
+        if every == 1:
+            raise InputError("--scale-rates multiplies the rates by --update-every K; give "
+                             "--update-every 2 or more, or leave --scale-rates out")
+        if scaled_tau > 1:
+            raise InputError(f"--scale-rates: --tau times --update-every is {scaled_tau:g}, "
+                             "above 1; give a smaller --tau or --update-every")
+    warmup_from(args)
+    if args.comm_fallback is not None:  # AgentConfig says what is wrong, before any run
+        AgentConfig(algo=args.algo, comm_fallback=args.comm_fallback)
+    if args.randomize_sensors is False and not args.comm_randomize:
+        raise InputError("--no-sensor-randomize narrows --comm-randomize; give both, or neither")
+    if impairments_from(args) is not None and args.comm_randomize:
+        raise InputError("--comm-randomize draws every episode's impairments itself; give it or "
+                         "fixed --comm-*/--sensor-noise options, not both")
+    if args.init is not None:
+        if args.resume is not None or args.imitate is not None:
+            raise InputError("--init starts a new run from a policy; --resume continues a run "
+                             "and --imitate starts from a teacher: give one of them")
+        from carl_sumo.learn.policy import read_policy_payload
+
+        read_policy_payload(args.init)
+    if args.imitate is not None:
+        from carl_sumo.learn.imitation import teacher
+
+        teacher(args.imitate)
+        if args.base not in (None, "idm"):
+            raise InputError("--imitate warm-starts the paper's IDM-based adjustment; a run on "
+                             "a classical --base starts on that base already: leave one out")
+    return check_output_file(args.out or Path("policies") / f"{args.algo.replace('-', '_')}.pt",
+                             "--out")
+
+
+def train_config(args: argparse.Namespace, out: Path, command: str):
+    """The :class:`carl_sumo.learn.train.TrainConfig` of parsed ``train`` options."""
+    from carl_sumo.learn.train import TrainConfig
+
+    return TrainConfig(algo=args.algo, n_vehicles=args.vehicles, steps=args.steps, seed=args.seed,
+                      num_envs=args.envs, learning_starts=args.learning_starts,
+                      eval_every=args.eval_every, checkpoint_every=args.checkpoint_every,
+                      net=args.net, data=args.data, split=args.split, out=str(out),
+                      command=command,
+                      **{k: getattr(args, k) for k in TRAIN_OVERRIDES if getattr(args, k) is not None})
+
+
+def _add_robust_training_options(p: argparse.ArgumentParser) -> None:
+    """Training for impaired V2V and sensors (carl_sumo.learn.randomize): fixed impairments in every
+    episode (the --comm-* options of simulate), or randomised ones."""
+    add_impairments(p)
+    p.add_argument("--comm-randomize", action="store_true", default=None,
+                   help="robust training: every episode draws its own V2V delay (0-0.5 s), loss "
+                        "(0-100 %%, in bursts half the time) and sensor noise (half the time), "
+                        "a quarter of them perfect; the actor learns on the messages as they "
+                        "arrive (see docs/robustness.md)")
+    p.add_argument("--no-sensor-randomize", dest="randomize_sensors", action="store_false",
+                   default=None,
+                   help="with --comm-randomize: randomise the V2V channel only, clean sensors "
+                        "in every episode (the same channel draws)")
+    p.add_argument("--val-impaired", action="store_true", default=None,
+                   help="validate every event also with 30 %% loss in bursts of 3 steps, 0.2 s "
+                        "delay and sensor noise (clean sensors with --no-sensor-randomize; with "
+                        "fixed --comm-* options: under those), and keep the checkpoint that is "
+                        "best over both")
+    p.add_argument("--comm-fallback", default=None, metavar="{boundary,base}",
+                   help="what a CA vehicle does at run time when it hears no neighbour past "
+                        "--comm-timeout: boundary (default: it acts as a chain end) or base (it "
+                        "also drops its adjustment, fading out with the messages, and drives on "
+                        "its base, as Ploeg's CACC drops to ACC); part of the policy file")
+
+
+def _add_learning_options(p: argparse.ArgumentParser) -> None:
+    """The networks, the optimisers and their update schedule, and the exploration."""
+    p.add_argument("--update-every", type=int, default=None, metavar="K",
+                   help="one round of updates every K steps instead of every step (default 1); "
+                        "give --scale-rates too to learn as much per env step")
+    p.add_argument("--scale-rates", action="store_true", default=None,
+                   help="with --update-every K: multiply --actor-lr, --critic-lr and --tau by "
+                        "K, so the networks move as far per env step as with an update every "
+                        "step (with K = 3: the same learning, measured, at a third of the "
+                        "updates; docs/bench.md)")
+    p.add_argument("--batch-size", type=int, default=None,
+                   help="transitions per gradient update (default 128)")
+    p.add_argument("--lr-decay", action="store_true", default=None,
+                   help="the learning rates fall linearly from their values at "
+                        "--learning-starts to 0 at --steps (default: constant)")
+    p.add_argument("--message-dim", type=int, default=None, help="V2V message width (CA models)")
+    p.add_argument("--hidden", type=int, default=None, help="hidden layer width")
+    p.add_argument("--actor-lr", type=float, default=None, help="actor learning rate")
+    p.add_argument("--critic-lr", type=float, default=None, help="critic learning rate")
+    p.add_argument("--tau", type=float, default=None,
+                   help="soft-update rate of the target networks per update (default 0.005)")
+    p.add_argument("--noise", type=float, default=None,
+                   help="exploration noise std as a fraction of the a_adj bound")
+    p.add_argument("--noise-correlation", type=float, default=None,
+                   help="AR(1) coefficient of the exploration noise per step (0 = white)")
+    p.add_argument("--gamma", type=float, default=None, help="discount per 0.1 s step (0.98)")
+    p.add_argument("--adj-max", type=float, default=None,
+                   help="bound of the learned adjustment |a_adj| (m/s², default 3)")
+    p.add_argument("--smooth-jerk", type=float, default=None,
+                   help="actor loss weight on the policy's jerk, per (m/s³)² (default 0)")
+    p.add_argument("--smooth-accel", type=float, default=None,
+                   help="actor loss weight on the policy's acceleration, per (m/s²)² (default 0)")
+    p.add_argument("--adj-l2", type=float, default=None,
+                   help="actor loss weight on the adjustment itself, W·a_adj² per (m/s²)²: keeps "
+                        "the learned term near its base (default 0)")
+
+
+def _train_parser(sub: argparse._SubParsersAction) -> None:
+    # train options
+    p = sub.add_parser("train", help="train a CA-RL (or baseline) agent inside SUMO")
+    add_common(p, split_default="train")
+    p.add_argument("--algo", default="ca-td3", help="ca-td3 | ca-ddpg | td3 | ddpg | maddpg")
+    p.add_argument("--steps", type=int, default=20_000, help="vector steps (all envs at once)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--envs", type=int, default=2, help="parallel SUMO worker processes")
+    add_ray(p, "the --envs SUMO environments (as Ray actors; the same steps)")
+    p.add_argument("--learning-starts", type=int, default=1_000)
+    p.add_argument("--eval-every", type=int, default=2_000)
+    p.add_argument("--checkpoint-every", type=int, default=5_000)
+    p.add_argument("--out", type=Path, default=None, help="policy file (default policies/ALGO.pt)")
+    p.add_argument("--resume", type=Path, default=None, help="checkpoint (.ckpt) to continue")
+    p.add_argument("--select", default=None, choices=("margin", "comfort", "metrics", "reward"),
+                   help="how the best validation checkpoint is kept: margin (default: the "
+                        "largest smallest z of the improvement over the base on jerk, dampening "
+                        "and speed), comfort (the same on jerk and dampening only, at most 5 %% "
+                        "above the base's headway), metrics (jerk and dampening relative to the "
+                        "base, speed at least the base's) or reward")
+    p.add_argument("--braking-events", type=int, default=None, metavar="N",
+                   help="add N synthetic hard-braking leaders (15-30 m/s, -3 to -6 m/s²) to the "
+                        "training events, a quarter of them to the validation events (default 0)")
+    p.add_argument("--critic-burn-in", type=int, default=None, metavar="STEPS",
+                   help="steps after --learning-starts that train the critics only, the actor "
+                        "staying as it is (residual policy learning's burn-in; default 0)")
+    p.add_argument("--observe-ahead", action="store_true", default=None,
+                   help="IDM base: each vehicle also observes the acceleration of the vehicle "
+                        "ahead over the last step, as its own radar measures it (what Ploeg's "
+                        "CACC feeds forward); the head's is the NGSIM leader's")
+    p.add_argument("--shield-ttc", type=float, default=None, metavar="S",
+                   help="safety shield: a follower closing in with a time to collision below S "
+                        "seconds gets no positive adjustment (the learned term may only brake "
+                        "more there); part of the policy, in training and wherever it runs "
+                        "(default 0: off)")
+    _add_robust_training_options(p)
+    add_warmup(p)
+    p.add_argument("--imitate", default=None, metavar="PLOEG",
+                   help="warm start (IDM base only): the platoons drive with this Ploeg CACC plus "
+                        "exploration noise for --learning-starts steps, then the actor is fitted "
+                        "to it before RL, e.g. ploeg:h=1.1:kp=2.278:kd=10.6313")
+    p.add_argument("--imitate-updates", type=int, default=None,
+                   help="behaviour-cloning gradient steps of --imitate (default 4000)")
+    p.add_argument("--init", default=None, metavar="POLICY.pt",
+                   help="warm start from a trained policy of the same configuration: its actor "
+                        "drives from the first step and is the first candidate, kept unless a "
+                        "trained checkpoint validates better; the critics start fresh (give "
+                        "--critic-burn-in)")
+    p.add_argument("--base", default=None,
+                   help="base model under the learned adjustment: idm (default, the paper's) or "
+                        "a classical CACC such as ploeg-tuned:h=0.8 (the actor starts at a_adj = 0)")
+    _add_reward_options(p)
+    _add_learning_options(p)
+    p.add_argument("--eval-events", type=int, default=None,
+                   help="held-out training events used for validation (default 8)")
+    p.add_argument("--val-seed", type=int, default=None,
+                   help="seed choosing the held-out events (default: --seed); give runs of "
+                        "several seeds one --val-seed to compare them on the same events")
+    p.add_argument("--val-source", default=None,
+                   help="hold the validation events out of this event source only (the data "
+                        "file's `source` column), e.g. the one most like the test set")
+
+
+TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_scale",
+                   "message_dim", "hidden", "actor_lr", "critic_lr", "tau", "noise",
+                   "noise_correlation", "smooth_jerk", "smooth_accel", "adj_l2", "eval_events",
+                   "val_seed", "val_source", "gamma", "adj_max", "base", "critic_burn_in",
+                   "braking_events", "update_every", "scale_rates", "lr_decay", "batch_size",
+                   "imitate", "imitate_updates", "init", "observe_ahead", "shield_ttc",
+                   "comm_fallback", "comm_randomize", "randomize_sensors", "val_impaired",
+                   "comm_delay", "comm_loss", "comm_burst", "comm_timeout", "comm_fade", "warmup",
+                   "sensor_noise", "sensor_filter", "impairment_seed")
+"""Training options that, when given, override the defaults of TrainConfig."""
+
+
+def cmd_train(args: argparse.Namespace) -> None:
+    from carl_sumo.data import load_events
+    from carl_sumo.learn.train import train
+
+    out = check_train_args(args)
+    check_ray(args)
+    events = load_events(args.data, args.split)
+    cfg = train_config(args, out, "carl-sumo " + " ".join(sys.argv[1:]))
+    with ray_session(args, args.envs):
+        if args.ray is not None:
+            from carl_sumo.scale.cluster import require_cpus
+
+            require_cpus(args.envs, "--envs")
+        result = train(cfg, events, resume=args.resume, progress=sys.stderr.isatty(),
+                       rollouts="processes" if args.ray is None else "ray")
+    val = result["validation"]
+    print(f"wrote {out} (best validation score {result['best_score']:.4f}); "
+          f"wall time {result['wall_time_s']:.0f} s; last validation: "
+          + ", ".join(f"{k}={fmt(v)}" for k, v in val.items()))
+
+
+def _tune_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("tune", help="tune a classical CACC's gains on the training events")
+    p.add_argument("controller", choices=("ploeg",), help="which controller (ploeg)")
+    add_common(p, split_default="train")
+    p.add_argument("--gaps", default="0.6,0.8,1.0,1.2", help="time gaps h to tune (s), commas")
+    p.add_argument("--kp", default="0.1,0.15,0.2,0.3,0.45,0.675,1.0125",
+                   help="starting grid of kp (1/s²)")
+    p.add_argument("--kd", default="0.5,0.7,1.0,1.4,2.1,3.15,4.725",
+                   help="starting grid of kd (1/s)")
+    p.add_argument("--reuse", type=Path, default=None,
+                   help="an earlier result file on the same events: its gains are not run again")
+    p.add_argument("--headway-tolerance", type=float, default=0.05,
+                   help="safe: mean headway at most this fraction above the textbook gains' "
+                        "(default 0.05)")
+    p.add_argument("--max-extensions", type=int, default=3,
+                   help="times the grid may grow beyond an edge where the best point lies")
+    p.add_argument("--events", type=int, default=None, metavar="K", help="only the first K events")
+    p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                   help="parallel SUMO processes")
+    p.add_argument("--out", type=Path, default=None,
+                   help="result file (default policies/ploeg_tuned.json)")
+
+
+def cmd_tune(args: argparse.Namespace) -> None:
+    from carl_sumo.control.cacc import TUNED_FILE
+    from carl_sumo.experiments.tune import TuneConfig, format_result, grid_figure, parse_values, tune_ploeg
+
+    positive(args.vehicles, "--vehicles")
+    positive(args.workers, "--workers")
+    if args.events is not None:
+        positive(args.events, "--events")
+    if args.max_extensions < 0:
+        raise InputError("--max-extensions must not be negative")
+    if not (math.isfinite(args.headway_tolerance) and args.headway_tolerance >= 0):
+        raise InputError(f"--headway-tolerance must be a non-negative fraction, got "
+                         f"{args.headway_tolerance}")
+    out = args.out or TUNED_FILE
+    check_output_file(out, "--out")
+    cfg = TuneConfig(gaps_s=parse_values(args.gaps, "--gaps"), kp=parse_values(args.kp, "--kp"),
+                     kd=parse_values(args.kd, "--kd"), n_followers=args.vehicles,
+                     headway_tolerance=args.headway_tolerance,
+                     max_extensions=args.max_extensions, data=args.data, split=args.split,
+                     net=str(args.net), workers=args.workers,
+                     command="carl-sumo " + " ".join(sys.argv[1:]))
+    from carl_sumo.sim.sumo import lane_route
+
+    lane_route(args.net)  # a missing or broken network fails before any worker starts
+    payload = tune_ploeg(cfg, Path(out), args.events, progress=sys.stderr.isatty(),
+                         log=lambda line: print(line, file=sys.stderr, flush=True),
+                         reuse=args.reuse)
+    figure = grid_figure(payload, Path(out).with_suffix(".png"))
+    print(format_result(payload))
+    print(f"wrote {out} and {figure}: {len(payload['grid'])} gains on {payload['events']} events "
+          f"of split {cfg.split}, {payload['wall_time_s']:.0f} s")
+
+
+def _export_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("export", help="write the current actor of a training checkpoint as a policy")
+    p.add_argument("checkpoint", type=Path)
+    p.add_argument("--out", type=Path, required=True)
+
+
+def cmd_export(args: argparse.Namespace) -> None:
+    from carl_sumo.learn.train import export_policy
+
+    check_output_file(args.out, "--out")
+    meta = export_policy(args.checkpoint, args.out)
+    print(f"wrote {args.out} ({meta['exported_from']})")
+
+
+def _policy_info_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("policy-info", help="print the Markdown card of policy files")
+    p.add_argument("paths", nargs="+", type=Path)
+    p.add_argument("--table", action="store_true",
+                   help="one Markdown table row per file (with its seed files in seeds/) "
+                        "instead of a card each")
+
+
+def cmd_policy_info(args: argparse.Namespace) -> None:
+    from carl_sumo.learn.policy import policy_card, policy_table
+
+    if args.table:
+        print(policy_table(args.paths))
+        return
+    cards = [policy_card(path) for path in args.paths]  # all checked before anything is printed
+    print("\n".join(cards))
+
+
+def _rank_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("rank", help="rank runs of one model (several seeds) by their stored "
+                       "validation score, best first")
+    p.add_argument("paths", nargs="+", type=Path, help="policy files of one algorithm")
+    p.add_argument("--select", default="margin", choices=("margin", "comfort", "metrics", "reward"),
+                   help="the rule of `train --select` (default margin)")
+    p.add_argument("--best-only", action="store_true",
+                   help="print only the path of the best run (for scripts)")
+
+
+def cmd_rank(args: argparse.Namespace) -> None:
+    from carl_sumo.learn.selection import rank_runs
+
+    rows = rank_runs(args.paths, args.select)
+    if args.best_only:
+        print(rows[0]["path"])
+        return
+    inputs = [k for k in rows[0] if k not in ("path", "seed", "score", "unsafe")]
+    print("| rank | file | seed | score | unsafe | " + " | ".join(inputs) + " |")
+    print("|---" * (5 + len(inputs)) + "|")
+    for i, r in enumerate(rows, 1):
+        print(f"| {i} | `{Path(r['path']).name}` | {r['seed']} | {r['score']:.3f} | "
+              f"{'yes' if r['unsafe'] else 'no'} | " + " | ".join(f"{r[k]:.3f}" for k in inputs)
+              + " |")
+    print(f"best: {rows[0]['path']}")
+

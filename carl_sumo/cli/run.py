@@ -1,0 +1,252 @@
+"""The commands that run controllers on events: ``simulate``, ``replay``, ``evaluate``, ``bench``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from carl_sumo.cli.common import (add_common, add_impairments, add_ray, add_warmup,
+                                   check_ray, fmt, impairments_from, positive, ray_session,
+                                   warmup_from, workers_for)
+from carl_sumo.errors import InputError
+from carl_sumo.files import check_output_dir, check_output_file, write_text_atomic
+
+if TYPE_CHECKING:
+    from carl_sumo.control.channel import Impairments
+
+
+
+def format_table(results: list[dict]) -> str:
+    from carl_sumo.sim.metrics import METRIC_KEYS
+
+    header = ["controller", "followers", "events", *METRIC_KEYS]
+    rows = [[r["controller"], str(r["followers"]), str(len(r["events"])),
+             *(fmt(r["metrics"][k]) for k in METRIC_KEYS)] for r in results]
+    widths = [max([len(h), *(len(row[i]) for row in rows)]) for i, h in enumerate(header)]
+    line = lambda cells: "  ".join(c.rjust(w) for c, w in zip(cells, widths))  # noqa: E731
+    return "\n".join([line(header), line(["-" * w for w in widths]), *map(line, rows)])
+
+
+def _simulate_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("simulate", help="run controllers on the events of a split; print metrics")
+    add_common(p)
+    p.add_argument("--controller", default="idm",
+                   help="idm | krauss | sumo-cacc | idm-external | ploeg[:h=H:kp=KP:kd=KD] | "
+                        "ploeg-tuned:h=H | human | POLICY.pt; several with commas")
+    p.add_argument("--events", type=int, default=None, metavar="K", help="only the first K events")
+    p.add_argument("--json", type=Path, default=None, metavar="OUT", help="write metrics as JSON")
+    p.add_argument("--workers", type=int, default=None,
+                   help="parallel SUMO processes (default: 2, or the number of cores if fewer; "
+                        "with --ray: the cluster's CPUs)")
+    add_ray(p)
+    add_impairments(p)
+    add_warmup(p)
+
+
+def cmd_simulate(args: argparse.Namespace) -> None:
+    from carl_sumo.data import load_events
+    from carl_sumo.experiments.simulate import check_impairable, resolve_controller, simulate
+
+    positive(args.vehicles, "--vehicles")
+    impairments = impairments_from(args)
+    warmup_s = warmup_from(args)
+    if args.json is not None:
+        check_output_file(args.json, "--json")
+    if args.events is not None:
+        positive(args.events, "--events")
+    names = [c.strip() for c in args.controller.split(",") if c.strip()]
+    if not names:
+        raise InputError(f"--controller {args.controller!r} names no controller; give one or "
+                         "more of idm, krauss, sumo-cacc, idm-external, ploeg, ploeg-tuned:h=H, "
+                         "human or a policy file, separated by commas")
+    for name in names:  # fail on a bad controller or platoon length before any simulation runs
+        _, controller = resolve_controller(name)
+        if controller is not None:
+            controller.reset(args.vehicles)
+        check_impairable(name, impairments)
+    if args.workers is not None:
+        positive(args.workers, "--workers")
+    check_ray(args)
+    events = [e.with_warmup(warmup_s) for e in load_events(args.data, args.split,
+                                                             limit=args.events)]
+    start = time.perf_counter()
+    with ray_session(args, args.workers or os.cpu_count()):
+        workers = workers_for(args, min(2, os.cpu_count() or 1))
+        results = [simulate(name, events, args.vehicles, args.net, progress=sys.stderr.isatty(),
+                            workers=workers, impairments=impairments) for name in names]
+    print(format_table(results))
+    print(f"{len(events)} events of split {args.split} of {args.data}, "
+          f"{time.perf_counter() - start:.1f} s")
+    if args.json is not None:
+        payload = {k: results[0][k] for k in ("metrics", "events", "controller", "followers")} \
+            if len(results) == 1 else {"controllers": {r["controller"]: r for r in results}}
+        write_text_atomic(args.json, json.dumps(payload, indent=2, allow_nan=True))
+
+
+def _replay_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("replay", help="run one event and write SUMO FCD output")
+    add_common(p, split_default="all")
+    p.add_argument("--controller", default="idm",
+                   help="idm | krauss | sumo-cacc | idm-external | ploeg[:h=H:kp=KP:kd=KD] | "
+                        "ploeg-tuned:h=H | POLICY.pt")
+    p.add_argument("--event", required=True, help="event ID (stop_and_go with --data stop-and-go)")
+    p.add_argument("--fcd", type=Path, required=True, help="FCD output file (.xml)")
+    p.add_argument("--gui", action="store_true",
+                   help="show the run in sumo-gui (needs a display; closes when you close it)")
+    add_impairments(p)
+    add_warmup(p)
+
+
+def cmd_replay(args: argparse.Namespace) -> None:
+    from carl_sumo.data import load_events
+    from carl_sumo.experiments.simulate import replay
+
+    from carl_sumo.sim.sumo import has_display, use_gui
+
+    positive(args.vehicles, "--vehicles")
+    impairments = impairments_from(args)
+    warmup_s = warmup_from(args)
+    check_output_file(args.fcd, "--fcd")
+    if args.gui and not has_display():
+        use_gui(True)  # raises the one-line "no display" error before anything runs
+    (event,) = load_events(args.data, args.split, event_ids=[args.event])
+    event = event.with_warmup(warmup_s)  # the FCD file has the warm-up, the metrics do not
+    metrics = replay(args.controller, event, args.vehicles, args.fcd, args.net, gui=args.gui,
+                     impairments=impairments)
+    print(f"wrote {args.fcd}: event {event.event_id}, {args.vehicles} followers, "
+          f"{event.duration_s:.1f} s" + (f" ({warmup_s:g} s of it warm-up, not scored)"
+                                         if warmup_s else "")
+          + f", controller {args.controller}")
+    print(", ".join(f"{k}={fmt(v)}" for k, v in metrics.items() if not k.startswith("n_")
+                    and k != "event_id"))
+
+
+def _evaluate_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("evaluate", help="the paper's tables and figures, written to --out")
+    p.add_argument("--suite", default="paper", choices=("paper", "robustness"),
+                   help="paper (the paper's tables and figures) or robustness (controllers under "
+                        "V2V delay and loss and sensor noise, docs/robustness.md)")
+    p.add_argument("--out", type=Path, default=Path("results"), help="output directory")
+    p.add_argument("--data", default=None,
+                   help="NGSIM event table (default: ../shared/data/ngsim/ngsim_cf_events.csv.gz;"
+                        " with --quick: the shipped default set)")
+    p.add_argument("--quick", action="store_true",
+                   help="a few events per table, 10 and 20 followers, one stop-and-go cycle")
+    p.add_argument("--events", type=int, default=None, metavar="K",
+                   help="only the first K events of each table (default: all; --quick: 2)")
+    p.add_argument("--policies", type=Path, default=None,
+                   help="directory of the policy files (default: policies/)")
+    p.add_argument("--net", default="networks/i80.net.xml", help="SUMO network (.net.xml)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="parallel SUMO processes (default: the number of cores; with --ray: the "
+                        "cluster's CPUs)")
+    add_ray(p)
+    add_impairments(p)
+    p.add_argument("--all-seeds", action="store_true",
+                   help="run every model's seed files in every table (slower)")
+    p.add_argument("--seeds", action="store_true",
+                   help="run the seed files of CA-TD3, CA-DDPG, TD3 and DDPG too, in Table 1 "
+                        "(and its 10-follower rows of Table 2), and compare them across seeds "
+                        "(default: the shipped policy files only)")
+    add_warmup(p)
+
+
+def cmd_evaluate(args: argparse.Namespace) -> None:
+    if args.workers is not None:
+        positive(args.workers, "--workers")
+    impairments = impairments_from(args)
+    if impairments is not None and args.suite == "robustness":
+        raise InputError("--suite robustness runs its own grid of impairments; leave out "
+                         "--comm-* and --sensor-noise, or run --suite paper with them")
+    if warmup_from(args) and args.suite == "robustness":
+        raise InputError("--warmup is for --suite paper; the robustness suite keeps its own "
+                         "protocol")
+    check_output_dir(args.out, "--out")
+    check_ray(args)
+    with ray_session(args, args.workers or os.cpu_count()):
+        _run_evaluate(args, workers_for(args, os.cpu_count() or 1), impairments)
+
+
+def _run_evaluate(args: argparse.Namespace, workers: int, impairments: Impairments | None
+                  ) -> None:
+    from carl_sumo.experiments.evaluate import evaluate
+
+    if args.suite == "robustness":
+        from carl_sumo.experiments.robustness import CONTROLLERS, run_robustness
+
+        policies = args.policies or Path("policies")
+        controllers = tuple(str(policies / Path(c).name) if c.endswith(".pt") else c
+                            for c in CONTROLLERS)
+        result = run_robustness(args.out, args.data, args.quick, args.events, args.net, workers,
+                                controllers, progress=sys.stderr.isatty(),
+                                command="carl-sumo " + " ".join(sys.argv[1:]))
+        print(f"wrote {args.out / 'robustness.md'}, robustness.csv ({len(result['rows'])} rows) "
+              f"and {len(result['figures'])} figures; wall time {result['wall_time_s']:.0f} s")
+        return
+    result = evaluate(args.suite, args.out, args.data, args.quick, args.events, args.policies,
+                      args.net, workers, progress=sys.stderr.isatty(),
+                      command="carl-sumo " + " ".join(sys.argv[1:]), all_seeds=args.all_seeds,
+                      seeds=args.seeds, impairments=impairments, warmup_s=args.warmup)
+    for key, rows in result["rows"].items():
+        print(f"wrote {args.out / (key + '.md')} and .csv ({len(rows)} rows)")
+    print(f"wrote {args.out / 'README.md'}, per_event.csv, timing.csv and "
+          f"{len(result['figures'])} figures; wall time {result['wall_time_s']:.0f} s "
+          f"({result['tasks']} tasks, {workers} workers)")
+
+
+def _bench_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("bench", help="env steps/s beside a bare libsumo loop")
+    p.add_argument("--net", default="networks/i80.net.xml")
+    p.add_argument("--sizes", default="10,20,100", help="platoon sizes, comma-separated")
+    p.add_argument("--steps", type=int, default=2000)
+    p.add_argument("--rounds", type=int, default=3)
+    p.add_argument("--training", action="store_true",
+                   help="measure training throughput (parallel workers, updates) instead")
+    p.add_argument("--algo", default="ca-td3", help="with --training: the algorithm")
+    p.add_argument("--vehicles", default="10,20",
+                   help="with --training: platoon lengths, comma-separated (default 10,20)")
+    p.add_argument("--envs", type=int, default=2, help="with --training: worker processes")
+    p.add_argument("--smooth-jerk", type=float, default=0.0,
+                   help="with --training: the actor smoothness terms of `train` (default 0), "
+                        "which add one actor pass per update")
+    p.add_argument("--smooth-accel", type=float, default=0.0, help="with --training: see above")
+    p.add_argument("--update-every", type=int, default=1, metavar="K",
+                   help="with --training: one update every K steps (default 1), as train's")
+    p.add_argument("--batch-size", type=int, default=128,
+                   help="with --training: transitions per update (default 128), as train's")
+
+
+def cmd_bench(args: argparse.Namespace) -> None:
+    from carl_sumo.experiments.bench import format_bench, format_training_bench, run_bench, run_training_bench
+
+    if args.training:
+        from carl_sumo.learn.agents import ALGOS
+
+        if args.algo not in ALGOS:
+            raise InputError(f"unknown algorithm {args.algo!r}; choose one of {', '.join(ALGOS)}")
+        try:
+            sizes = tuple(positive(int(s), "--vehicles") for s in args.vehicles.split(","))
+        except ValueError:
+            raise InputError(f"--vehicles must be integers separated by commas, got "
+                             f"{args.vehicles!r}")
+        rows = run_training_bench(args.algo, sizes, positive(args.envs, "--envs"),
+                                  positive(args.steps, "--steps"), args.net, args.smooth_jerk,
+                                  args.smooth_accel, positive(args.update_every, "--update-every"),
+                                  positive(args.batch_size, "--batch-size"))
+        print(format_training_bench(rows))
+        return
+
+    try:
+        sizes = tuple(positive(int(s), "--sizes") for s in args.sizes.split(","))
+    except ValueError:
+        raise InputError(f"--sizes must be integers separated by commas, got {args.sizes!r}")
+    rows = run_bench(sizes, positive(args.steps, "--steps"), positive(args.rounds, "--rounds"),
+                     args.net)
+    print(format_bench(rows))
+
+

@@ -1,0 +1,288 @@
+"""Classical CACC: Ploeg et al. (2011)'s controller, its names, and its tuned gains.
+
+Ploeg, Scheepers, van Nunen, van de Wouw & Nijmeijer (2011), *Design and experimental evaluation
+of cooperative adaptive cruise control*, IEEE ITSC. Each follower i keeps a controller state u_i
+(m/s², the desired acceleration it also sends to its follower over V2V) and, every step k of
+dt = 0.1 s, from its own sensors and its predecessor's message:
+
+- spacing error      e_i  = d_i - s0 - h·v_i                (m; d_i bumper gap, v_i speed)
+- its rate           ė_i  = (v_{i-1} - v_i) - h·a_i          (m/s; a_i: last step's acceleration)
+- controller state   u_i(k+1) = u_i(k) + (dt/h)·(-u_i(k) + kp·e_i + kd·ė_i + u_{i-1}(k))
+- applied            a_i  = clip(u_i(k+1), -9, 3)           (m/s², the CACC vehicle's bounds)
+
+Cruise control caps it, as CACC systems switch to CC when the road ahead is free (this matters
+only in the mixed-traffic study, where a vehicle may have no predecessor within sensing range;
+NGSIM I-80 leaders stay below 25 m/s, where the cap is above 3 m/s² and never binds):
+u_i(k+1) ≤ k_cc·(v0 - v_i) with v0 = 120 km/h (the IDM desired speed) and k_cc = 0.4 1/s (the
+magnitude of SUMO's CACC speed-control gain); the capped value is the state (no wind-up).
+
+u_{i-1}(k) is the predecessor's last state, as its V2V message carries it; the first follower
+receives the leader's acceleration over the last step instead (0 at the first step). u starts at 0.
+h is the time gap (s), s0 = 2 m the standstill gap, kp (1/s²) and kd (1/s) the feedback gains.
+The textbook gains are kp = 0.2, kd = 0.7 (Ploeg et al. 2011).
+
+As the base of a learned controller (``carl-sumo train --base ploeg-tuned:h=1``), a learned term
+a_adj,i (m/s²) enters the law as one more feed-forward input beside the predecessor's:
+u_i(k+1) = u_i(k) + (dt/h)·(-u_i(k) + kp·e_i + kd·ė_i + u_{i-1}(k) + a_adj,i). So it passes
+through the controller's own first-order filter (time constant h), is part of the state u_i the
+follower hears, and shifts the steady state by a_adj,i; an adjustment added after the law instead
+is undone by it (measured: a low-pass adjustment added after the law raises jerk).
+
+Names (accepted wherever a controller name is): ``ploeg`` (h = 1.0 s, textbook gains),
+``ploeg:h=0.8``, ``ploeg:h=0.8:kp=0.1:kd=1.5``, and ``ploeg-tuned:h=0.8`` (the gains
+``carl-sumo tune ploeg`` chose for that h, read from :data:`TUNED_FILE`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+
+from carl_sumo.control.channel import Channel, Impairments, KeyedChannel
+from carl_sumo.config import BOUNDS, DT_S, IDM, ControlBounds
+from carl_sumo.errors import InputError
+from carl_sumo.sim.sumo import REPO_ROOT
+
+TUNED_FILE = REPO_ROOT / "policies" / "ploeg_tuned.json"
+"""The tuned gains per time gap, written by ``carl-sumo tune ploeg``."""
+
+
+@dataclass(frozen=True)
+class PloegParams:
+    """Gains of the Ploeg CACC (units in the names)."""
+
+    time_gap_s: float = 1.0     # h: desired time gap (s)
+    kp: float = 0.2             # spacing-error gain (1/s²)
+    kd: float = 0.7             # spacing-error-rate gain (1/s)
+    standstill_gap_m: float = 2.0  # s0 (m)
+
+    def name(self) -> str:
+        """The controller name that runs these gains."""
+        return f"ploeg:h={self.time_gap_s:g}:kp={self.kp:g}:kd={self.kd:g}"
+
+
+TEXTBOOK = PloegParams()
+CRUISE_GAIN_PER_S = 0.4
+"""k_cc: cruise-control gain of the speed cap a ≤ k_cc·(v0 - v) (1/s)."""
+
+
+@njit(cache=True)
+def _ploeg_step(obs, u, u_lead, adj, h, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc,
+                pred_mode, pred_held):
+    """One step of every follower (head first): updates ``u`` in place, returns a (m/s²);
+    ``adj`` (m/s², shape (n,)) is the learned feed-forward term (zeros for the plain law).
+    ``pred_mode`` / ``pred_held`` (shape (n,)): how follower i > 0 hears its predecessor's
+    message (carl_sumo.control.channel: 0 this step's, 1 the held value, 2 none: no feed-forward)."""
+    n = obs.shape[0]
+    out = np.empty(n)
+    u_pred = u_lead
+    for i in range(n):
+        e = obs[i, 2] - s0 - h * obs[i, 0]
+        e_dot = obs[i, 3] - h * obs[i, 1]
+        u_in = u_pred
+        if i > 0 and pred_mode[i] == 1:
+            u_in = pred_held[i]
+        elif i > 0 and pred_mode[i] == 2:
+            u_in = 0.0
+        u_old = u[i]
+        u[i] = min(u_old + (dt / h) * (-u_old + kp * e + kd * e_dot + u_in + adj[i]),
+                   k_cc * (v0 - obs[i, 0]))
+        u_pred = u_old  # the message of vehicle i is its state at step k
+        out[i] = min(max(u[i], acc_min), acc_max)
+    return out
+
+
+class PloegController:
+    """The Ploeg CACC of a platoon: a full acceleration per follower, not an adjustment of IDM."""
+
+    def __init__(self, params: PloegParams = TEXTBOOK, name: str | None = None,
+                 bounds: ControlBounds = BOUNDS):
+        if not (params.time_gap_s > 0 and math.isfinite(params.time_gap_s)):
+            raise InputError(f"the Ploeg time gap h must be a positive number of seconds, "
+                             f"got {params.time_gap_s}")
+        self.params = params
+        self.name = name or params.name()
+        self.bounds = bounds
+        self.u = np.zeros(0)
+        self._leader_speed: float | None = None
+        self.channel: Channel | None = None
+        self._k = 0
+
+    def reset(self, n_followers: int) -> None:
+        self.u = np.zeros(n_followers)
+        self._leader_speed = None
+        self.channel, self._k = None, 0
+
+    def connect(self, impairments: Impairments, event_id: str) -> None:
+        """Carry this episode's predecessor messages over an impaired channel (one link per
+        follower, :mod:`carl_sumo.control.channel`, link stream 1 of the event). Call after
+        :meth:`reset`."""
+        self.channel = Channel(len(self.u), 1, impairments, impairments.rng(event_id, 1))
+        self._k = 0
+
+    def acceleration(self, obs: np.ndarray, adjustment: np.ndarray | None = None,
+                     commit: bool = True) -> np.ndarray:
+        """a (m/s², shape (n,)) from the observations [v, a, d, Δv] (shape (n, 4+), head first),
+        with a learned feed-forward ``adjustment`` (m/s², shape (n,)) in the law when given.
+        ``commit=False``: what the law would apply, the state left as it is (a preview)."""
+        leader_speed = float(obs[0, 0] + obs[0, 3])
+        a_lead = 0.0 if self._leader_speed is None else (leader_speed - self._leader_speed) / DT_S
+        mode = held = None
+        if self.channel is not None:
+            mode, held = self.channel.receive(self._k)
+            held = held[:, 0]
+        if not commit:
+            return self.step(obs, self.u.copy(), a_lead, None, mode, held)
+        self._leader_speed = leader_speed
+        messages = np.concatenate([[0.0], self.u[:-1]])  # follower j hears u_{j-1} of step k
+        out = self.step(obs, self.u, a_lead, adjustment, mode, held)
+        if self.channel is not None:
+            self.channel.send(self._k, messages[:, None])
+            self._k += 1
+        return out
+
+    def step(self, obs: np.ndarray, u: np.ndarray, u_lead: float,
+             adjustment: np.ndarray | None = None, pred_mode: np.ndarray | None = None,
+             pred_held: np.ndarray | None = None) -> np.ndarray:
+        """One step of the law on a chain (head first): updates the states ``u`` in place; the
+        head hears ``u_lead`` (m/s²); ``adjustment``: the learned feed-forward term (m/s²);
+        ``pred_mode`` / ``pred_held``: how each follower hears its predecessor (default: this
+        step's message). Returns a (m/s²)."""
+        p, b = self.params, self.bounds
+        n = obs.shape[0]
+        adj = np.zeros(n) if adjustment is None else \
+            np.ascontiguousarray(adjustment, dtype=np.float64)
+        if pred_mode is None:
+            pred_mode, pred_held = np.zeros(n, dtype=np.int64), np.zeros(n)
+        return _ploeg_step(obs, u, u_lead, adj, p.time_gap_s, p.kp, p.kd, p.standstill_gap_m,
+                           DT_S, b.acc_min_mps2, b.acc_max_mps2, IDM.desired_speed_mps,
+                           CRUISE_GAIN_PER_S, np.ascontiguousarray(pred_mode, dtype=np.int64),
+                           np.ascontiguousarray(pred_held, dtype=np.float64))
+
+
+# ------------------------------------------------------------------------------------ names
+def _parse_options(name: str, allowed: tuple[str, ...]) -> dict[str, float]:
+    """``{key: value}`` of ``kind:key=value:...``; InputError naming what is wrong."""
+    options: dict[str, float] = {}
+    for part in name.split(":")[1:]:
+        key, sep, text = part.partition("=")
+        if not sep or key not in allowed:
+            raise InputError(f"controller {name!r}: {part!r} is not an option; write "
+                             f"{name.split(':')[0]}:" + ":".join(f"{k}=VALUE" for k in allowed))
+        if key in options:
+            raise InputError(f"controller {name!r}: {key} is given twice")
+        try:
+            value = float(text)
+        except ValueError:
+            raise InputError(f"controller {name!r}: {key}={text!r} is not a number") from None
+        if not (math.isfinite(value) and value > 0):
+            raise InputError(f"controller {name!r}: {key} must be a positive number, got {text}")
+        options[key] = value
+    return options
+
+
+def is_ploeg_name(name: str) -> bool:
+    return name.split(":")[0] in ("ploeg", "ploeg-tuned")
+
+
+def read_tuned(path: Path = TUNED_FILE) -> dict[str, dict]:
+    """The tuned entries of ``path``, keyed by the time gap as written (``"0.8"``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"no tuned Ploeg gains at {path}; run `carl-sumo tune ploeg` first")
+    try:
+        payload = json.loads(path.read_text())
+        return {f"{float(e['h']):g}": e for e in payload["entries"]}
+    except (ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"{path} is not a tuned-gains file of `carl-sumo tune ploeg` "
+                         f"({type(exc).__name__}); run the tuning again") from None
+
+
+def parse_ploeg(name: str, tuned_file: Path = TUNED_FILE) -> PloegParams:
+    """The gains a Ploeg controller name stands for; InputError on a bad name or value."""
+    kind = name.split(":")[0]
+    if kind == "ploeg":
+        opts = _parse_options(name, ("h", "kp", "kd"))
+        return PloegParams(opts.get("h", TEXTBOOK.time_gap_s), opts.get("kp", TEXTBOOK.kp),
+                           opts.get("kd", TEXTBOOK.kd))
+    if kind == "ploeg-tuned":
+        opts = _parse_options(name, ("h",))
+        if "h" not in opts:
+            raise InputError(f"controller {name!r}: name the time gap, e.g. ploeg-tuned:h=1")
+        entries = read_tuned(tuned_file)
+        entry = entries.get(f"{opts['h']:g}")
+        if entry is None:
+            raise InputError(f"controller {name!r}: {tuned_file} has tuned gains for h = "
+                             f"{', '.join(sorted(entries, key=float))} s only")
+        if entry.get("kp") is None:
+            raise InputError(f"controller {name!r}: the tuning found no safe gains for h = "
+                             f"{opts['h']:g} s (see {tuned_file})")
+        return PloegParams(float(entry["h"]), float(entry["kp"]), float(entry["kd"]))
+    raise InputError(f"{name!r} is not a Ploeg controller name")
+
+
+def ploeg_controller(name: str, tuned_file: Path = TUNED_FILE) -> PloegController:
+    """A :class:`PloegController` from a name such as ``ploeg:h=0.8`` or ``ploeg-tuned:h=1``."""
+    return PloegController(parse_ploeg(name, tuned_file), name=name)
+
+
+class PloegChains:
+    """The Ploeg CACC on chains of CACC vehicles that form and break in traffic (the study).
+
+    The state u of each vehicle is kept by vehicle ID (a vehicle new to the CACC starts at 0).
+    Inside a chain each vehicle hears its predecessor's state of the last step; a chain's head
+    has no CACC predecessor and takes, like a platoon's first follower, the acceleration of the
+    vehicle ahead over the last step (0 with no vehicle ahead).
+    """
+
+    def __init__(self, params: PloegParams = TEXTBOOK, name: str | None = None,
+                 bounds: ControlBounds = BOUNDS):
+        self.controller = PloegController(params, name, bounds)
+        self.name = self.controller.name
+        self.u: dict[str, float] = {}
+        self.links: KeyedChannel | None = None
+        self._k = 0
+
+    def connect(self, impairments: Impairments, run_id: str) -> None:
+        """Carry the predecessor states over impaired vehicle-keyed links
+        (:class:`carl_sumo.control.channel.KeyedChannel`, stream 1 of ``run_id``)."""
+        self.links = KeyedChannel(1, impairments, impairments.rng(run_id, 1))
+        self._k = 0
+
+    def acceleration(self, obs: np.ndarray, chains: list[list[int]], ids: list[str],
+                     ahead: list[tuple[str, float] | None],
+                     last_acc: dict[str, float], adjustment: np.ndarray | None = None,
+                     commit: bool = True) -> np.ndarray:
+        """a (m/s², shape (m,)) of the CACC vehicles ``ids`` with observations ``obs`` (m, 4);
+        ``chains`` index rows head first, ``ahead`` is each row's (vehicle ahead, gap) or None
+        and ``last_acc`` every vehicle's acceleration over the last step (m/s²). ``adjustment``
+        (m/s², shape (m,)): a learned feed-forward term in the law; ``commit=False``: a preview
+        that leaves the states as they are."""
+        out = np.empty(obs.shape[0])
+        u_new: dict[str, float] = {}
+        for chain in chains:
+            head = ahead[chain[0]]
+            a_pred = last_acc.get(head[0], 0.0) if head is not None else 0.0
+            u = np.array([self.u.get(ids[i], 0.0) for i in chain])
+            sent = u.copy()  # vehicle j's message is its state at this step
+            adj = None if adjustment is None else adjustment[chain]
+            mode = held = None
+            if self.links is not None:  # follower j > 0 hears j - 1 over its link
+                pairs = [(ids[chain[j]], ids[chain[j - 1]]) for j in range(1, len(chain))]
+                mode, held = np.zeros(len(chain), dtype=np.int64), np.zeros(len(chain))
+                got_mode, got_held = self.links.receive(self._k, pairs)
+                mode[1:], held[1:] = got_mode, got_held[:, 0]
+                if commit:
+                    self.links.send(self._k, pairs, sent[:-1, None])
+            out[chain] = self.controller.step(np.ascontiguousarray(obs[chain]), u, a_pred, adj,
+                                              mode, held)
+            u_new.update(zip((ids[i] for i in chain), u.tolist()))
+        if commit:
+            self.u = u_new
+            self._k += 1
+        return out

@@ -1,0 +1,73 @@
+"""Training checkpoints: everything a run needs to go on where it stopped (agent, optimisers,
+replay buffer, random states, step, best score, wall time), written atomically, and read back."""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from carl_sumo.errors import InputError
+from carl_sumo.learn.agents import Agent
+from carl_sumo.learn.policy import load_torch, save_torch_atomic
+from carl_sumo.learn.replay_buffer import ReplayBuffer
+from carl_sumo.learn.train_config import TrainConfig
+
+CHECKPOINT_FORMAT = "carl-sumo-checkpoint"
+
+
+def _decode_rng(saved: dict) -> dict:
+    return {"bit_generator": saved["bit_generator"],
+            "state": {"state": int(saved["state_hi"]) << 64 | int(saved["state_lo"]),
+                      "inc": int(saved["inc_hi"]) << 64 | int(saved["inc_lo"])},
+            "has_uint32": int(saved["has_uint32"]), "uinteger": int(saved["uinteger"])}
+
+
+def _rng_for_save(rng: np.random.Generator) -> dict:
+    s = rng.bit_generator.state
+    state, inc = int(s["state"]["state"]), int(s["state"]["inc"])
+    mask = (1 << 64) - 1
+    return {"bit_generator": s["bit_generator"], "state_hi": state >> 64, "state_lo": state & mask,
+            "inc_hi": inc >> 64, "inc_lo": inc & mask, "has_uint32": int(s["has_uint32"]),
+            "uinteger": int(s["uinteger"])}
+
+
+def save_checkpoint(path: Path, cfg: TrainConfig, agent: Agent, buffer: ReplayBuffer,
+                     rng: np.random.Generator, step: int, best: float, wall_s: float) -> None:
+    """Write a run's state after ``step`` vector steps to ``path`` (atomically)."""
+    save_torch_atomic({"format": CHECKPOINT_FORMAT, "train_config": asdict(cfg),
+                       "agent": agent.state_dict(), "actor_opt": agent.actor_opt.state_dict(),
+                       "critic_opt": agent.critic_opt.state_dict(), "updates": agent.updates,
+                       "buffer": buffer.state(), "numpy_rng": _rng_for_save(rng),
+                       "torch_rng": torch.get_rng_state(), "step": step, "best": best,
+                       "wall_s": wall_s}, path)
+
+
+def read_checkpoint(path: Path) -> dict:
+    """The stored state of a training checkpoint; InputError when it is not one."""
+    state = load_torch(path, "checkpoint")
+    if state.get("format") != CHECKPOINT_FORMAT:
+        raise InputError(f"{path} is not a carl-sumo training checkpoint")
+    return state
+
+
+def restore_checkpoint(path: Path, cfg: TrainConfig, agent: Agent, rng: np.random.Generator
+                       ) -> tuple[ReplayBuffer, int, float, float]:
+    """Load a checkpoint into ``agent`` and ``rng`` (and torch's random state) for a run of the
+    same algorithm and platoon length; returns (replay buffer, step, best score, wall time s)."""
+    state = read_checkpoint(path)
+    if state["train_config"]["algo"] != cfg.algo or \
+            state["train_config"]["n_vehicles"] != cfg.n_vehicles:
+        raise InputError(f"checkpoint {path} is for {state['train_config']['algo']} with "
+                         f"{state['train_config']['n_vehicles']} vehicles; resume with the "
+                         "same --algo and --vehicles")
+    agent.load_state_dict(state["agent"])
+    agent.actor_opt.load_state_dict(state["actor_opt"])
+    agent.critic_opt.load_state_dict(state["critic_opt"])
+    agent.updates = int(state["updates"])
+    rng.bit_generator.state = _decode_rng(state["numpy_rng"])
+    torch.set_rng_state(state["torch_rng"])
+    return (ReplayBuffer.from_state(state["buffer"]), int(state["step"]), float(state["best"]),
+            float(state["wall_s"]))

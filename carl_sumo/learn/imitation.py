@@ -1,0 +1,87 @@
+"""Warm start by imitation: the actor first copies a classical CACC, then RL improves on it.
+
+``carl-sumo train --imitate ploeg:h=1.1:kp=2.278:kd=10.6313`` (the paper's IDM base only).
+
+**Teacher.** Ploeg's law (:mod:`carl_sumo.control.cacc`) read from the platoon's observations, so that
+every state can be labelled, including states the teacher itself would not reach: the
+controller state u_i is the acceleration the follower applied last step (a_i, in o_i), and the
+predecessor's V2V message is its applied a_{i-1}; the first follower hears nothing (its leader is
+a human NGSIM vehicle), so for it the law is an ACC:
+
+    a_T,i = clip(a_i + (dt/h)·(-a_i + kp·e_i + kd·ė_i + a_{i-1}), -9, 3)   (m/s², a_0 := 0)
+    target a_adj,i = clip(a_T,i - a_IDM(o_i), ±adj_max)
+
+with e_i = d_i - s0 - h·v_i and ė_i = Δv_i - h·a_i. On a platoon that follows the law this is
+the law exactly. A communication-aware actor can represent it (a_{i-1} reaches vehicle i through
+the head-to-tail messages); a per-vehicle actor (DDPG, TD3) sees o_i only and learns the mean of
+the target given o_i.
+
+**Data.** During the first ``--learning-starts`` steps the platoons drive with the teacher's
+target plus the run's exploration noise (DART, Laskey et al. 2017: noise while the teacher
+drives, so the data covers the states a slightly-off student reaches); the labels are the
+teacher's clean targets on the stored states, recomputed from the replay buffer (so a resumed run
+needs nothing else).
+
+**Fit.** At ``--learning-starts`` the actor is fitted to the targets by mean squared error
+(:meth:`carl_sumo.learn.agents.Agent.imitate`); its target network is set to it; the cloned actor is
+validated and kept as the first candidate, and RL (with the critics' burn-in, if given) goes on
+from it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from carl_sumo.control.cacc import PloegController, is_ploeg_name, ploeg_controller
+from carl_sumo.config import BOUNDS
+from carl_sumo.control.controllers import idm_acceleration
+from carl_sumo.errors import InputError
+
+TARGET_FRACTION = 0.95
+"""Targets are clipped to this fraction of the actor's bound: tanh reaches ±1 only at ±∞."""
+
+
+def teacher(name: str) -> PloegController:
+    """The controller a run imitates (a Ploeg name); InputError for anything else."""
+    if not is_ploeg_name(name):
+        raise InputError(f"--imitate {name!r}: name a Ploeg CACC to imitate, e.g. "
+                         "ploeg:h=1.1:kp=2.278:kd=10.6313 or ploeg-tuned:h=1")
+    return ploeg_controller(name)
+
+
+def teacher_acceleration(controller: PloegController, obs: np.ndarray,
+                         with_ahead: bool = False) -> np.ndarray:
+    """a_T (m/s², shape (..., n)) of the law read from observations [v, a, d, Δv, ...]
+    (shape (..., n, 4+), head first): u_i := a_i, the predecessor's message a_{i-1}, none for
+    the head (see the module docstring), or with ``with_ahead`` the leader's acceleration a_ahead
+    of the fifth column."""
+    obs = np.asarray(obs, dtype=np.float64)
+    flat = obs.reshape(-1, *obs.shape[-2:])
+    out = np.empty(flat.shape[:2])
+    for k, platoon in enumerate(flat):
+        platoon = np.ascontiguousarray(platoon[:, :4])
+        u = platoon[:, 1].copy()
+        # the state update of vehicle i uses u_{i-1} as it was *before* this step: the kernel
+        # reads its predecessor's state before overwriting it, so u = a gives a_{i-1} here; the
+        # head hears the leader's acceleration when the vehicle observes it (a_ahead), else 0
+        a_lead = float(flat[k, 0, 4]) if with_ahead else 0.0
+        out[k] = controller.step(platoon, u, a_lead)
+    return out.reshape(obs.shape[:-1])
+
+
+def teacher_adjustment(controller: PloegController, obs: np.ndarray, adj_max: float,
+                       with_ahead: bool = False) -> np.ndarray:
+    """The target a_adj (m/s², shape (..., n)) that makes IDM + a_adj apply the teacher's a_T,
+    clipped to ``TARGET_FRACTION``·``adj_max``."""
+    obs = np.asarray(obs, dtype=np.float64)
+    a_idm = idm_acceleration(obs[..., 0], obs[..., 2], obs[..., 3])
+    bound = TARGET_FRACTION * min(adj_max, BOUNDS.adj_max_mps2)
+    return np.clip(teacher_acceleration(controller, obs, with_ahead) - a_idm, -bound, bound)
+
+
+def dataset(controller: PloegController, obs: torch.Tensor, adj_max: float,
+            with_ahead: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    """(observations, target a_adj) of stored platoon observations (batch, n, 4 or 5)."""
+    target = teacher_adjustment(controller, obs.numpy(), adj_max, with_ahead)
+    return obs, torch.as_tensor(target, dtype=torch.float32)

@@ -1,0 +1,462 @@
+"""Training inside SUMO: rollouts in parallel libsumo workers, a replay buffer of joint platoon
+transitions, DDPG/TD3-family updates, validation on held-out training events, atomic checkpoints.
+
+``carl-sumo train`` calls :func:`train`. A step is one step of every environment at once (so
+``num_envs`` platoon transitions). Validation runs the policy without exploration noise on held-out
+training events; the best policy by :func:`selection_score` is the one written to ``--out``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import random
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+
+from carl_sumo import __version__
+from carl_sumo.learn import imitation
+from carl_sumo.learn.agents import Agent, AgentConfig, ColoredNoise
+from carl_sumo.learn.ca_scan import keep_heap_memory
+from carl_sumo.data.events import Event
+from carl_sumo.control.controllers import adjustment_bounds
+from carl_sumo.learn.env import PlatoonEnv
+from carl_sumo.learn.imitation import teacher_adjustment
+from carl_sumo.errors import InputError
+from carl_sumo.sim.metrics import aggregate
+from carl_sumo.learn.models import CommunicationAware
+from carl_sumo.learn.policy import save_policy
+from carl_sumo.learn.selection import (MARGIN_KEYS, BaseOnly, improvement_z,
+                                 selection_score, validate_events)
+from carl_sumo.learn.randomize import RandomisedChannels
+from carl_sumo.learn.replay_buffer import ReplayBuffer
+from carl_sumo.learn.checkpoint import (CHECKPOINT_FORMAT, read_checkpoint,  # noqa: F401
+                                        restore_checkpoint, save_checkpoint)
+from carl_sumo.learn.train_config import (TrainConfig, held_out_split,  # noqa: F401
+                                          split_validation, validation_conditions)
+from carl_sumo.files import write_text_atomic
+from carl_sumo.sim.sumo import check_fits
+
+LOG_COLUMNS = ["step", "transitions", "wall_s", "train_reward", "val_reward", "headway_s",
+               "jerk_mps3", "speed_mps", "dampening_ratio", "collisions",
+               *(name for name, _ in MARGIN_KEYS.values())]
+"""Columns of the learning-curve CSV written beside the policy."""
+
+
+def _upgrade_log(path: Path) -> None:
+    """Give a learning curve written by an older carl-sumo (fewer columns) the current header,
+    its missing values empty, so that a resumed run can append to it."""
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    if not rows or rows[0] == LOG_COLUMNS:
+        return
+    width = len(LOG_COLUMNS)
+    out = io.StringIO()
+    csv.writer(out).writerows([LOG_COLUMNS] + [r + [""] * (width - len(r)) for r in rows[1:]])
+    write_text_atomic(path, out.getvalue())
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def _boundaries(agent: Agent) -> tuple[np.ndarray, np.ndarray] | None:
+    """The CA actor's boundary messages (forward, backward), which a receiver's held message fades
+    into past the timeout (carl_sumo.control.channel); None for an actor without messages."""
+    actor = agent.actor
+    if not isinstance(actor, CommunicationAware):
+        return None
+    return (actor.forward_boundary.detach().double().numpy(),
+            actor.backward_boundary.detach().double().numpy())
+
+
+def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: float,
+              baseline: dict[str, float] | None = None,
+              val_events: Sequence[Event] = ()) -> dict:
+    import libsumo
+
+    return {"algo": cfg.algo, "base": cfg.base, "trained_vehicles": cfg.n_vehicles,
+            "seed": cfg.seed,
+            "data": cfg.data, "split": cfg.split, "steps": cfg.steps,
+            "observation": "[v m/s, a m/s^2, d m, dv m/s" + (
+                ", a_base m/s^2]" if agent.cfg.residual else
+                ", a_ahead m/s^2]" if agent.cfg.observe_ahead else "]"),
+            "reward": asdict(cfg.reward), "comm_randomize": cfg.comm_randomize,
+            "randomize_sensors": cfg.randomize_sensors, "sensor_filter": cfg.sensor_filter,
+            "impairments": asdict(fixed) if (fixed := cfg.fixed_impairments) else None,
+            "val_impaired": cfg.val_impaired, "init": cfg.init,
+            "validation": {k: float(v) for k, v in val.items()},
+            "validation_base": {k: float(v) for k, v in (baseline or {}).items()},
+            "validation_events": [e.event_id for e in val_events],
+            "wall_time_s": float(wall_s),
+            "command": cfg.command, "sumo_version": str(libsumo.getVersion()[1]),
+            "carl_sumo_version": __version__, "torch_version": str(torch.__version__)}
+
+
+def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
+          progress: bool = True, log=print, rollouts: str = "processes",
+          on_checkpoint=None) -> dict[str, Any]:
+    """Train an agent; writes the best policy to ``cfg.out``, checkpoints and a CSV log beside it.
+
+    ``rollouts``: the environments run in spawned processes or, ``"ray"``, in Ray actors (the same
+    steps). ``on_checkpoint(step)`` is called after each checkpoint is written (``sweep`` hands it
+    to Ray Tune). Returns the final validation metrics and timing. The loop (act, step, store,
+    update, validate, keep, checkpoint) reads top to bottom, as in CleanRL; its steps are below."""
+    from carl_sumo.learn.vec_env import RayVecPlatoon, VecPlatoon
+
+    train_events, val_events = held_out_split(events, cfg)  # InputError before any file
+    teacher = _teacher(cfg)  # InputError before any file
+    init_actor = initial_actor(cfg)  # InputError before any file
+    out = Path(cfg.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    n = cfg.n_vehicles
+    _prepare_process(cfg.seed)
+    agent = _new_agent(cfg, init_actor if resume is None else None)
+    channels = _randomised_channels(cfg, agent)
+    buffer = ReplayBuffer(cfg.buffer_size, n, agent.cfg.obs_dim,
+                          channels.message_dim if channels is not None else 0)
+    rng = np.random.default_rng(cfg.seed)
+    start_step, best, wall_before = 0, -np.inf, 0.0
+    if resume is not None:
+        buffer, start_step, best, wall_before = restore_checkpoint(resume, cfg, agent, rng)
+        log(f"resumed {resume} at step {start_step}")
+    val_env = _validation_env(cfg, train_events, val_events)
+    baseline, baseline_events = _validate_base(cfg, val_env, val_events, log)
+    if resume is None:
+        best = _first_candidate(cfg, agent, init_actor, val_env, val_events, baseline,
+                                baseline_events, out, log, best)
+    vec_class = RayVecPlatoon if rollouts == "ray" else VecPlatoon
+    vec = vec_class(train_events, n, cfg.net, cfg.num_envs, cfg.seed + start_step, cfg.reward,
+                    cfg.base, cfg.observe_ahead, adjustment_bounds(cfg.adj_max), cfg.shield_ttc)
+    obs = vec.reset(cfg.seed + start_step, channels.current if channels is not None else None)
+    links = channels.receive(_boundaries(agent)) if channels is not None else None
+    report = _Report(cfg, out, resume is not None, start_step, progress)
+    t0 = time.perf_counter()
+    recent = []
+    val: dict[str, float] = {}
+    noise = ColoredNoise((cfg.num_envs, n), agent.cfg.exploration_noise * agent.cfg.adj_max,
+                         agent.cfg.noise_correlation, rng)
+    try:
+        for step in range(start_step, cfg.steps):
+            if step == cfg.learning_starts and teacher is not None:
+                best = _clone_teacher(cfg, agent, teacher, buffer, rng, val_env, val_events,
+                                      baseline, baseline_events, out, log)
+            # a warm-started actor drives from the first step, others after learning_starts
+            acting = step >= cfg.learning_starts or init_actor is not None
+            action = _choose_action(cfg, agent, obs, links, channels, noise, teacher, acting)
+            next_obs, reward, term, trunc, final = vec.step(
+                action, channels.upcoming if channels is not None else None)
+            noise.reset(term | trunc)
+            links = _store(buffer, channels, agent, obs, action, reward, final, term, trunc, links)
+            recent.append(float(reward.mean()))
+            obs = next_obs
+            _update(cfg, agent, buffer, rng, step)
+            done_steps = step + 1
+            if done_steps % cfg.eval_every == 0 or done_steps == cfg.steps:
+                wall = wall_before + time.perf_counter() - t0
+                train_reward = float(np.mean(recent[-cfg.eval_every:])) if recent else float("nan")
+                val, best = _validate_and_select(cfg, agent, val_env, val_events, baseline,
+                                                 baseline_events, out, wall, best)
+                report.validation(done_steps, wall, train_reward, val)
+            if done_steps % cfg.checkpoint_every == 0 or done_steps == cfg.steps:
+                save_checkpoint(out.with_suffix(".ckpt"), cfg, agent, buffer, rng, done_steps,
+                                best, wall_before + time.perf_counter() - t0)
+                if on_checkpoint is not None:
+                    report.flush()
+                    on_checkpoint(done_steps)
+            report.advance()
+    finally:
+        vec.close()
+        report.close()
+    wall = wall_before + time.perf_counter() - t0
+    return {"validation": val, "validation_base": baseline, "wall_time_s": wall,
+            "best_score": best}
+
+
+def _validation_env(cfg: TrainConfig, train_events: Sequence[Event], val_events: Sequence[Event]
+                    ) -> PlatoonEnv:
+    """The environment validation runs in (in this process); InputError here, not in a worker,
+    when a training event does not fit the network."""
+    val_env = PlatoonEnv(val_events, cfg.n_vehicles, cfg.net, reward=cfg.reward, base=cfg.base,
+                         bounds=adjustment_bounds(cfg.adj_max), observe_ahead=cfg.observe_ahead,
+                         shield_ttc_s=cfg.shield_ttc)
+    for event in train_events:
+        check_fits(val_env.sim.route, event, cfg.n_vehicles)
+    return val_env
+
+
+def _store(buffer: ReplayBuffer, channels: RandomisedChannels | None, agent: Agent,
+           obs: np.ndarray, action: np.ndarray, reward: np.ndarray, final: np.ndarray,
+           term: np.ndarray, trunc: np.ndarray, links):
+    """Store one vector step's transitions with the links heard at o and at o'; returns the
+    links of the next step (a new episode's where one ended, else this step's preview)."""
+    fallbacks = _boundaries(agent) if channels is not None else None
+    next_links = channels.receive(fallbacks) if channels is not None else None  # at o'
+    buffer.add(obs, action, reward, final, term.astype(np.float32), links, next_links)
+    if channels is None:
+        return links
+    channels.episodes_ended(term | trunc)
+    return channels.receive(fallbacks) if (term | trunc).any() else next_links
+
+
+def _validate_and_select(cfg: TrainConfig, agent: Agent, val_env: PlatoonEnv,
+                         val_events: Sequence[Event], baseline: dict[str, float],
+                         baseline_events: list[dict], out: Path, wall_s: float, best: float
+                         ) -> tuple[dict[str, float], float]:
+    """Validate the actor; write it to ``out`` when it scores better than ``best``. Returns its
+    validation metrics and the best score so far."""
+    val = _validate(cfg, agent, val_env, val_events, baseline_events)
+    score = selection_score(val, cfg.select, baseline)
+    # only a trained actor can be the best; the first validation is a fallback
+    if agent.updates > 0 and score > best or not np.isfinite(best):
+        best = score if agent.updates > 0 else -np.inf
+        save_policy(agent, out, _metadata(cfg, agent, val, wall_s, baseline, val_events))
+    return val, best
+
+
+def _prepare_process(seed: int) -> None:
+    """One torch thread (the SUMO workers have the other cores; small nets gain nothing), no page
+    faults on the update's temporaries, and every random generator seeded."""
+    torch.set_num_threads(1)
+    keep_heap_memory()
+    seed_everything(seed)
+
+
+def _new_agent(cfg: TrainConfig, init_actor: dict | None) -> Agent:
+    """The run's agent, its actor warm-started from ``init_actor`` when given."""
+    agent = Agent(cfg.agent_config())
+    if init_actor is not None:
+        try:
+            agent.start_from(init_actor)
+        except RuntimeError:
+            raise InputError(f"--init {cfg.init}: its actor does not fit this run's network "
+                             "(--message-dim, --hidden); give a policy trained with the same "
+                             "ones") from None
+    return agent
+
+
+def _randomised_channels(cfg: TrainConfig, agent: Agent) -> RandomisedChannels | None:
+    """The impaired V2V links and sensors of the training episodes (``--comm-randomize`` or
+    fixed impairments), or None for a perfect channel."""
+    fixed = cfg.fixed_impairments
+    if not (cfg.comm_randomize or fixed is not None):
+        return None
+    return RandomisedChannels(cfg.num_envs, cfg.n_vehicles, cfg.message_dim if
+                              agent.cfg.communication_aware else 0, cfg.seed,
+                              cfg.randomize_sensors, fixed, cfg.sensor_filter)
+
+
+def _validate_base(cfg: TrainConfig, val_env: PlatoonEnv, val_events: Sequence[Event], log
+                   ) -> tuple[dict[str, float], list[dict]]:
+    """The base model alone on the validation events: the metrics every candidate is compared
+    with, and its per-event results."""
+    base_reward, baseline_events = validate_events(BaseOnly(), val_env, val_events,
+                                                   validation_conditions(cfg))  # same events
+    baseline = {"val_reward": base_reward, **aggregate(baseline_events)}
+    log(f"validation baseline ({cfg.base}): "
+        + ", ".join(f"{k}={v:.3f}" for k, v in baseline.items()))
+    return baseline, baseline_events
+
+
+def _first_candidate(cfg: TrainConfig, agent: Agent, init_actor: dict | None,
+                     val_env: PlatoonEnv, val_events: Sequence[Event],
+                     baseline: dict[str, float], baseline_events: list[dict], out: Path, log,
+                     best: float) -> float:
+    """Write the policy to beat before any training and return its selection score: the warm
+    start (``--init``), or for a residual actor its base exactly (a_adj = 0); kept unless a
+    trained checkpoint scores better on validation. Other runs keep ``best``."""
+    if init_actor is not None:
+        best, start = _validate_and_keep(cfg, agent, val_env, val_events, baseline,
+                                         baseline_events, out)
+        log(f"validation of --init {cfg.init}: "
+            + ", ".join(f"{k}={v:.3f}" for k, v in start.items()))
+    elif agent.cfg.residual:
+        start = {**baseline, **improvement_z(baseline_events, baseline_events)}
+        best = selection_score(start, cfg.select, baseline)
+        save_policy(agent, out, _metadata(cfg, agent, start, 0.0, baseline, val_events))
+    return best
+
+
+def _choose_action(cfg: TrainConfig, agent: Agent, obs: np.ndarray, links, channels,
+                   noise: ColoredNoise, teacher, acting: bool) -> np.ndarray:
+    """a_adj of every vehicle of every environment (num_envs, n): the actor with exploration
+    noise when ``acting``, else the base (or the teacher) plus noise. The CA actor's messages
+    cross impaired ``links`` and are sent on ``channels`` even while it is not acting."""
+    if links is not None:  # the CA actor's messages cross impaired links
+        action, sent_f, sent_b = agent.act_over(obs, links, noise.sample() if acting else None)
+        channels.send(sent_f, sent_b)
+    if not acting:  # the base (or the teacher) plus exploration noise
+        action = noise.sample()
+        if teacher is not None:
+            action = action + teacher_adjustment(teacher, obs, agent.cfg.adj_max,
+                                                 cfg.observe_ahead)
+        action = np.clip(action, -agent.cfg.adj_max, agent.cfg.adj_max)
+    elif links is None:
+        action = agent.act(obs, noise.sample())
+    return action
+
+
+def _update(cfg: TrainConfig, agent: Agent, buffer: ReplayBuffer, rng: np.random.Generator,
+            step: int) -> None:
+    """The gradient updates after vector step ``step``: every ``update_every`` steps from
+    ``learning_starts`` on, the critics alone during ``critic_burn_in``."""
+    if step < cfg.learning_starts or (step - cfg.learning_starts) % cfg.update_every != 0:
+        return
+    train_actor = step >= cfg.learning_starts + cfg.critic_burn_in
+    if cfg.lr_decay:
+        agent.scale_learning_rates(1.0 - (step - cfg.learning_starts)
+                                   / max(1, cfg.steps - cfg.learning_starts))
+    for _ in range(cfg.updates_per_step):
+        agent.update(buffer.sample(agent.cfg.batch_size, rng), train_actor)
+
+
+def _validate(cfg: TrainConfig, agent: Agent, val_env: PlatoonEnv, val_events: Sequence[Event],
+              baseline_events: list[dict]) -> dict[str, float]:
+    """The actor without exploration noise on the validation events: reward, metrics and its
+    improvement over the base."""
+    val_reward, per_event = validate_events(agent, val_env, val_events, validation_conditions(cfg))
+    return {"val_reward": val_reward, **aggregate(per_event),
+            **improvement_z(per_event, baseline_events)}
+
+
+class _Report:
+    """Where a run reports: the learning-curve CSV beside the policy (appended to on resume),
+    TensorBoard when it is installed, and a progress bar."""
+
+    def __init__(self, cfg: TrainConfig, out: Path, resumed: bool, start_step: int,
+                 progress: bool):
+        log_path = out.with_suffix(".csv")
+        new_log = not (resumed and log_path.exists())
+        if not new_log:
+            _upgrade_log(log_path)
+        self.file = open(log_path, "w" if new_log else "a", newline="")
+        self.writer = csv.writer(self.file)
+        if new_log:
+            self.writer.writerow(LOG_COLUMNS)
+        self.board = _tensorboard(out.with_suffix(".tb"))
+        self.num_envs = cfg.num_envs
+        self.bar = None
+        if progress:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=cfg.steps, initial=start_step, desc=cfg.algo, unit="step",
+                            file=sys.stderr, dynamic_ncols=True)
+
+    def validation(self, done_steps: int, wall_s: float, train_reward: float,
+                   val: dict[str, float]) -> None:
+        """One row of the learning curve, its TensorBoard scalars and the bar's summary."""
+        self.writer.writerow([done_steps, done_steps * self.num_envs, f"{wall_s:.1f}",
+                              f"{train_reward:.4f}", f"{val['val_reward']:.4f}",
+                              *(f"{val[k]:.4f}" for k in ("headway_s", "jerk_mps3", "speed_mps",
+                                                           "dampening_ratio")),
+                              val["collisions"],
+                              *(f"{val[name]:.3f}" for name, _ in MARGIN_KEYS.values())])
+        self.file.flush()
+        if self.board is not None:
+            for key, value in val.items():
+                self.board.add_scalar(f"validation/{key}", value, done_steps)
+            self.board.add_scalar("train/reward", train_reward, done_steps)
+        if self.bar is not None:
+            self.bar.set_postfix(reward=f"{train_reward:.3f}", val=f"{val['val_reward']:.3f}",
+                                 jerk=f"{val['jerk_mps3']:.3f}", coll=val["collisions"],
+                                 min_z=f"{min(val[k] for k, _ in MARGIN_KEYS.values()):.2f}")
+
+    def flush(self) -> None:
+        self.file.flush()
+
+    def advance(self) -> None:
+        if self.bar is not None:
+            self.bar.update(1)
+
+    def close(self) -> None:
+        self.file.close()
+        if self.board is not None:
+            self.board.close()
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _teacher(cfg: TrainConfig):
+    """The controller a run imitates (None without ``--imitate``); InputError when it cannot."""
+    if cfg.imitate is None:
+        return None
+    if cfg.base != "idm":
+        raise InputError("--imitate warm-starts the paper's IDM-based adjustment; a run on a "
+                         "classical --base starts on that base already: leave one of them out")
+    if cfg.learning_starts < 1:
+        raise InputError("--imitate needs --learning-starts steps of teacher driving to copy")
+    return imitation.teacher(cfg.imitate)
+
+
+def _clone_teacher(cfg: TrainConfig, agent: Agent, teacher, buffer: ReplayBuffer,
+                   rng: np.random.Generator, val_env: PlatoonEnv, val_events: Sequence[Event],
+                   baseline: dict[str, float], baseline_events: list[dict], out: Path,
+                   log) -> float:
+    """Fit the actor to the teacher on every stored state, validate it and keep it as the first
+    candidate; returns its selection score (see :mod:`carl_sumo.learn.imitation`)."""
+    obs, target = imitation.dataset(teacher, buffer.obs[:buffer.size], agent.cfg.adj_max,
+                                    cfg.observe_ahead)
+    mse = agent.imitate(obs, target, cfg.imitate_updates, cfg.imitate_lr, 256, rng)
+    score, val = _validate_and_keep(cfg, agent, val_env, val_events, baseline, baseline_events,
+                                    out)
+    log(f"imitated {cfg.imitate} on {len(obs)} platoon states (mse {mse:.4f} m²/s⁴): "
+        + ", ".join(f"{k}={v:.3f}" for k, v in val.items()))
+    return score
+
+
+def _validate_and_keep(cfg: TrainConfig, agent: Agent, val_env: PlatoonEnv,
+                       val_events: Sequence[Event], baseline: dict[str, float],
+                       baseline_events: list[dict], out: Path) -> tuple[float, dict[str, float]]:
+    """Validate the actor as it is, write it as the run's first candidate; its selection score
+    and validation metrics."""
+    val = _validate(cfg, agent, val_env, val_events, baseline_events)
+    save_policy(agent, out, _metadata(cfg, agent, val, 0.0, baseline, val_events))
+    return selection_score(val, cfg.select, baseline), val
+
+
+def initial_actor(cfg: TrainConfig) -> dict | None:
+    """The actor weights of ``--init`` (None without it); InputError when the file is not a
+    policy of this run's algorithm, base and observation."""
+    if cfg.init is None:
+        return None
+    from carl_sumo.learn.policy import read_policy_payload
+
+    payload = read_policy_payload(Path(cfg.init))
+    theirs = AgentConfig(**payload["agent_config"])  # older files: the defaults they had
+    ours = {"algo": cfg.algo, "base": cfg.base, "observe_ahead": cfg.observe_ahead,
+            "adj_max": cfg.adj_max}
+    differ = [f"{k} {getattr(theirs, k)!r}" for k, v in ours.items() if getattr(theirs, k) != v]
+    if differ:
+        raise InputError(f"--init {cfg.init} is a policy of another configuration "
+                         f"({', '.join(differ)}); give one trained with this run's --algo, "
+                         "--base, --observe-ahead and --adj-max")
+    return payload["actor"]
+
+
+def _tensorboard(logdir: Path):
+    """A TensorBoard writer when the tensorboard package is installed, else None."""
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError:
+        return None
+    return SummaryWriter(str(logdir))
+
+
+def export_policy(checkpoint: Path, out: Path) -> dict[str, Any]:
+    """Write the current actor of a training checkpoint as a policy file; its metadata."""
+    state = read_checkpoint(checkpoint)
+    cfg = TrainConfig(**state["train_config"])
+    agent = Agent(cfg.agent_config())
+    agent.load_state_dict(state["agent"])
+    meta = _metadata(cfg, agent, {}, float(state["wall_s"]))
+    meta["exported_from"] = f"{Path(checkpoint).name} at step {int(state['step'])}"
+    save_policy(agent, Path(out), meta)
+    return meta

@@ -1,0 +1,2 @@
+"""Running work in parallel: spawned worker processes (one libsumo each) and the Ray cluster.
+Imports nothing of the package but ``errors``."""

@@ -1,0 +1,58 @@
+"""Building the I-80-like network from its plain-XML sources with the wheel's netconvert.
+
+``networks/i80/`` holds the sources (``i80.nod.xml``, ``i80.edg.xml``, ``i80.con.xml``) and the
+netconvert options (``i80.netccfg``); ``networks/i80.net.xml`` is what netconvert makes of them.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+from carl_sumo.errors import InputError
+from carl_sumo.files import atomic_output
+from carl_sumo.sim.sumo import REPO_ROOT
+
+NET_SOURCES = REPO_ROOT / "networks" / "i80" / "i80.netccfg"
+NET_FILE = REPO_ROOT / "networks" / "i80.net.xml"
+
+
+def netconvert_binary() -> str:
+    """Path of netconvert: the eclipse-sumo wheel's, else one on PATH."""
+    try:
+        import sumo
+
+        candidate = Path(sumo.SUMO_HOME) / "bin" / "netconvert"
+        if candidate.is_file():
+            return str(candidate)
+    except ImportError:
+        pass
+    found = shutil.which("netconvert")
+    if not found:
+        raise InputError("netconvert not found; install the eclipse-sumo wheel (pip install -e .)")
+    return found
+
+
+def build_network(config: Path = NET_SOURCES, out: Path = NET_FILE) -> Path:
+    """Run netconvert on ``config`` and write the network atomically to ``out``."""
+    config, out = Path(config).resolve(), Path(out).resolve()
+    if not config.is_file():
+        raise InputError(f"netconvert configuration {config} does not exist; give the .netccfg "
+                         "beside the plain-XML sources (networks/i80/i80.netccfg)")
+    tmp = atomic_output(out).with_suffix(".net.xml")
+    result = subprocess.run([netconvert_binary(), "-c", str(config), "-o", str(tmp)],
+                            capture_output=True, text=True, cwd=config.parent)
+    if result.returncode != 0 or not tmp.is_file():
+        tmp.unlink(missing_ok=True)
+        message = (result.stderr or result.stdout).strip().splitlines()
+        raise InputError(f"netconvert failed on {config}: {message[-1] if message else 'no output'}")
+    os.replace(tmp, out)
+    return out
+
+
+def network_body(path: Path) -> str:
+    """The network XML without netconvert's header comment (date, paths): for comparing builds."""
+    return re.sub(r"<!--.*?-->", "", Path(path).read_text(), count=1, flags=re.S).strip()

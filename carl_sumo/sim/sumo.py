@@ -1,0 +1,387 @@
+"""The SUMO coupling: one libsumo simulation of an NGSIM-led platoon on one lane of a network.
+
+libsumo runs one simulation per process. :class:`PlatoonSim` owns it: every ``reset`` reloads the
+network (about 5 ms), inserts the leader and the followers at their initial state, and every
+``step`` advances SUMO by 0.1 s.
+
+- The leader replays a recorded trajectory exactly: after each SUMO step it is put at the recorded
+  position (``moveTo``) with the recorded speed (``setPreviousSpeed``).
+- ``follower_model="external"``: followers are of type ``cacc``, speedMode 0 and lane changes off;
+  the acceleration a given to :meth:`PlatoonSim.step` is applied exactly by
+  ``setSpeed(v + a·dt)``: v' = max(v + a·dt, 0), x' = x + v'·dt.
+- ``follower_model="idm"`` / ``"krauss"`` / ``"sumo-cacc"``: followers are driven by SUMO's own
+  car-following model (types ``human_idm`` / ``human_krauss`` / ``cacc_sumo``, SUMO's CACC),
+  lane changes off, no external control.
+
+Positions are route coordinates (m): distance of the front bumper from the start of the platoon's
+lane route (:class:`LaneRoute`).
+"""
+
+from __future__ import annotations
+
+import bisect
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+
+from carl_sumo.config import DT_S, SCENARIO, ScenarioConfig
+from carl_sumo.data.events import Event
+from carl_sumo.errors import InputError
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+VTYPES_FILE = REPO_ROOT / "routes" / "vtypes.add.xml"
+DEFAULT_NET = REPO_ROOT / "networks" / "i80.net.xml"
+
+FOLLOWER_TYPES = {"external": "cacc", "idm": "human_idm", "krauss": "human_krauss",
+                  "sumo-cacc": "cacc_sumo"}
+"""SUMO vehicle type of the followers for each follower model."""
+
+FCD_ATTRIBUTES = ("id,type,x,y,angle,speed,acceleration,pos,lane,odometer,leaderID,leaderSpeed,"
+                  "leaderGap")
+"""Attributes of every vehicle in FCD output (``replay --fcd``): with ``angle``, ``x``, ``y``,
+``speed`` and ``lane``, what SUMO's tools (``plot_trajectories.py``, ``sumolib.output``) read."""
+
+_sumo_running = False  # whether this process has a libsumo simulation open
+_gui = False  # whether simulations of this process run in sumo-gui through TraCI
+
+
+def _libsumo():
+    """The SUMO API of this process: libsumo, or TraCI (the same API) when the GUI is on."""
+    if _gui:
+        import traci
+
+        return traci
+    import libsumo  # imported lazily: worker processes and the CLI import this module cheaply
+
+    return libsumo
+
+
+def has_display() -> bool:
+    """Whether a GUI window can open: on Linux/BSD a DISPLAY or WAYLAND_DISPLAY must be set."""
+    import sys
+
+    if sys.platform in ("win32", "darwin"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def use_gui(enabled: bool) -> None:
+    """Run the next simulations of this process in sumo-gui (through TraCI) instead of libsumo.
+
+    Raises InputError when no display exists. Closes a simulation that is open.
+    """
+    global _gui
+    if enabled and not has_display():
+        raise InputError("--gui needs a display and none is set (DISPLAY is empty); run without "
+                         "--gui and open the FCD file, or run on a desktop session")
+    close_sumo()
+    _gui = enabled
+
+
+@dataclass(frozen=True)
+class LaneRoute:
+    """The chain of lanes a platoon drives on, and where each lane starts (route coordinate, m)."""
+
+    net_path: Path
+    edges: tuple[str, ...]
+    lanes: tuple[str, ...]
+    lane_starts: tuple[float, ...]
+    length_m: float
+
+    def locate(self, x: float) -> tuple[str, float]:
+        """Lane ID and lane position (m) of route coordinate x (m)."""
+        index = bisect.bisect_right(self.lane_starts, x) - 1
+        return self.lanes[index], x - self.lane_starts[index]
+
+
+def lane_route(net_path: str | Path, ngsim_lane: int = SCENARIO.ngsim_lane) -> LaneRoute:
+    """Find the mainline of a network and the lane of NGSIM number ``ngsim_lane`` along it.
+
+    The mainline starts at an edge without predecessors and always continues on the successor edge
+    with the most lanes; the longest such chain wins. NGSIM lane k (1 = leftmost) is SUMO lane
+    index ``numLanes - k`` on every edge, so an auxiliary lane added on the right keeps the match.
+    """
+    net_path = Path(net_path)
+    if not net_path.is_file():
+        raise InputError(f"network {net_path} does not exist; build it with "
+                         "`carl-sumo net build` or give --net networks/i80.net.xml")
+    import sumolib
+
+    try:
+        net = sumolib.net.readNet(str(net_path))
+    except Exception as exc:
+        raise InputError(f"network {net_path} is not a valid SUMO network ({type(exc).__name__}); "
+                         "rebuild it with `carl-sumo net build`") from exc
+    edges = [e for e in net.getEdges() if e.getFunction() == ""]
+    if not edges:
+        raise InputError(f"network {net_path} has no edges; rebuild it with `carl-sumo net build`")
+    best: list = []
+    for start in (e for e in edges if not e.getIncoming()):
+        chain, seen = [start], {start.getID()}
+        while True:
+            successors = [e for e in chain[-1].getOutgoing() if e.getID() not in seen]
+            if not successors:
+                break
+            nxt = max(successors, key=lambda e: (e.getLaneNumber(), e.getLength()))
+            chain.append(nxt)
+            seen.add(nxt.getID())
+        if sum(e.getLength() for e in chain) > sum(e.getLength() for e in best):
+            best = chain
+    if not best:
+        raise InputError(f"network {net_path} has no road with a start (every edge has a "
+                         "predecessor); give a freeway network such as networks/i80.net.xml")
+    lanes, starts, x = [], [], 0.0
+    for edge in best:
+        index = edge.getLaneNumber() - ngsim_lane
+        if index < 0:
+            raise InputError(f"network {net_path}: edge {edge.getID()} has only "
+                             f"{edge.getLaneNumber()} lanes, so NGSIM lane {ngsim_lane} does not "
+                             "exist on it; choose a lane number the whole road has")
+        lane = edge.getLane(index)
+        if lanes and not any(c.getToLane().getID() == lane.getID()
+                             for c in net.getLane(lanes[-1]).getOutgoing()):
+            raise InputError(f"network {net_path}: lane {lanes[-1]} is not connected to "
+                             f"{lane.getID()}, so a platoon cannot stay in NGSIM lane "
+                             f"{ngsim_lane}; choose another lane or fix the connections")
+        lanes.append(lane.getID())
+        starts.append(x)
+        x += lane.getLength()
+    return LaneRoute(net_path, tuple(e.getID() for e in best), tuple(lanes), tuple(starts), x)
+
+
+@njit(cache=True)
+def _observe(speed, acc, pos, leader_front, leader_speed, vehicle_length):
+    """Observation rows [v, a, d, Δv] of a platoon, head first (see PlatoonSim.observation)."""
+    n = speed.shape[0]
+    out = np.empty((n, 4))
+    front, pred_speed = leader_front, leader_speed
+    for i in range(n):
+        out[i, 0] = speed[i]
+        out[i, 1] = acc[i]
+        out[i, 2] = front - pos[i]
+        out[i, 3] = pred_speed - speed[i]
+        front = pos[i] - vehicle_length
+        pred_speed = speed[i]
+    return out
+
+
+def platoon_start_m(event: Event, n_followers: int, scenario: ScenarioConfig = SCENARIO) -> float:
+    """Route coordinate of the leader's front bumper at t = 0 so that the whole platoon fits (m)."""
+    return (scenario.start_margin_m + event.leader_length_m
+            + n_followers * (max(event.initial_gap_m, 0.0) + scenario.vehicle_length_m))
+
+
+def required_length_m(event: Event, n_followers: int, scenario: ScenarioConfig = SCENARIO) -> float:
+    """Length of lane route a platoon needs to run an event to its end (m)."""
+    return platoon_start_m(event, n_followers, scenario) + event.leader_travel_m + scenario.end_margin_m
+
+
+def check_fits(route: LaneRoute, event: Event, n_followers: int,
+               scenario: ScenarioConfig = SCENARIO) -> None:
+    """Raise InputError when the network is too short for this event and platoon."""
+    needed = required_length_m(event, n_followers, scenario)
+    if needed > route.length_m:
+        raise InputError(f"network {route.net_path} is too short for event {event.event_id} with "
+                         f"{n_followers} followers: it needs {needed:.0f} m of lane, the road has "
+                         f"{route.length_m:.0f} m; use a longer network (networks/i80.net.xml) or "
+                         "fewer --vehicles")
+
+
+def sumo_args(net_path: Path, fcd_path: Path | None = None, seed: int = 0) -> list[str]:
+    """Command-line options of every carl-sumo simulation."""
+    args = ["-n", str(net_path), "-a", str(VTYPES_FILE), "--step-length", str(DT_S),
+            "--seed", str(seed), "--no-step-log", "true", "--no-warnings", "true",
+            "--insertion-checks", "none", "--collision.action", "none"]
+    if fcd_path is not None:
+        args += ["--fcd-output", str(fcd_path), "--fcd-output.acceleration", "true",
+                 "--fcd-output.attributes", FCD_ATTRIBUTES,
+                 "--fcd-output.max-leader-distance", "1000"]
+    return args
+
+
+def start_sumo(args: list[str]) -> None:
+    """Start this process's libsumo simulation, or reload it with new options."""
+    global _sumo_running
+    libsumo = _libsumo()
+    try:
+        if _sumo_running:
+            libsumo.load(args)
+        elif _gui:
+            import contextlib
+            import io
+
+            import sumolib
+
+            # a fixed port: if sumo-gui exits at once (no usable display) TraCI gives up at once
+            # instead of restarting it; TraCI's "Retrying" lines are not shown
+            with contextlib.redirect_stdout(io.StringIO()):
+                libsumo.start([sumolib.checkBinary("sumo-gui"), "--start", "--delay", "50"] + args,
+                              port=sumolib.miscutils.getFreeSocketPort(), numRetries=30)
+            _sumo_running = True
+        else:
+            libsumo.start(["sumo"] + args)
+            _sumo_running = True
+    except Exception as exc:  # libsumo raises TraCIException / FatalTraCIError with SUMO's text
+        close_sumo()
+        what = (f"sumo-gui could not open on display {os.environ.get('DISPLAY', '')!r} (check "
+                "that the display works, or run without --gui)" if _gui
+                else "SUMO could not load the simulation")
+        raise InputError(f"{what}: {' '.join(str(exc).split())}") from exc
+
+
+def close_sumo() -> None:
+    """Close this process's libsumo simulation (writes and closes SUMO's output files)."""
+    global _sumo_running
+    if _sumo_running:
+        try:
+            _libsumo().close()
+        finally:
+            _sumo_running = False
+
+
+class PlatoonSim:
+    """A leader replaying an :class:`Event` and ``n`` followers on one SUMO lane (0.1 s steps).
+
+    After :meth:`reset` and every :meth:`step`, the attributes hold the state at step ``k``:
+    ``speed``, ``pos``, ``acc`` (followers, head first; m/s, m, m/s²) and ``leader_speed``,
+    ``leader_pos``. ``acc`` is the acceleration of the step that led to the state.
+    """
+
+    def __init__(self, net_path: str | Path = DEFAULT_NET, follower_model: str = "external",
+                 scenario: ScenarioConfig = SCENARIO):
+        if follower_model not in FOLLOWER_TYPES:
+            raise InputError(f"unknown follower model {follower_model!r}; choose one of "
+                             f"{', '.join(FOLLOWER_TYPES)}")
+        self.route = lane_route(net_path, scenario.ngsim_lane)
+        self.follower_model = follower_model
+        self.scenario = scenario
+        self.event: Event | None = None
+        self.n = 0
+        self.k = 0
+
+    # ----------------------------------------------------------------------------------------
+    def reset(self, event: Event, n_followers: int, fcd_path: Path | None = None,
+              seed: int = 0) -> None:
+        """Load SUMO afresh and place the leader and ``n_followers`` at the event's t = 0 state.
+
+        Followers start at the recorded follower's initial speed, one behind the other with the
+        recorded initial bumper gap.
+        """
+        if n_followers < 1:
+            raise InputError(f"a platoon needs at least 1 follower, got {n_followers}")
+        check_fits(self.route, event, n_followers, self.scenario)
+        ls = _libsumo()
+        start_sumo(sumo_args(self.route.net_path, fcd_path, seed))
+        self.event, self.n, self.k = event, n_followers, 0
+        for i in range(len(self.route.edges)):  # one route per edge a vehicle may start on
+            ls.route.add(f"platoon{i}", list(self.route.edges[i:]))
+        x_leader = platoon_start_m(event, n_followers, self.scenario)
+        gap0, length = max(event.initial_gap_m, 0.0), self.scenario.vehicle_length_m
+        starts = x_leader - event.leader_length_m - gap0 - np.arange(n_followers) * (length + gap0)
+        self._leader_offset = x_leader
+        self._starts = starts
+        self.leader_id = "leader"
+        self.ids = [f"f{i}" for i in range(n_followers)]
+        v0 = event.initial_speed_mps
+        self._add("leader", "ngsim_leader", x_leader, float(event.leader_speed_mps[0]))
+        ftype = FOLLOWER_TYPES[self.follower_model]
+        for vid, x in zip(self.ids, starts):
+            self._add(vid, ftype, float(x), v0)
+        ls.simulationStep()  # inserts every vehicle at its depart state, without moving it
+        ls.vehicle.setLength(self.leader_id, event.leader_length_m)
+        ls.vehicle.setSpeedMode(self.leader_id, 0)
+        ls.vehicle.setLaneChangeMode(self.leader_id, 0)
+        for vid in self.ids:
+            ls.vehicle.setLaneChangeMode(vid, 0)
+            if self.follower_model == "external":
+                ls.vehicle.setSpeedMode(vid, 0)
+        x = x_leader + event.leader_pos_m
+        index = np.searchsorted(np.asarray(self.route.lane_starts), x, side="right") - 1
+        self._leader_lane = [self.route.lanes[i] for i in index.tolist()]
+        self._leader_lane_pos = (x - np.asarray(self.route.lane_starts)[index]).tolist()
+        self._leader_speed = event.leader_speed_mps.tolist()
+        self._leader_front = (x - event.leader_length_m).tolist()
+        ls.vehicle.moveTo(self.leader_id, self._leader_lane[0], self._leader_lane_pos[0])
+        ls.vehicle.setPreviousSpeed(self.leader_id, self._leader_speed[0])
+        self.speed = np.full(n_followers, v0)
+        self.pos = starts.copy()
+        self.acc = np.zeros(n_followers)
+        self._bind_calls()
+
+    def _add(self, vid: str, vtype: str, x: float, speed: float) -> None:
+        lane, lane_pos = self.route.locate(x)
+        index = self.route.lanes.index(lane)
+        _libsumo().vehicle.add(vid, f"platoon{index}", vtype, depart="now",
+                               departLane=lane.rsplit("_", 1)[1], departPos=f"{lane_pos:.6f}",
+                               departSpeed=f"{speed:.6f}")
+
+    def _bind_calls(self) -> None:
+        ls = _libsumo()
+        self._get_speed = ls.vehicle.getSpeed
+        self._get_distance = ls.vehicle.getDistance
+        self._set_speed = ls.vehicle.setSpeed
+        self._move_to = ls.vehicle.moveTo
+        self._set_previous_speed = ls.vehicle.setPreviousSpeed
+        self._sim_step = ls.simulationStep
+
+    # ----------------------------------------------------------------------------------------
+    @property
+    def n_steps(self) -> int:
+        """Number of steps in the episode (samples of the event minus one)."""
+        return self.event.n_samples - 1
+
+    @property
+    def done(self) -> bool:
+        return self.k >= self.n_steps
+
+    @property
+    def leader_speed(self) -> float:
+        return self._leader_speed[self.k]
+
+    @property
+    def leader_pos(self) -> float:
+        return self._leader_offset + float(self.event.leader_pos_m[self.k])
+
+    def observation(self) -> np.ndarray:
+        """o_i = [v_i (m/s), a_i (m/s²), d_i (m), Δv_i = v_{i-1} - v_i (m/s)], shape (n, 4).
+
+        d_i is the bumper-to-bumper gap to the predecessor (the leader for i = 0).
+        """
+        return _observe(self.speed, self.acc, self.pos, self._leader_front[self.k],
+                        self._leader_speed[self.k], self.scenario.vehicle_length_m)
+
+    def step(self, accel: np.ndarray | None = None) -> None:
+        """Advance SUMO by one step; ``accel`` (m/s², shape (n,)) drives external followers."""
+        k1 = self.k + 1
+        set_speed, ids = self._set_speed, self.ids
+        if self.follower_model == "external":
+            if accel is None:
+                raise ValueError("external followers need an acceleration every step")
+            for vid, v, a in zip(ids, self.speed.tolist(), accel.tolist()):
+                v += a * DT_S
+                set_speed(vid, v if v > 0.0 else 0.0)
+        lead_speed = self._leader_speed[k1]
+        set_speed(self.leader_id, lead_speed)
+        self._sim_step()
+        self._move_to(self.leader_id, self._leader_lane[k1], self._leader_lane_pos[k1])
+        self._set_previous_speed(self.leader_id, lead_speed)
+        get_speed, get_distance = self._get_speed, self._get_distance
+        speed = np.array([get_speed(vid) for vid in ids])
+        self.pos = self._starts + np.array([get_distance(vid) for vid in ids])
+        self.acc = (speed - self.speed) * (1.0 / DT_S)
+        self.speed = speed
+        self.k = k1
+
+    def leader_sumo_position(self) -> float:
+        """The leader's route coordinate as SUMO has it now (m); for checking the replay."""
+        ls = _libsumo()
+        lane = ls.vehicle.getLaneID(self.leader_id)
+        return self.route.lane_starts[self.route.lanes.index(lane)] + ls.vehicle.getLanePosition(
+            self.leader_id)
+
+    def leader_sumo_speed(self) -> float:
+        return _libsumo().vehicle.getSpeed(self.leader_id)
+

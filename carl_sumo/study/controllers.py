@@ -1,0 +1,105 @@
+"""The CACC controllers of a study: built-in laws and policy files, run on the CACC chains that
+form and break in traffic (:func:`carl_sumo.study.chains.form_chains`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from carl_sumo.config import BOUNDS
+from carl_sumo.control.cacc import PloegChains, is_ploeg_name, parse_ploeg
+from carl_sumo.control.channel import Impairments, KeyedChannel
+from carl_sumo.control.controllers import adjustment_bounds, shield_adjustment, total_acceleration
+from carl_sumo.errors import InputError
+
+STUDY_CONTROLLERS = ("idm-external", "sumo-cacc", "ploeg[:h=H:kp=KP:kd=KD]", "ploeg-tuned:h=H")
+"""Built-in CACC controllers of a study; a policy file (.pt) is the third kind."""
+
+
+class ChainController:
+    """a_adj of all CACC vehicles from their chains: zero (``idm-external``) or a policy, on IDM
+    or, for a policy trained on a classical base, on that base run on the same chains."""
+
+    def __init__(self, name: str):
+        self.name = name
+        self.agent = None
+        self.compiled = None
+        self.base: PloegChains | None = None
+        self.links: tuple[KeyedChannel, KeyedChannel] | None = None
+        self._k = 0
+        if name != "idm-external":
+            from carl_sumo.learn.policy import load_policy
+
+            agent, _ = load_policy(Path(name))
+            if agent.cfg.algo == "maddpg":
+                raise InputError(f"policy {name} is MADDPG: it has one actor per platoon position "
+                                 f"for exactly {agent.cfg.n_vehicles} vehicles and cannot run CACC "
+                                 "chains that form and break in traffic; use a CA-TD3, CA-DDPG, "
+                                 "TD3 or DDPG policy")
+            from carl_sumo.learn.inference import CompiledActor
+
+            self.agent = agent
+            self.compiled = CompiledActor(agent)
+            if agent.cfg.residual:
+                self.base = PloegChains(parse_ploeg(agent.cfg.base), agent.cfg.base)
+
+    def connect(self, impairments: Impairments, run_id: str) -> None:
+        """Carry the CA messages (streams 2 and 3 of ``run_id``) and a classical base's
+        predecessor states over impaired vehicle-keyed links (:class:`KeyedChannel`)."""
+        m = self.compiled.message_dim if self.compiled is not None else 0
+        if m:
+            self.links = (KeyedChannel(m, impairments, impairments.rng(run_id, 2)),
+                          KeyedChannel(m, impairments, impairments.rng(run_id, 3)))
+        if self.base is not None:
+            self.base.connect(impairments, run_id)
+
+    def acceleration(self, obs: np.ndarray, chains: list[list[int]], ids: list[str],
+                     ahead: list[tuple[str, float] | None],
+                     last_acc: dict[str, float]) -> np.ndarray:
+        """a (m/s², shape (m,)) of the CACC vehicles: clip(a_IDM + a_adj), or a_adj in the law of
+        a classical base (the interface of
+        :class:`carl_sumo.control.cacc.PloegChains`; ids, ahead and last_acc serve a classical base)."""
+        if self.base is None:
+            if self.agent is not None and self.agent.cfg.observe_ahead:
+                # the acceleration of the vehicle ahead over the last step (as the policy's
+                # AheadAcceleration measures it in a platoon); 0 with no vehicle ahead
+                a_ahead = [last_acc.get(a[0], 0.0) if a is not None else 0.0 for a in ahead]
+                adj = self.adjustment(np.column_stack([obs, a_ahead]), chains, ids)
+            else:
+                adj = self.adjustment(obs, chains, ids)
+            bounds = adjustment_bounds(self.agent.cfg.adj_max) if self.agent else BOUNDS
+            return total_acceleration(obs, adj, bounds=bounds)
+        preview = self.base.acceleration(obs, chains, ids, ahead, last_acc, commit=False)
+        adj = self.adjustment(np.column_stack([obs, preview]), chains, ids)
+        return self.base.acceleration(obs, chains, ids, ahead, last_acc, adj)
+
+    def adjustment(self, obs: np.ndarray, chains: list[list[int]],
+                   ids: list[str] | None = None) -> np.ndarray:
+        """a_adj (m/s², shape (m,)) for observations (m, 4) of the CACC vehicles ``ids`` and
+        their chains (the IDs key the impaired links, when there are any)."""
+        m = obs.shape[0]
+        if self.compiled is None or m == 0:
+            return np.zeros(m)
+        out = np.empty(m)
+        for chain in chains:  # one chain at a time: the cost grows with the vehicles, not the chains
+            chain_obs = np.ascontiguousarray(obs[chain])
+            if self.links is None or ids is None:
+                out[chain] = self.compiled(chain_obs)
+            else:
+                out[chain] = self.compiled.act_keyed(chain_obs, [ids[i] for i in chain],
+                                                     *self.links, self._k)
+        self._k += 1
+        return shield_adjustment(obs, out, self.agent.cfg.shield_ttc_s)
+
+
+def resolve_study_controller(name: str) -> tuple[str, ChainController | PloegChains | None]:
+    """(CACC kind of :data:`carl_sumo.sim.traffic.CACC_TYPES`, controller); InputError if unknown."""
+    if name == "sumo-cacc":
+        return "sumo", None
+    if is_ploeg_name(name):
+        return "external", PloegChains(parse_ploeg(name), name)
+    if name == "idm-external" or name.endswith(".pt"):
+        return "external", ChainController(name)
+    raise InputError(f"unknown study controller {name!r}; choose {', '.join(STUDY_CONTROLLERS)} "
+                     "or the path of a policy file (.pt)")

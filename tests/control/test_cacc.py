@@ -1,0 +1,219 @@
+"""The classical CACC baselines: Ploeg's controller (hand-built cases, names) and SUMO's CACC."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from carl_sumo.control.cacc import PloegController, PloegParams, parse_ploeg, ploeg_controller
+from carl_sumo.config import DT_S
+from carl_sumo.data.events import Event
+from carl_sumo.data.synthetic import stop_and_go_event
+from carl_sumo.errors import InputError
+from carl_sumo.sim.metrics import score_event
+from carl_sumo.experiments.simulate import cached_sim, resolve_controller, run_event
+
+from conftest import NET
+
+
+def _cruise(n: int, v: float, gap: float) -> Event:
+    speed = np.full(n, v)
+    pos = np.arange(n) * v * DT_S
+    return Event("cruise", "zhu2020_testset", "i-80", pos, speed, 5.0, speed.copy(),
+                 np.full(n, gap))
+
+
+def test_ploeg_at_equilibrium_stays_put_in_sumo():
+    # h = 1 s, s0 = 2 m: at 15 m/s the equilibrium gap is 17 m; nothing may move
+    v, gap = 15.0, 2.0 + 1.0 * 15.0
+    sim = cached_sim(NET, "external")
+    traj = run_event(sim, _cruise(300, v, gap), 4, ploeg_controller("ploeg"))
+    assert traj.collisions == 0
+    assert np.abs(traj.speed - v).max() < 1e-9
+    assert np.abs(traj.gap - gap).max() < 1e-6
+
+
+def test_ploeg_hand_computed_step():
+    c = PloegController(PloegParams(time_gap_s=0.8, kp=0.2, kd=0.7))
+    c.reset(2)
+    # follower 0: v 10, a 0.5, gap 12, Δv -1; follower 1 at its equilibrium, u = 0
+    obs = np.array([[10.0, 0.5, 12.0, -1.0], [10.0, 0.0, 10.0, 0.0]])
+    a = c.acceleration(obs)
+    e0, e0_dot = 12.0 - 2.0 - 0.8 * 10.0, -1.0 - 0.8 * 0.5
+    u0 = (DT_S / 0.8) * (0.2 * e0 + 0.7 * e0_dot + 0.0)  # first step: leader acceleration 0
+    assert math.isclose(a[0], u0, rel_tol=1e-12) and a[1] == 0.0
+    assert math.isclose(c.u[0], u0, rel_tol=1e-12)
+
+
+def test_leader_acceleration_step_reaches_followers_through_messages():
+    # every follower at equilibrium; the leader starts accelerating at 1 m/s² after step 0
+    h, v = 1.0, 10.0
+    c = PloegController(PloegParams(time_gap_s=h))
+    c.reset(3)
+    eq = [v, 0.0, 2.0 + h * v, 0.0]
+    first = c.acceleration(np.array([eq, eq, eq]))
+    assert np.all(first == 0.0)
+    # next step the leader is 0.1 m/s faster (a_lead = 1 m/s²), gaps unchanged so far
+    obs = np.array([[v, 0.0, 2.0 + h * v, 0.1], eq, eq])
+    a1 = c.acceleration(obs)
+    # follower 0 gets the leader's acceleration as feed-forward plus the Δv term
+    assert math.isclose(a1[0], (DT_S / h) * (0.7 * 0.1 + 1.0), rel_tol=1e-12)
+    assert a1[1] == 0.0 and a1[2] == 0.0  # messages carry the last state: one step per vehicle
+    a2 = c.acceleration(np.array([[v, a1[0], 2.0 + h * v, 0.1 + (1.0 - a1[0]) * DT_S], eq, eq]))
+    assert a2[1] > 0.0 and a2[2] == 0.0  # follower 1 hears follower 0's u of the last step
+    assert math.isclose(a2[1], (DT_S / h) * a1[0], rel_tol=1e-12)
+
+
+def test_ploeg_follows_a_braking_leader_in_sumo_without_collision():
+    sim = cached_sim(NET, "external")
+    _, controller = resolve_controller("ploeg:h=0.6")
+    m = score_event(run_event(sim, stop_and_go_event(cycles=1, cruise_s=5.0), 5, controller))
+    assert m["collisions"] == 0
+
+
+def test_sumo_cacc_platoon_on_stop_and_go_has_no_collision():
+    model, controller = resolve_controller("sumo-cacc")
+    assert model == "sumo-cacc" and controller is None
+    traj = run_event(cached_sim(NET, model), stop_and_go_event(), 10, None)
+    m = score_event(traj)
+    assert m["collisions"] == 0 and (traj.gap > 0).all()
+    assert traj.speed.shape[0] == stop_and_go_event().n_samples  # ran to the end
+    assert m["headway_s"] < 1.5  # SUMO's CACC follows closer than IDM (1.5 s time gap)
+
+
+@pytest.mark.parametrize("name, params", [
+    ("ploeg", PloegParams(1.0, 0.2, 0.7)),
+    ("ploeg:h=0.8", PloegParams(0.8, 0.2, 0.7)),
+    ("ploeg:h=0.8:kp=0.1:kd=1.5", PloegParams(0.8, 0.1, 1.5)),
+    ("ploeg:kd=1:h=1.2", PloegParams(1.2, 0.2, 1.0)),
+])
+def test_ploeg_names(name, params):
+    assert parse_ploeg(name) == params
+
+
+@pytest.mark.parametrize("name, words", [
+    ("ploeg:h=abc", "not a number"), ("ploeg:h=-1", "positive"), ("ploeg:x=1", "not an option"),
+    ("ploeg:h", "not an option"), ("ploeg:h=1:h=2", "twice"), ("ploeg:h=nan", "positive"),
+    ("ploeg-tuned", "name the time gap"), ("ploeg-tuned:kp=1", "not an option"),
+])
+def test_bad_ploeg_names_are_input_errors(name, words):
+    with pytest.raises(InputError, match=words):
+        resolve_controller(name)
+
+
+def test_ploeg_tuned_reads_the_file_and_names_the_existing_gaps(tmp_path):
+    path = tmp_path / "tuned.json"
+    path.write_text(json.dumps({"entries": [{"h": 0.8, "kp": 0.15, "kd": 1.1},
+                                            {"h": 1.0, "kp": 0.1, "kd": 0.9}]}))
+    assert parse_ploeg("ploeg-tuned:h=0.8", path) == PloegParams(0.8, 0.15, 1.1)
+    with pytest.raises(InputError, match=r"h = 0.8, 1 s only"):
+        parse_ploeg("ploeg-tuned:h=0.6", path)
+    with pytest.raises(InputError, match="tune ploeg"):
+        parse_ploeg("ploeg-tuned:h=0.8", tmp_path / "missing.json")
+
+
+def test_tune_on_a_tiny_grid_writes_gains_that_ploeg_tuned_reads(capsys, tmp_path,
+                                                                  small_table_path):
+    from carl_sumo.cli import main
+
+    out = tmp_path / "tuned.json"
+    code = main(["tune", "ploeg", "--data", str(small_table_path), "--split", "train",
+                 "--vehicles", "3", "--gaps", "1.0,0.8", "--kp", "0.1,0.2", "--kd", "0.7,1.0",
+                 "--max-extensions", "1", "--workers", "1", "--out", str(out)])
+    printed = capsys.readouterr().out
+    assert code == 0 and "| 1 |" in printed
+    assert out.with_suffix(".png").read_bytes()[:4] == b"\x89PNG"
+    payload = json.loads(out.read_text())
+    assert payload["split"] == "train" and payload["events"] == 1 and payload["objective"]
+    by_h = {e["h"]: e for e in payload["entries"]}
+    assert set(by_h) == {1.0, 0.8}
+    for h, entry in by_h.items():
+        points = [g for g in payload["grid"] if g["h"] == h]
+        assert len(points) >= 4 and any(g["kp"] == 0.2 and g["kd"] == 0.7 for g in points)
+        if entry["kp"] is not None:  # the chosen point is the safe one with the least objective
+            safe = [g for g in points if g["safe"]]
+            assert entry["objective"] == min(g["objective"] for g in safe)
+            assert parse_ploeg(f"ploeg-tuned:h={h:g}", out) == PloegParams(h, entry["kp"],
+                                                                           entry["kd"])
+    textbook = next(g for g in payload["grid"] if g["h"] == 1.0 and g["kp"] == 0.2
+                    and g["kd"] == 0.7)
+    assert math.isclose(textbook["objective"], 2.0)
+    for g in payload["grid"]:  # safe: as safe as the textbook gains at the same h
+        ref = next(t for t in payload["grid"]
+                   if t["h"] == g["h"] and (t["kp"], t["kd"]) == (0.2, 0.7))
+        assert g["safe"] == (g["collisions"] == 0 and g["ttc_lt_1_5s_count"] <= ref[
+            "ttc_lt_1_5s_count"] and g["headway_s"] <= 1.05 * ref["headway_s"])
+    # a second run that reuses the first one's points simulates nothing and chooses the same
+    again = tmp_path / "again.json"
+    assert main(["tune", "ploeg", "--data", str(small_table_path), "--split", "train",
+                 "--vehicles", "3", "--gaps", "1.0,0.8", "--kp", "0.1,0.2", "--kd", "0.7,1.0",
+                 "--max-extensions", "1", "--workers", "1", "--reuse", str(out),
+                 "--out", str(again)]) == 0
+    second = json.loads(again.read_text())
+    assert second["entries"] == payload["entries"]
+    assert main(["tune", "ploeg", "--data", str(small_table_path), "--split", "train",
+                 "--vehicles", "2", "--reuse", str(out), "--out", str(again)]) == 2
+    assert "other events or another platoon" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--split", "test"], "not allowed"),
+    (["--kp", "0.1,x"], "--kp must be positive"),
+    (["--gaps", "-1"], "--gaps must be positive"),
+    (["--out", "/proc/nope/t.json"], "cannot write"),
+])
+def test_tune_bad_input_exits_2_before_running(capsys, tmp_path, small_table_path, argv, words):
+    from carl_sumo.cli import main
+
+    base = ["tune", "ploeg", "--data", str(small_table_path), "--out", str(tmp_path / "t.json")]
+    assert main(base + argv) == 2
+    err = capsys.readouterr().err
+    assert words in err and err.count("\n") == 1
+    assert not (tmp_path / "t.json").exists()
+
+
+def test_ploeg_chains_keep_state_by_vehicle_and_take_the_heads_predecessor_acceleration():
+    from carl_sumo.control.cacc import PloegChains
+
+    chains = PloegChains(PloegParams(time_gap_s=1.0))
+    eq = [10.0, 0.0, 12.0, 0.0]  # at its equilibrium gap 2 + 1.0·10
+    obs = np.array([eq, eq, eq])
+    ahead = [("x", 12.0), ("a", 12.0), ("y", 12.0)]  # x and y are humans
+    a = chains.acceleration(obs, [[0, 1], [2]], ["a", "b", "c"], ahead, {"x": 0.0, "y": 2.0})
+    assert a[0] == 0.0 and a[1] == 0.0  # chain head: predecessor's acceleration 0
+    assert math.isclose(a[2], DT_S * 2.0)  # head of the second chain hears 2 m/s² ahead
+    # a new vehicle d, with nobody ahead, now leads c: d starts at u = 0, c hears d's state 0
+    a = chains.acceleration(obs[:2], [[1, 0]], ["c", "d"], [("d", 12.0), None], {})
+    assert math.isclose(a[0], 0.2 - DT_S * 0.2) and a[1] == 0.0
+    assert set(chains.u) == {"c", "d"}  # vehicles that left are forgotten
+
+
+def test_ploeg_cruise_cap_on_a_free_road():
+    c = PloegController(PloegParams(time_gap_s=1.0))
+    c.reset(1)
+    for _ in range(50):  # 300 m to the vehicle ahead at the desired speed: no acceleration
+        a = c.acceleration(np.array([[120 / 3.6, 0.0, 300.0, 0.0]]))
+    assert abs(a[0]) < 1e-12 and abs(c.u[0]) < 1e-12
+
+
+def test_cli_runs_classical_controllers_and_refuses_bad_names(capsys, tmp_path, small_table_path):
+    from carl_sumo.cli import main
+
+    code = main(["simulate", "--controller", "sumo-cacc,ploeg:h=0.8,ploeg:h=1:kp=0.1:kd=1.5",
+                 "--data", str(small_table_path), "--vehicles", "3"])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert [line.split()[0] for line in out.splitlines()[2:5]] == [
+        "sumo-cacc", "ploeg:h=0.8", "ploeg:h=1:kp=0.1:kd=1.5"]
+    fcd = tmp_path / "p.xml"
+    assert main(["replay", "--controller", "ploeg:h=0.8", "--event", "ev_test_0", "--data",
+                 str(small_table_path), "--vehicles", "2", "--fcd", str(fcd)]) == 0
+    assert fcd.stat().st_size > 1000
+    capsys.readouterr()
+    json_out = tmp_path / "x.json"
+    assert main(["simulate", "--controller", "idm,ploeg:kp=zero", "--data",
+                 str(small_table_path), "--json", str(json_out)]) == 2
+    err = capsys.readouterr().err
+    assert "kp='zero' is not a number" in err and err.count("\n") == 1
+    assert not json_out.exists()

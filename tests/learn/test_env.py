@@ -1,0 +1,104 @@
+import numpy as np
+import pytest
+from pettingzoo.test import parallel_api_test
+
+from carl_sumo.config import ControlBounds
+from carl_sumo.learn.env import PlatoonEnv
+
+from conftest import NET, braking_event
+
+
+def test_pettingzoo_parallel_api():
+    env = PlatoonEnv([braking_event()], n_followers=3, net_path=NET)
+    parallel_api_test(env, num_cycles=60)
+
+
+def test_any_platoon_length_and_episode_end():
+    for n in (1, 7):
+        env = PlatoonEnv([braking_event(n=60)], n_followers=n, net_path=NET)
+        obs, infos = env.reset(seed=1)
+        assert len(obs) == n and obs["cacc_0"].shape == (4,)
+        steps = 0
+        while env.agents:
+            obs, rewards, terms, truncs, infos = env.step(
+                {a: np.zeros(1, np.float32) for a in env.agents})
+            steps += 1
+        assert steps == 59 and all(truncs.values()) and not any(terms.values())
+
+
+def test_collision_terminates_with_penalty():
+    # an adjustment large enough to override IDM's braking drives the head into the leader
+    env = PlatoonEnv([braking_event(gap=3.0)], n_followers=2, net_path=NET,
+                     bounds=ControlBounds(adj_max_mps2=1e12))
+    env.reset(seed=0)
+    done = False
+    for _ in range(100):
+        obs, rewards, terms, truncs, _ = env.step({a: np.array([1e11], np.float32)
+                                                  for a in env.agents})
+        if any(terms.values()):
+            done = True
+            break
+    assert done and min(rewards.values()) < -50.0 and env.agents == []
+
+
+def test_adjustment_changes_the_applied_acceleration():
+    env = PlatoonEnv([braking_event()], n_followers=2, net_path=NET)
+    env.reset_array(seed=0)
+    _, _, _, _, a_zero = env.step_array(np.zeros(2))
+    env.reset_array(seed=0)
+    _, _, _, _, a_adj = env.step_array(np.array([0.5, -0.5]))
+    assert np.allclose(a_adj - a_zero, [0.5, -0.5])
+
+
+def test_classical_base_at_zero_adjustment_is_that_controller():
+    """base=ploeg with a_adj = 0 applies exactly the Ploeg CACC; a_adj enters its law, so the
+    first step moves by dt/h·a_adj; the fifth observation column previews the base's command."""
+    from carl_sumo.control.cacc import ploeg_controller
+
+    env = PlatoonEnv([braking_event()], n_followers=3, net_path=NET, base="ploeg:h=0.8")
+    reference = ploeg_controller("ploeg:h=0.8")
+    obs = env.reset_array(seed=0)
+    reference.reset(3)
+    for _ in range(30):
+        expected = reference.acceleration(obs)
+        assert np.allclose(obs[:, 4], expected, atol=1e-12)
+        obs, _, _, _, applied = env.step_array(np.zeros(3))
+        assert np.allclose(applied, expected, atol=1e-12)
+    env.reset_array(seed=0)
+    _, _, _, _, a_zero = env.step_array(np.zeros(3))
+    env.reset_array(seed=0)
+    _, _, _, _, a_adj = env.step_array(np.array([0.2, -0.2, 0.1]))
+    assert np.allclose(a_adj - a_zero, np.array([0.2, -0.2, 0.1]) * 0.1 / 0.8)
+
+
+def test_unknown_base_is_refused():
+    import pytest
+
+    from carl_sumo.errors import InputError
+
+    with pytest.raises(InputError, match="unknown base model 'krauss'"):
+        PlatoonEnv([braking_event()], n_followers=2, net_path=NET, base="krauss")
+
+
+def test_the_env_runs_through_rllibs_pettingzoo_wrapper():
+    """RLlib users plug the ParallelEnv in through Ray's wrapper: it builds, resets and steps,
+    with the env's spaces per agent (skipped without the Ray extra)."""
+    pytest.importorskip("ray")
+    pytest.importorskip("tree")  # RLlib's own dependency (dm-tree), part of the extra
+    from ray.rllib.env.multi_agent_env import MultiAgentEnv
+    from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
+
+    from carl_sumo.data import load_events
+
+    env = ParallelPettingZooEnv(PlatoonEnv(load_events("default", "train")[:2], 3, NET))
+    assert isinstance(env, MultiAgentEnv)
+    obs, _ = env.reset(seed=0)
+    assert sorted(obs) == ["cacc_0", "cacc_1", "cacc_2"]
+    assert all(env.observation_space[a].contains(o) for a, o in obs.items())
+    for _ in range(20):
+        actions = {a: np.full(1, -0.5, np.float32) for a in obs}  # all brake gently
+        obs, rewards, terminated, truncated, _ = env.step(actions)
+    assert set(rewards) == {"cacc_0", "cacc_1", "cacc_2"}
+    assert terminated["__all__"] is False and truncated["__all__"] is False
+    assert all(np.isfinite(r) for r in rewards.values())
+    env.close()

@@ -1,0 +1,118 @@
+"""Warm start by imitation and the a_ahead observation: the teacher is Ploeg's law, a cloned
+actor reproduces it, and a policy that observes the acceleration ahead sees the same numbers in
+training and in simulation."""
+
+import numpy as np
+import pytest
+import torch
+
+from carl_sumo.learn.agents import Agent, AgentConfig
+from carl_sumo.experiments.bench import cruise_event
+from carl_sumo.control.cacc import ploeg_controller
+from carl_sumo.control.controllers import AheadAcceleration, adjustment_bounds, applied_acceleration, \
+    idm_acceleration
+from carl_sumo.learn.env import PlatoonEnv
+from carl_sumo.errors import InputError
+from carl_sumo.learn.imitation import teacher, teacher_acceleration, teacher_adjustment
+from carl_sumo.learn.policy import load_controller, load_policy
+from carl_sumo.learn.train import TrainConfig, train
+
+from conftest import NET, braking_event
+
+TEACHER = "ploeg:h=1.1:kp=2.278:kd=10.6313"
+
+
+def test_the_teacher_label_is_ploegs_law_on_a_platoon_that_follows_it():
+    """Run the stateful Ploeg CACC; at every step the label read from the observations (the
+    applied accelerations as states, a_ahead for the head) is what the controller applies."""
+    env = PlatoonEnv([braking_event(v0=12.0)], 4, NET, base=TEACHER)
+    law, ahead, label = ploeg_controller(TEACHER), AheadAcceleration(), teacher(TEACHER)
+    obs = env.reset_array()
+    done, k = False, 0
+    while not done:
+        seen = np.column_stack([obs[:, :4], ahead(obs)])
+        expected = teacher_acceleration(label, seen, with_ahead=True)
+        obs, _, term, trunc, accel = env.step_array(np.zeros(4))
+        if k >= 10:  # after the start, where the controller's state may sit beyond the bounds
+            np.testing.assert_allclose(expected, accel, atol=1e-9)
+        done, k = term or trunc, k + 1
+    assert k > 50
+
+
+def test_the_head_hears_nothing_without_a_ahead_and_targets_respect_the_bound():
+    ploeg = teacher(TEACHER)
+    obs = np.array([[8.0, 0.0, 2 + 1.1 * 8, 0.0, 1.0], [8.0, 1.0, 2 + 1.1 * 8, 0.0, 0.0]])
+    with_lead = teacher_acceleration(ploeg, obs, with_ahead=True)
+    without = teacher_acceleration(ploeg, obs[:, :4])
+    assert with_lead[0] == pytest.approx(0.1 / 1.1 * 1.0)  # dt/h · a_lead at equilibrium
+    assert without[0] == pytest.approx(0.0)
+    assert with_lead[1] == without[1]  # behind the head: the predecessor's a, either way
+    target = teacher_adjustment(ploeg, obs[:, :4], 1.0)
+    a_idm = idm_acceleration(obs[:, 0], obs[:, 2], obs[:, 3])
+    assert np.all(np.abs(target) <= 0.95 + 1e-12) and np.all(without - a_idm > 0.95)
+    with pytest.raises(InputError, match="Ploeg"):
+        teacher("idm")
+
+
+def test_behaviour_cloning_fits_the_teachers_targets():
+    rng = np.random.default_rng(0)
+    obs = np.column_stack([rng.uniform(5, 15, 4000), rng.uniform(-1, 1, 4000),
+                           rng.uniform(8, 30, 4000), rng.uniform(-2, 2, 4000),
+                           rng.uniform(-1, 1, 4000)]).reshape(1000, 4, 5)
+    target = teacher_adjustment(teacher(TEACHER), obs, 3.0, with_ahead=True)
+    torch.manual_seed(0)
+    agent = Agent(AgentConfig(algo="ca-td3", n_vehicles=4, observe_ahead=True))
+    x, y = torch.as_tensor(obs, dtype=torch.float32), torch.as_tensor(target, dtype=torch.float32)
+    mse = agent.imitate(x, y, 1500, 1e-3, 128, rng)
+    assert mse < 0.05 * float(y.var())  # the CA actor passes a_{i-1} along the platoon
+    acted = agent.act(obs[:50])
+    assert np.abs(acted - target[:50]).mean() < 0.2
+    for a, b in zip(agent.actor.parameters(), agent.actor_target.parameters()):
+        assert torch.equal(a, b)
+
+
+def test_a_ahead_is_the_leaders_then_the_predecessors_acceleration():
+    env = PlatoonEnv([braking_event(v0=12.0)], 3, NET, observe_ahead=True)
+    obs = env.reset_array()
+    assert obs.shape == (3, 5) and np.all(obs[:, 4] == 0.0)
+    leader_before = env.sim.leader_speed
+    obs, *_ = env.step_array(np.array([0.5, -0.2, 0.1]))
+    assert obs[0, 4] == pytest.approx((env.sim.leader_speed - leader_before) / 0.1, abs=1e-6)
+    np.testing.assert_allclose(obs[1:, 4], obs[:-1, 1])
+    with pytest.raises(InputError, match="IDM base"):
+        PlatoonEnv([braking_event()], 3, NET, base="ploeg:h=1", observe_ahead=True)
+    with pytest.raises(InputError, match="IDM base"):
+        AgentConfig(base="ploeg:h=1", observe_ahead=True)
+
+
+def test_an_imitating_run_keeps_the_cloned_actor_and_simulates_as_it_validated(tmp_path):
+    """--imitate --observe-ahead --adj-max 6 end to end: the run keeps a policy, whose file
+    knows its observation and bound, and which `simulate`'s controller applies with the same
+    a_ahead and the same bound as training did."""
+    events = [cruise_event(150, 12.0, 20.0)]
+    cfg = TrainConfig(algo="ca-td3", n_vehicles=3, steps=200, seed=0, num_envs=2,
+                      learning_starts=120, critic_burn_in=40, eval_every=200, eval_events=1,
+                      checkpoint_every=200, net=str(NET), adj_max=6.0, noise=0.02,
+                      observe_ahead=True, imitate=TEACHER, imitate_updates=300,
+                      out=str(tmp_path / "im.pt"))
+    train(cfg, events, progress=False, log=lambda *_: None)
+    agent, meta = load_policy(tmp_path / "im.pt")
+    assert agent.cfg.observe_ahead and agent.cfg.adj_max == 6.0
+    assert meta["observation"].endswith("a_ahead m/s^2]")
+    controller = load_controller(tmp_path / "im.pt")
+    assert controller.bounds == adjustment_bounds(6.0)
+    env = PlatoonEnv(events, 3, NET, bounds=adjustment_bounds(6.0), observe_ahead=True)
+    obs = env.reset_array(event=events[0])
+    controller.reset(3)
+    for _ in range(40):
+        expected = applied_acceleration(controller, obs[:, :4])
+        obs, _, _, _, accel = env.step_array(agent.act(obs))
+        np.testing.assert_allclose(accel, expected, atol=1e-5)
+
+
+def test_imitate_is_refused_on_a_classical_base(tmp_path):
+    cfg = TrainConfig(algo="ca-td3", base="ploeg:h=0.8", imitate=TEACHER, net=str(NET),
+                      out=str(tmp_path / "x.pt"))
+    with pytest.raises(InputError, match="--imitate"):
+        train(cfg, [cruise_event(100)], progress=False)
+    assert not (tmp_path / "x.pt").exists()

@@ -1,0 +1,40 @@
+import math
+
+import numpy as np
+
+from carl_sumo.config import REWARD
+from carl_sumo.learn.reward import headway_reward, platoon_reward
+
+
+def lognormal(h, mu=0.4226, sigma=0.4366):
+    return math.exp(-(math.log(h) - mu) ** 2 / (2 * sigma ** 2)) / (h * sigma * math.sqrt(2 * math.pi))
+
+
+def test_headway_term_is_the_lognormal_pdf():
+    for h in (0.5, 1.26, 2.0, 4.0):
+        assert math.isclose(headway_reward(h), lognormal(h), rel_tol=1e-12)
+
+
+def test_reward_hand_computed():
+    # follower 0: v=10, a=1 after a=0 (jerk 10 m/s³), gap 15, closing at 5 m/s -> TTC 3 s
+    # follower 1: v=10, gap 20, opening: no safety term, no jerk
+    obs = np.array([[10.0, 1.0, 15.0, -5.0], [10.0, 0.0, 20.0, 1.0]])
+    r, collided = platoon_reward(obs, np.zeros(2))
+    assert math.isclose(r[0], lognormal(1.5) + math.log(3.0 / 4.0) - (10.0 / 60.0) ** 2)
+    assert math.isclose(r[1], lognormal(2.0))
+    assert not collided.any()
+
+
+def test_collision_penalty():
+    obs = np.array([[10.0, 0.0, -0.1, -5.0]])
+    r, collided = platoon_reward(obs, np.zeros(1))
+    assert collided[0] and r[0] < REWARD.collision_penalty + 1.0
+
+
+def test_optional_control_effort_term():
+    from dataclasses import replace
+
+    obs = np.array([[10.0, 2.0, 20.0, 0.0], [10.0, -1.0, 20.0, 0.0]])
+    plain, _ = platoon_reward(obs, obs[:, 1].copy())  # no jerk: only the headway term
+    with_effort, _ = platoon_reward(obs, obs[:, 1].copy(), replace(REWARD, w_accel=0.5))
+    assert np.allclose(plain - with_effort, [0.5 * 4.0, 0.5 * 1.0])
