@@ -17,6 +17,7 @@ from carl_sumo.cli.policies import (_export_parser, _policy_info_parser, _rank_p
                                     cmd_rank, cmd_train, cmd_tune)
 from carl_sumo.cli.run import (_bench_parser, _evaluate_parser, _replay_parser, _simulate_parser,
                                cmd_bench, cmd_evaluate, cmd_replay, cmd_simulate, format_table)
+from carl_sumo.cli.stability import _string_stability_parser, cmd_string_stability
 from carl_sumo.cli.study import _study_parser, cmd_study
 from carl_sumo.cli.sweep import _sweep_parser, cmd_sweep
 from carl_sumo.errors import InputError
@@ -34,7 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
     for add in (_simulate_parser, _replay_parser, _evaluate_parser, _train_parser, _sweep_parser,
                 _tune_parser, _export_parser, _policy_info_parser, _rank_parser, _bench_parser,
-                _study_parser,                _net_parser, _data_parser):
+                _study_parser, _string_stability_parser, _net_parser, _data_parser):
         add(sub)
     return parser
 
@@ -44,7 +45,7 @@ COMMANDS = {"simulate": cmd_simulate, "evaluate": cmd_evaluate, "train": cmd_tra
             "sweep": cmd_sweep,
             "replay": cmd_replay,
             "bench": cmd_bench, "rank": cmd_rank, "net": cmd_net, "study": cmd_study,
-            "data": cmd_data}
+            "data": cmd_data, "string-stability": cmd_string_stability}
 
 
 def main(argv: list[str] | None = None) -> int:

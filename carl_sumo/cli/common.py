@@ -28,8 +28,9 @@ def add_common(p: argparse.ArgumentParser, split_default: str = "test") -> None:
 
 def add_impairments(p: argparse.ArgumentParser) -> None:
     """The V2V channel and sensor options (:mod:`carl_sumo.control.channel`); defaults: perfect."""
-    p.add_argument("--comm-delay", type=float, default=0.0, metavar="S",
-                   help="every V2V message arrives S seconds late (a multiple of 0.1 s)")
+    p.add_argument("--comm-delay", type=float, default=None, metavar="S",
+                   help="every V2V message arrives S seconds late (a multiple of 0.1 s; default "
+                        "0, or 0.1 with --plant real)")
     p.add_argument("--comm-loss", type=float, default=0.0, metavar="P",
                    help="every V2V message is lost with probability P")
     p.add_argument("--comm-burst", type=float, default=1.0, metavar="L",
@@ -47,7 +48,24 @@ def add_impairments(p: argparse.ArgumentParser) -> None:
                    help="with --sensor-noise: every follower filters its measured gap and "
                         "relative speed with a Kalman tracker (docs/robustness.md)")
     p.add_argument("--impairment-seed", type=int, default=0,
-                   help="seed of the losses and the noise (default 0)")
+                   help="seed of the losses, the noise and the fleet's draws (default 0)")
+    add_plant(p)
+
+
+def add_plant(p: argparse.ArgumentParser) -> None:
+    """The vehicle dynamics of the followers (:mod:`carl_sumo.sim.vehicle`); default: ideal."""
+    p.add_argument("--plant", choices=("ideal", "real"), default="ideal",
+                   help="ideal: every follower applies its command at once (the paper's "
+                        "protocol, default); real: the default fleet (80 %% cars, 20 %% trucks, "
+                        "lag and dead time drawn per class) and a 0.1 s V2V delay; the options "
+                        "below replace its parts")
+    p.add_argument("--fleet", default=None, metavar="SPEC",
+                   help="vehicle classes with fractions, e.g. car:0.7,truck:0.3 (each "
+                        "follower's class drawn per event; docs/vehicles.md)")
+    p.add_argument("--vehicle-lag", type=float, default=None, metavar="S",
+                   help="powertrain lag tau of every follower (s; first order)")
+    p.add_argument("--actuation-delay", type=float, default=None, metavar="S",
+                   help="actuation dead time of every follower (s; a multiple of 0.1 s)")
 
 
 def add_warmup(p: argparse.ArgumentParser) -> None:

@@ -231,7 +231,8 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_sc
                    "imitate", "imitate_updates", "init", "observe_ahead", "shield_ttc",
                    "comm_fallback", "comm_randomize", "randomize_sensors", "val_impaired",
                    "comm_delay", "comm_loss", "comm_burst", "comm_timeout", "comm_fade", "warmup",
-                   "sensor_noise", "sensor_filter", "impairment_seed")
+                   "sensor_noise", "sensor_filter", "impairment_seed", "plant", "fleet",
+                   "vehicle_lag", "actuation_delay")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 
@@ -257,10 +258,13 @@ def cmd_train(args: argparse.Namespace) -> None:
 
 
 def _tune_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("tune", help="tune a classical CACC's gains on the training events")
-    p.add_argument("controller", choices=("ploeg",), help="which controller (ploeg)")
+    p = sub.add_parser("tune", help="tune a classical CACC's or ACC's gains on the training events")
+    p.add_argument("controller", choices=("ploeg", "acc"),
+                   help="ploeg (CACC) or acc (the same law, radar only)")
     add_common(p, split_default="train")
-    p.add_argument("--gaps", default="0.6,0.8,1.0,1.2", help="time gaps h to tune (s), commas")
+    p.add_argument("--gaps", default=None,
+                   help="time gaps h to tune (s), commas (default 0.6,0.8,1.0,1.2; acc: "
+                        "2,2.5,3,3.5)")
     p.add_argument("--kp", default="0.1,0.15,0.2,0.3,0.45,0.675,1.0125",
                    help="starting grid of kp (1/s²)")
     p.add_argument("--kd", default="0.5,0.7,1.0,1.4,2.1,3.15,4.725",
@@ -276,11 +280,14 @@ def _tune_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                    help="parallel SUMO processes")
     p.add_argument("--out", type=Path, default=None,
-                   help="result file (default policies/ploeg_tuned.json)")
+                   help="result file (default policies/ploeg_tuned.json on the ideal plant, "
+                        "else policies/<law>_tuned_<plant>.json)")
+    add_impairments(p)
+    add_warmup(p)
 
 
 def cmd_tune(args: argparse.Namespace) -> None:
-    from carl_sumo.control.cacc import TUNED_FILE
+    from carl_sumo.control.cacc import tuned_file_for
     from carl_sumo.experiments.tune import TuneConfig, format_result, grid_figure, parse_values, tune_ploeg
 
     positive(args.vehicles, "--vehicles")
@@ -292,14 +299,18 @@ def cmd_tune(args: argparse.Namespace) -> None:
     if not (math.isfinite(args.headway_tolerance) and args.headway_tolerance >= 0):
         raise InputError(f"--headway-tolerance must be a non-negative fraction, got "
                          f"{args.headway_tolerance}")
-    out = args.out or TUNED_FILE
-    check_output_file(out, "--out")
-    cfg = TuneConfig(gaps_s=parse_values(args.gaps, "--gaps"), kp=parse_values(args.kp, "--kp"),
+    impairments = impairments_from(args)
+    gaps = args.gaps or ("2,2.5,3,3.5" if args.controller == "acc" else "0.6,0.8,1.0,1.2")
+    cfg = TuneConfig(gaps_s=parse_values(gaps, "--gaps"), kp=parse_values(args.kp, "--kp"),
                      kd=parse_values(args.kd, "--kd"), n_followers=args.vehicles,
                      headway_tolerance=args.headway_tolerance,
                      max_extensions=args.max_extensions, data=args.data, split=args.split,
                      net=str(args.net), workers=args.workers,
-                     command="carl-sumo " + " ".join(sys.argv[1:]))
+                     command="carl-sumo " + " ".join(sys.argv[1:]), law=args.controller,
+                     impairments=impairments, warmup_s=warmup_from(args),
+                     string_stable=impairments is not None and impairments.plant is not None)
+    out = args.out or tuned_file_for(cfg.law, cfg.plant_key)
+    check_output_file(out, "--out")
     from carl_sumo.sim.sumo import lane_route
 
     lane_route(args.net)  # a missing or broken network fails before any worker starts

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from carl_sumo.cli.common import (add_common, add_impairments, add_ray, add_warmup,
+from carl_sumo.cli.common import (add_common, add_impairments, add_plant, add_ray, add_warmup,
                                    check_ray, fmt, impairments_from, positive, ray_session,
                                    warmup_from, workers_for)
 from carl_sumo.errors import InputError
@@ -50,7 +50,7 @@ def _simulate_parser(sub: argparse._SubParsersAction) -> None:
 
 def cmd_simulate(args: argparse.Namespace) -> None:
     from carl_sumo.data import load_events
-    from carl_sumo.experiments.simulate import check_impairable, resolve_controller, simulate
+    from carl_sumo.experiments.simulate import check_impairable, plant_of, resolve_controller, simulate
 
     positive(args.vehicles, "--vehicles")
     impairments = impairments_from(args)
@@ -65,10 +65,10 @@ def cmd_simulate(args: argparse.Namespace) -> None:
                          "more of idm, krauss, sumo-cacc, idm-external, ploeg, ploeg-tuned:h=H, "
                          "human or a policy file, separated by commas")
     for name in names:  # fail on a bad controller or platoon length before any simulation runs
-        _, controller = resolve_controller(name)
+        check_impairable(name, impairments)
+        _, controller = resolve_controller(name, plant_of(impairments))
         if controller is not None:
             controller.reset(args.vehicles)
-        check_impairable(name, impairments)
     if args.workers is not None:
         positive(args.workers, "--workers")
     check_ray(args)
@@ -128,9 +128,12 @@ def cmd_replay(args: argparse.Namespace) -> None:
 
 def _evaluate_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("evaluate", help="the paper's tables and figures, written to --out")
-    p.add_argument("--suite", default="paper", choices=("paper", "robustness"),
-                   help="paper (the paper's tables and figures) or robustness (controllers under "
-                        "V2V delay and loss and sensor noise, docs/robustness.md)")
+    p.add_argument("--suite", default="paper", choices=("paper", "real", "robustness"),
+                   help="paper (the paper's tables and figures: ideal plant, recorded start), "
+                        "real (the same tables on the real plant from a 60 s settled start, with "
+                        "ACC, the gains tuned for the plant and a string-stability table) or "
+                        "robustness (controllers under V2V delay and loss and sensor noise, "
+                        "docs/robustness.md)")
     p.add_argument("--out", type=Path, default=Path("results"), help="output directory")
     p.add_argument("--data", default=None,
                    help="NGSIM event table (default: ../shared/data/ngsim/ngsim_cf_events.csv.gz;"
@@ -159,6 +162,14 @@ def _evaluate_parser(sub: argparse._SubParsersAction) -> None:
 def cmd_evaluate(args: argparse.Namespace) -> None:
     if args.workers is not None:
         positive(args.workers, "--workers")
+    if args.suite == "real":  # the real plant and a settled start unless told otherwise
+        from carl_sumo.experiments.suite import REAL_WARMUP_S
+
+        if args.plant == "ideal" and args.fleet is None and args.vehicle_lag is None \
+                and args.actuation_delay is None:
+            args.plant = "real"
+        if args.warmup == 0.0:
+            args.warmup = REAL_WARMUP_S
     impairments = impairments_from(args)
     if impairments is not None and args.suite == "robustness":
         raise InputError("--suite robustness runs its own grid of impairments; leave out "
@@ -207,6 +218,7 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--training", action="store_true",
                    help="measure training throughput (parallel workers, updates) instead")
+    add_plant(p)
     p.add_argument("--algo", default="ca-td3", help="with --training: the algorithm")
     p.add_argument("--vehicles", default="10,20",
                    help="with --training: platoon lengths, comma-separated (default 10,20)")
@@ -245,8 +257,10 @@ def cmd_bench(args: argparse.Namespace) -> None:
         sizes = tuple(positive(int(s), "--sizes") for s in args.sizes.split(","))
     except ValueError:
         raise InputError(f"--sizes must be integers separated by commas, got {args.sizes!r}")
+    from carl_sumo.control.channel import plant_from
+
     rows = run_bench(sizes, positive(args.steps, "--steps"), positive(args.rounds, "--rounds"),
-                     args.net)
+                     args.net, plant_from(args))
     print(format_bench(rows))
 
 

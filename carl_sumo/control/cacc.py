@@ -31,6 +31,10 @@ is undone by it (measured: a low-pass adjustment added after the law raises jerk
 Names (accepted wherever a controller name is): ``ploeg`` (h = 1.0 s, textbook gains),
 ``ploeg:h=0.8``, ``ploeg:h=0.8:kp=0.1:kd=1.5``, and ``ploeg-tuned:h=0.8`` (the gains
 ``carl-sumo tune ploeg`` chose for that h, read from :data:`TUNED_FILE`).
+
+``acc``, ``acc:h=3:kp=0.2:kd=0.7`` and ``acc-tuned:h=H`` are the same constant-time-gap law fed
+by radar only: no V2V feed-forward (u_{i-1} = 0 for every follower, the first one included), the
+adaptive cruise control that CACC is compared with (Ploeg et al. 2014).
 """
 
 from __future__ import annotations
@@ -60,10 +64,12 @@ class PloegParams:
     kp: float = 0.2             # spacing-error gain (1/s²)
     kd: float = 0.7             # spacing-error-rate gain (1/s)
     standstill_gap_m: float = 2.0  # s0 (m)
+    feed_forward: bool = True   # the predecessor's V2V state (CACC), or none (ACC, radar only)
 
     def name(self) -> str:
         """The controller name that runs these gains."""
-        return f"ploeg:h={self.time_gap_s:g}:kp={self.kp:g}:kd={self.kd:g}"
+        kind = "ploeg" if self.feed_forward else "acc"
+        return f"{kind}:h={self.time_gap_s:g}:kp={self.kp:g}:kd={self.kd:g}"
 
 
 TEXTBOOK = PloegParams()
@@ -157,7 +163,9 @@ class PloegController:
         n = obs.shape[0]
         adj = np.zeros(n) if adjustment is None else \
             np.ascontiguousarray(adjustment, dtype=np.float64)
-        if pred_mode is None:
+        if not p.feed_forward:  # ACC: radar only, no feed-forward for any follower
+            u_lead, pred_mode, pred_held = 0.0, np.full(n, 2, dtype=np.int64), np.zeros(n)
+        elif pred_mode is None:
             pred_mode, pred_held = np.zeros(n, dtype=np.int64), np.zeros(n)
         return _ploeg_step(obs, u, u_lead, adj, p.time_gap_s, p.kp, p.kd, p.standstill_gap_m,
                            DT_S, b.acc_min_mps2, b.acc_max_mps2, IDM.desired_speed_mps,
@@ -186,49 +194,95 @@ def _parse_options(name: str, allowed: tuple[str, ...]) -> dict[str, float]:
     return options
 
 
+CLASSICAL_KINDS = ("ploeg", "ploeg-tuned", "acc", "acc-tuned")
+"""The names of the constant-time-gap laws: Ploeg's CACC and the same law as a radar-only ACC."""
+
+
 def is_ploeg_name(name: str) -> bool:
-    return name.split(":")[0] in ("ploeg", "ploeg-tuned")
+    """Whether ``name`` is one of the constant-time-gap laws (CACC or ACC)."""
+    return name.split(":")[0] in CLASSICAL_KINDS
 
 
-def read_tuned(path: Path = TUNED_FILE) -> dict[str, dict]:
-    """The tuned entries of ``path``, keyed by the time gap as written (``"0.8"``)."""
+def tuned_file_for(law: str, plant: str) -> Path:
+    """Where ``carl-sumo tune`` writes the gains of a law for a plant: :data:`TUNED_FILE` for the
+    Ploeg CACC on the ideal plant, else ``policies/<law>_tuned_<plant>.json``."""
+    if law == "ploeg" and plant == "ideal":
+        return TUNED_FILE
+    slug = "".join(c if c.isalnum() or c == "." else "_" for c in plant).strip("_")
+    return TUNED_FILE.with_name(f"{law}_tuned_{slug}.json")
+
+
+def read_tuned_entries(path: Path | None = None) -> list[dict]:
+    """Every tuned entry (``h``, ``kp``, ``kd``, ``law`` and ``plant``) of ``path``, or of every
+    tuned-gains file beside :data:`TUNED_FILE` (one per law and plant)."""
+    if path is None:
+        paths = sorted(p for p in TUNED_FILE.parent.glob("*_tuned*.json")
+                       if not p.name.endswith(".partial.json"))
+        if TUNED_FILE not in paths:
+            paths.insert(0, TUNED_FILE)
+        return [e for p in paths for e in read_tuned_entries(p)]
     path = Path(path)
     if not path.is_file():
         raise InputError(f"no tuned Ploeg gains at {path}; run `carl-sumo tune ploeg` first")
     try:
         payload = json.loads(path.read_text())
-        return {f"{float(e['h']):g}": e for e in payload["entries"]}
+        entries = [{"law": payload.get("controller", "ploeg"),
+                    "plant": payload.get("plant", "ideal"), **e} for e in payload["entries"]]
+        for e in entries:
+            float(e["h"])
+        return entries
     except (ValueError, KeyError, TypeError) as exc:
         raise InputError(f"{path} is not a tuned-gains file of `carl-sumo tune ploeg` "
                          f"({type(exc).__name__}); run the tuning again") from None
 
 
-def parse_ploeg(name: str, tuned_file: Path = TUNED_FILE) -> PloegParams:
-    """The gains a Ploeg controller name stands for; InputError on a bad name or value."""
+def read_tuned(path: Path | None = TUNED_FILE, law: str = "ploeg", plant: str = "ideal"
+               ) -> dict[str, dict]:
+    """The tuned entries of one law and plant, keyed by the time gap as written (``"0.8"``)."""
+    return {f"{float(e['h']):g}": e for e in read_tuned_entries(path)
+            if e.get("law", "ploeg") == law and e.get("plant", "ideal") == plant}
+
+
+def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal") -> PloegParams:
+    """The gains a constant-time-gap law's name stands for (``ploeg*``: CACC, ``acc*``: ACC);
+    a ``-tuned`` name reads the gains tuned for ``plant`` (:func:`plant_key`). InputError on a
+    bad name or value, or on a plant the gains were not tuned for."""
     kind = name.split(":")[0]
-    if kind == "ploeg":
+    law = "acc" if kind.startswith("acc") else "ploeg"
+    if kind in ("ploeg", "acc"):
         opts = _parse_options(name, ("h", "kp", "kd"))
         return PloegParams(opts.get("h", TEXTBOOK.time_gap_s), opts.get("kp", TEXTBOOK.kp),
-                           opts.get("kd", TEXTBOOK.kd))
-    if kind == "ploeg-tuned":
+                           opts.get("kd", TEXTBOOK.kd), feed_forward=law == "ploeg")
+    if kind in ("ploeg-tuned", "acc-tuned"):
         opts = _parse_options(name, ("h",))
         if "h" not in opts:
-            raise InputError(f"controller {name!r}: name the time gap, e.g. ploeg-tuned:h=1")
-        entries = read_tuned(tuned_file)
-        entry = entries.get(f"{opts['h']:g}")
+            raise InputError(f"controller {name!r}: name the time gap, e.g. {kind}:h=1")
+        entries = [e for e in read_tuned_entries(tuned_file) if e.get("law", "ploeg") == law]
+        for_plant = {f"{float(e['h']):g}": e for e in entries
+                     if e.get("plant", "ideal") == plant}
+        if not for_plant:
+            plants = sorted({e.get("plant", "ideal") for e in entries})
+            raise InputError(f"controller {name!r}: no gains tuned for the plant {plant!r} (tuned "
+                             f"for: {'; '.join(plants) or 'none'}); run `carl-sumo tune {law}` "
+                             "with this plant's options, or give the gains (kp=..:kd=..)")
+        entry = for_plant.get(f"{opts['h']:g}")
         if entry is None:
-            raise InputError(f"controller {name!r}: {tuned_file} has tuned gains for h = "
-                             f"{', '.join(sorted(entries, key=float))} s only")
+            raise InputError(f"controller {name!r}: {tuned_file or TUNED_FILE.parent} has tuned "
+                             f"gains for h = "
+                             f"{', '.join(sorted(for_plant, key=float))} s only on this plant")
         if entry.get("kp") is None:
             raise InputError(f"controller {name!r}: the tuning found no safe gains for h = "
-                             f"{opts['h']:g} s (see {tuned_file})")
-        return PloegParams(float(entry["h"]), float(entry["kp"]), float(entry["kd"]))
-    raise InputError(f"{name!r} is not a Ploeg controller name")
+                             f"{opts['h']:g} s (see {tuned_file or TUNED_FILE.parent})")
+        return PloegParams(float(entry["h"]), float(entry["kp"]), float(entry["kd"]),
+                           feed_forward=law == "ploeg")
+    raise InputError(f"{name!r} is not a Ploeg CACC or ACC controller name")
 
 
-def ploeg_controller(name: str, tuned_file: Path = TUNED_FILE) -> PloegController:
-    """A :class:`PloegController` from a name such as ``ploeg:h=0.8`` or ``ploeg-tuned:h=1``."""
-    return PloegController(parse_ploeg(name, tuned_file), name=name)
+def ploeg_controller(name: str, tuned_file: Path | None = None, plant: str = "ideal"
+                     ) -> PloegController:
+    """A :class:`PloegController` from a name such as ``ploeg:h=0.8``, ``ploeg-tuned:h=1`` or
+    ``acc:h=3`` (a ``-tuned`` name: the gains tuned for ``plant``)."""
+    return PloegController(parse_ploeg(name, tuned_file, plant), name=name)
 
 
 class PloegChains:

@@ -63,6 +63,7 @@ import numpy as np
 
 from carl_sumo.config import DT_S
 from carl_sumo.errors import InputError
+from carl_sumo.sim.vehicle import REAL_COMM_DELAY_S, REAL_PLANT, Plant, parse_fleet
 
 LIVE, HELD, FALLBACK = 0, 1, 2
 """How a receiver gets its message this step: the one sent this step, the last one held, none."""
@@ -72,7 +73,9 @@ LIVE, HELD, FALLBACK = 0, 1, 2
 class Impairments:
     """What ``--comm-delay``, ``--comm-loss``, ``--comm-burst``, ``--comm-timeout``,
     ``--comm-fade``, ``--sensor-noise`` and ``--sensor-filter`` ask for (units in the names); the
-    defaults are a perfect channel and perfect sensors."""
+    defaults are a perfect channel and perfect sensors. ``plant``: the vehicle dynamics of the
+    followers (``--plant``, ``--fleet``, ``--vehicle-lag``, ``--actuation-delay``,
+    :mod:`carl_sumo.sim.vehicle`); None is the ideal plant."""
 
     delay_s: float = 0.0
     loss: float = 0.0
@@ -82,6 +85,7 @@ class Impairments:
     sensor_noise: bool = False
     sensor_filter: bool = False  # the followers track their noisy measurements (sensors.py)
     seed: int = 0
+    plant: Plant | None = None
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.delay_s) and self.delay_s >= 0):
@@ -127,10 +131,14 @@ class Impairments:
         ``comm_loss``, ``comm_burst``, ``comm_timeout``, ``comm_fade``, ``sensor_noise``,
         ``sensor_filter``, ``impairment_seed``: parsed CLI options or a training config); None
         when all is perfect. InputError for a bad value."""
-        imp = cls(delay_s=options.comm_delay, loss=options.comm_loss, burst=options.comm_burst,
+        plant = plant_from(options)
+        delay = options.comm_delay
+        if getattr(options, "plant", None) == "real" and delay is None:
+            delay = REAL_COMM_DELAY_S
+        imp = cls(delay_s=delay or 0.0, loss=options.comm_loss, burst=options.comm_burst,
                   timeout_s=options.comm_timeout, fade_s=options.comm_fade,
                   sensor_noise=options.sensor_noise, sensor_filter=options.sensor_filter,
-                  seed=options.impairment_seed)
+                  seed=options.impairment_seed, plant=plant)
         return imp if imp.active else None
 
     @property
@@ -139,11 +147,44 @@ class Impairments:
 
     @property
     def active(self) -> bool:
-        return not self.perfect_channel or self.sensor_noise
+        return not self.perfect_channel or self.sensor_noise or self.plant is not None
+
+    @property
+    def plant_key(self) -> str:
+        """The plant as tuned gains are stored for it: ``ideal``, or the fleet and its fixed
+        values with the V2V delay (e.g. ``car:0.8,truck:0.2 v2v=0.1s``)."""
+        return plant_key(self.plant, self.delay_s)
+
 
     def rng(self, event_id: str, stream: int) -> np.random.Generator:
         """The generator of one event and one stream (0: sensors, 1, 2, ...: links)."""
         return np.random.default_rng([self.seed, zlib.crc32(event_id.encode()), stream])
+
+
+def plant_key(plant: Plant | None, delay_s: float) -> str:
+    """See :attr:`Impairments.plant_key`."""
+    return "ideal" if plant is None else f"{plant.describe()} v2v={delay_s:g}s"
+
+
+def plant_from(options) -> Plant | None:
+    """The vehicle dynamics of parsed options (``plant``: ``ideal``/``real``, ``fleet``,
+    ``vehicle_lag``, ``actuation_delay``; any may be absent) or None for the ideal plant.
+    ``--plant real`` is the default fleet (:data:`carl_sumo.sim.vehicle.REAL_PLANT`); the
+    options beside it replace its parts; ``--vehicle-lag`` or ``--actuation-delay`` alone is a
+    fleet of cars with those values."""
+    kind = getattr(options, "plant", None) or "ideal"
+    if kind not in ("ideal", "real"):
+        raise InputError(f"--plant {kind!r}: choose ideal or real")
+    fleet_text = getattr(options, "fleet", None)
+    lag, dead = getattr(options, "vehicle_lag", None), getattr(options, "actuation_delay", None)
+    if kind == "ideal" and fleet_text is None and lag is None and dead is None:
+        return None
+    fleet = parse_fleet(fleet_text) if fleet_text is not None else \
+        (REAL_PLANT.fleet if kind == "real" else (("car", 1.0),))
+    if kind == "ideal" and fleet_text is None:  # a lag or dead time alone: cars with it
+        lag, dead = lag if lag is not None else 0.0, dead if dead is not None else 0.0
+    return Plant(fleet, lag, dead)
+
 
 
 BURSTY_CHANNEL = Impairments(delay_s=0.2, loss=0.3, burst=3.0)

@@ -17,6 +17,7 @@ from carl_sumo.config import DT_S
 from carl_sumo.data.events import Event
 from carl_sumo.learn.env import PlatoonEnv
 from carl_sumo.sim.sumo import DEFAULT_NET
+from carl_sumo.sim.vehicle import Plant
 
 
 def cruise_event(n_steps: int, speed_mps: float = 15.0, gap_m: float = 20.0) -> Event:
@@ -63,19 +64,29 @@ def _env_loop(env: PlatoonEnv, steps: int) -> float:
 
 
 def run_bench(sizes: tuple[int, ...] = (10, 20, 100), steps: int = 2000, rounds: int = 3,
-              net_path=DEFAULT_NET) -> list[dict[str, float]]:
-    """Steps/s of the env and of the bare loop for each platoon size; best of ``rounds``."""
+              net_path=DEFAULT_NET, plant: Plant | None = None) -> list[dict[str, float]]:
+    """Steps/s of the env and of the bare loop for each platoon size; best of ``rounds``. With
+    a ``plant`` also the env on it (lag and dead time), in the same rounds: ``plant_ratio`` is
+    its step time over the ideal plant's."""
     rows = []
     for n in sizes:
         env = PlatoonEnv([cruise_event(steps + 1)], n, net_path)
+        real = PlatoonEnv([cruise_event(steps + 1)], n, net_path, plant=plant) \
+            if plant is not None else None
         _env_loop(env, min(50, steps))  # compile the numba kernels and warm caches
-        bare, controlled = [], []
+        bare, controlled, on_plant = [], [], []
         for _ in range(rounds):
             bare.append(_bare_loop(env, steps))
             controlled.append(_env_loop(env, steps))
+            if real is not None:
+                on_plant.append(_env_loop(real, steps))
         bare_rate, env_rate = steps / min(bare), steps / min(controlled)
-        rows.append({"followers": n, "env_steps_per_s": env_rate, "bare_steps_per_s": bare_rate,
-                     "ratio": bare_rate / env_rate})
+        row = {"followers": n, "env_steps_per_s": env_rate, "bare_steps_per_s": bare_rate,
+               "ratio": bare_rate / env_rate}
+        if on_plant:
+            row.update({"plant_steps_per_s": steps / min(on_plant),
+                        "plant_ratio": min(on_plant) / min(controlled)})
+        rows.append(row)
     return rows
 
 
@@ -85,6 +96,11 @@ def format_bench(rows: list[dict[str, float]]) -> str:
     for r in rows:
         lines.append(f"{r['followers']:>9}  {r['env_steps_per_s']:>11.0f}  "
                      f"{r['bare_steps_per_s']:>12.0f}  {r['ratio']:>20.2f}x")
+    if any("plant_ratio" in r for r in rows):
+        lines += ["", "followers  env on the plant steps/s  plant step time / ideal step time",
+                  "---------  -----------------------  ---------------------------------"]
+        lines += [f"{r['followers']:>9}  {r['plant_steps_per_s']:>23.0f}  "
+                  f"{r['plant_ratio']:>32.3f}x" for r in rows]
     return "\n".join(lines)
 
 

@@ -190,6 +190,10 @@ def run_suite(suite: Suite, out_dir: Path, workers: int = 2, net: str | Path =
     out_dir.mkdir(parents=True, exist_ok=True)
     jobs = figures.figure_jobs(suite, results, out_dir)
     all_rows, sections = write_tables(suite, results, out_dir)
+    if suite.name == "real":
+        from carl_sumo.experiments.string_stability import suite_table
+
+        sections.append(suite_table(suite, out_dir, str(net), workers))
     if parallel is not None:
         from carl_sumo.scale.workers import run_parallel
 
@@ -216,6 +220,8 @@ def evaluate(suite: str = "paper", out: Path = Path("results"), data: str | None
     ``impairments`` every controller that runs in carl-sumo (Ploeg, idm-external, the policies)
     has them; SUMO's native models and the recorded human run as they are. ``warmup_s``: every
     event runs that long first, unscored."""
-    planned = plan_suite(suite, data, quick, events, policies, net, all_seeds, seeds, warmup_s)
+    plant = impairments.plant_key if impairments is not None else "ideal"
+    planned = plan_suite(suite, data, quick, events, policies, net, all_seeds, seeds, warmup_s,
+                         plant)
     planned = replace(planned, impairments=impairments)
     return run_suite(planned, Path(out), workers, net, progress, command)

@@ -6,7 +6,8 @@ Controllers by name:
 - ``idm-external``: IDM computed in Python and applied through libsumo (a_adj = 0);
 - ``sumo-cacc``: SUMO's native CACC model (Milanés & Shladover) drives the followers;
 - ``ploeg``, ``ploeg:h=0.8:kp=0.1:kd=1.5``, ``ploeg-tuned:h=0.8``: the classical CACC of
-  :mod:`carl_sumo.control.cacc`, applied through libsumo;
+  :mod:`carl_sumo.control.cacc`, applied through libsumo; ``acc``, ``acc:h=3``, ``acc-tuned:h=H``:
+  the same law fed by radar only;
 - ``human``: the recorded NGSIM follower of each event (one follower), scored the same way;
 - a path to a policy file (``.pt``): a learned a_adj on top of IDM (:mod:`carl_sumo.learn.policy`).
 """
@@ -33,17 +34,19 @@ from carl_sumo.scale.workers import run_parallel
 
 NATIVE_CONTROLLERS = {"idm": "idm", "krauss": "krauss", "sumo-cacc": "sumo-cacc"}
 BUILTIN_CONTROLLERS = ("idm", "krauss", "sumo-cacc", "idm-external", "ploeg[:h=H:kp=KP:kd=KD]",
-                       "ploeg-tuned:h=H", "human")
+                       "ploeg-tuned:h=H", "acc[:h=H:kp=KP:kd=KD]", "acc-tuned:h=H", "human")
 
 
-def resolve_controller(name: str) -> tuple[str, Controller | AccelerationController | None]:
-    """(follower model, controller) of a controller name or policy path; InputError if unknown."""
+def resolve_controller(name: str, plant: str = "ideal"
+                       ) -> tuple[str, Controller | AccelerationController | None]:
+    """(follower model, controller) of a controller name or policy path; InputError if unknown.
+    ``plant``: the plant a ``-tuned`` law's gains are read for (:attr:`Impairments.plant_key`)."""
     if name in NATIVE_CONTROLLERS:
         return NATIVE_CONTROLLERS[name], None
     if name == "idm-external":
         return "external", ZeroAdjustment()
     if is_ploeg_name(name):
-        return "external", ploeg_controller(name)
+        return "external", ploeg_controller(name, plant=plant)
     if name == "human":
         return "human", None
     if name.endswith(".pt") or Path(name).suffix == ".pt":
@@ -80,7 +83,9 @@ def run_event(sim: PlatoonSim, event: Event, n_followers: int,
         if not impairments.perfect_channel and hasattr(controller, "connect"):
             controller.connect(impairments, event.event_id)
         sensors = Sensors.of(impairments, event.event_id)
-    sim.reset(event, n_followers, fcd_path)
+    plant = impairments.plant if impairments is not None else None
+    sim.reset(event, n_followers, fcd_path, plant=plant,
+              plant_seed=impairments.seed if impairments is not None else 0)
     obs = sim.observation()
     leader, speeds, gaps = [sim.leader_speed], [obs[:, 0]], [obs[:, 2]]
     collisions = 0
@@ -118,7 +123,7 @@ def event_trajectories(controller_name: str, events: Sequence[Event], n_follower
                        ) -> Iterator[tuple[Event, PlatoonTrajectory]]:
     """(event, trajectory) of one controller on each event, in this process, in order."""
     check_impairable(controller_name, impairments)
-    follower_model, controller = resolve_controller(controller_name)
+    follower_model, controller = resolve_controller(controller_name, plant_of(impairments))
     iterator = events
     if progress:
         from tqdm import tqdm
@@ -136,6 +141,8 @@ def event_trajectories(controller_name: str, events: Sequence[Event], n_follower
 def impairable(controller_name: str) -> bool:
     """Whether a controller runs in carl-sumo and so can have impairments (not SUMO's native
     models, whose V2V and sensing are inside SUMO, nor the recorded human follower)."""
+    if is_ploeg_name(controller_name):
+        return True
     return resolve_controller(controller_name)[0] == "external"
 
 
@@ -145,9 +152,15 @@ def check_impairable(controller_name: str, impairments: Impairments | None) -> N
     if impairments is None or not impairments.active:
         return
     if not impairable(controller_name):
-        raise InputError(f"{controller_name}: impairments (--comm-*, --sensor-noise) apply to "
-                         "controllers that run in carl-sumo (idm-external, ploeg, a policy "
+        raise InputError(f"{controller_name}: impairments (--comm-*, --sensor-noise) and vehicle "
+                         "dynamics (--plant, --fleet, --vehicle-lag, --actuation-delay) apply to "
+                         "controllers that run in carl-sumo (idm-external, ploeg, acc, a policy "
                          "file), not to SUMO's native models or the recorded follower")
+
+
+def plant_of(impairments: Impairments | None) -> str:
+    """The plant key a ``-tuned`` law reads its gains for: ``ideal`` without impairments."""
+    return impairments.plant_key if impairments is not None else "ideal"
 
 
 def score_events(controller_name: str, events: Sequence[Event], n_followers: int,
@@ -168,8 +181,8 @@ def simulate(controller_name: str, events: Sequence[Event], n_followers: int,
     at least 20 events per worker. ``impairments``: V2V delay and loss, sensor noise
     (:mod:`carl_sumo.control.channel`; the same draws on an event whichever worker runs it).
     """
-    follower_model, _ = resolve_controller(controller_name)
     check_impairable(controller_name, impairments)
+    follower_model, _ = resolve_controller(controller_name, plant_of(impairments))
     workers = max(1, min(workers, len(events) // 20))  # a spawned worker costs seconds to start
     if workers == 1 or follower_model == "human":
         per_event = score_events(controller_name, events, n_followers, str(net_path), progress,
@@ -215,7 +228,7 @@ def replay(controller_name: str, event: Event, n_followers: int, fcd_path: Path,
 
     With ``gui`` the same run is shown in sumo-gui (through TraCI; InputError without a display).
     """
-    follower_model, controller = resolve_controller(controller_name)
+    follower_model, controller = resolve_controller(controller_name, plant_of(impairments))
     if follower_model == "human":
         raise InputError("the recorded human follower is not simulated, so it has no FCD output; "
                          "choose idm, krauss, sumo-cacc, idm-external, ploeg or a policy file")

@@ -43,7 +43,16 @@ from carl_sumo.sim.sumo import REPO_ROOT, check_fits, lane_route
 DEFAULT_NGSIM = Path("../shared/data/ngsim/ngsim_cf_events.csv.gz")
 """The NGSIM event table, relative to the directory carl-sumo runs in (the repository root)."""
 
-SUITES = ("paper",)
+SUITES = ("paper", "real")
+"""``paper``: the paper's protocol (ideal plant, recorded start); ``real``: the same tables on the
+real plant (a fleet with lag and dead time, V2V delay) from a settled start, with the radar-only
+ACC and the gains tuned for that plant, and a string-stability table."""
+
+ACC_GAPS = (2.0, 2.5, 3.0, 3.5)
+"""Time gaps h (s) of the textbook ACC curve (kp = 0.2, kd = 0.7) in the real suite."""
+
+REAL_WARMUP_S = 60.0
+"""The settled start of the real suite (s): every event first runs this long, unscored."""
 
 SAMPLE_KEYS = ("headway_s", "speed_mps", "jerk_mps3")
 """Metrics whose every sample a figure job keeps (:attr:`JobResult.samples`, the ECDFs)."""
@@ -70,14 +79,15 @@ class Model:
 
 
 BUILTIN_MODELS = {"human": "human (recorded)", "idm": "IDM (SUMO)", "krauss": "Krauss (SUMO)",
-                  "sumo-cacc": "CACC (SUMO)"}
+                  "sumo-cacc": "CACC (SUMO)", "idm-external": "IDM (carl-sumo, on the plant)"}
 TEXTBOOK_GAPS = (0.6, 0.8, 1.0, 1.2, 1.5)
 """Time gaps h (s) of the textbook Ploeg curve (kp = 0.2, kd = 0.7) in every table."""
 
 
 def is_classical(key: str) -> bool:
     """Whether a model key is a built-in (not learned) controller."""
-    return key in BUILTIN_MODELS or key.startswith(("ploeg:", "ploeg-tuned:"))
+    return key in BUILTIN_MODELS or key.startswith(("ploeg:", "ploeg-tuned:", "acc:",
+                                                    "acc-tuned:"))
 
 
 ALGO_NAMES = {"ca-td3": "CA-TD3", "ca-ddpg": "CA-DDPG", "td3": "TD3", "ddpg": "DDPG",
@@ -121,6 +131,7 @@ class Suite:
     quick: bool
     impairments: Impairments | None = None  # V2V and sensors of the carl-sumo controllers
     warmup_s: float = 0.0  # seconds every event runs before it is scored (Event.with_warmup)
+    name: str = "paper"    # which suite (SUITES)
 
 
 @dataclass
@@ -153,17 +164,26 @@ seed files in every row."""
 
 
 # ------------------------------------------------------------------------------------ planning
-def classical_models(tuned_file: Path | None = None) -> dict[str, str]:
-    """Key (controller name) -> row name of the classical CACCs: SUMO's CACC, the textbook
-    Ploeg curve and the tuned Ploeg frontier (every h with safe tuned gains)."""
+def classical_models(tuned_file: Path | None = None, plant: str = "ideal") -> dict[str, str]:
+    """Key (controller name) -> row name of the classical controllers: SUMO's CACC, the textbook
+    Ploeg curve and the tuned Ploeg frontier (every h with safe tuned gains); on a real plant
+    also the textbook ACC curve and the ACC and CACC gains tuned for that plant (when tuned)."""
     from carl_sumo.control.cacc import TUNED_FILE, read_tuned
 
     models = {"sumo-cacc": BUILTIN_MODELS["sumo-cacc"]}
     models.update({f"ploeg:h={h:g}": f"Ploeg h={h:g} s" for h in TEXTBOOK_GAPS})
-    entries = read_tuned(tuned_file or TUNED_FILE)
-    models.update({f"ploeg-tuned:h={h}": f"Ploeg tuned h={h} s"
-                   for h, e in sorted(entries.items(), key=lambda kv: float(kv[0]))
-                   if e.get("kp") is not None})
+    if plant == "ideal":
+        entries = read_tuned(tuned_file or TUNED_FILE)
+        models.update({f"ploeg-tuned:h={h}": f"Ploeg tuned h={h} s"
+                       for h, e in sorted(entries.items(), key=lambda kv: float(kv[0]))
+                       if e.get("kp") is not None})
+        return models
+    models.update({f"acc:h={h:g}": f"ACC h={h:g} s" for h in ACC_GAPS})
+    for law, label in (("ploeg", "Ploeg"), ("acc", "ACC")):
+        entries = read_tuned(None, law, plant)
+        models.update({f"{law}-tuned:h={h}": f"{label} tuned h={h} s"
+                       for h, e in sorted(entries.items(), key=lambda kv: float(kv[0]))
+                       if e.get("kp") is not None})
     return models
 
 
@@ -252,13 +272,14 @@ def figure_event(events: Sequence[Event]) -> str:
 def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = False,
                events: int | None = None, policies: Path | None = None,
                net: str | Path = "networks/i80.net.xml", all_seeds: bool = False,
-               seeds: bool = False, warmup_s: float = 0.0) -> Suite:
+               seeds: bool = False, warmup_s: float = 0.0, plant: str = "ideal") -> Suite:
     """Resolve data, events, policies and tables; InputError on anything missing or wrong.
 
     ``seeds``: the seed files of :data:`SEED_MODELS` run in Table 1 and in Table 2 at 10 followers
     (those are Table 1's runs), not in Table 3 or the cross-site table; ``all_seeds`` runs every model's
     seed files in every row (slower); with neither, no seed file runs (the shipped policies
-    alone). ``warmup_s``: every event runs that long first, unscored (``Event.with_warmup``)."""
+    alone). ``warmup_s``: every event runs that long first, unscored (``Event.with_warmup``).
+    ``plant``: the plant key of the real suite's tuned gains (:attr:`Impairments.plant_key`)."""
     if all_seeds and seeds:
         raise InputError("--all-seeds and --seeds exclude each other; give one")
     if suite not in SUITES:
@@ -279,7 +300,9 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
     sg = EventSet("stop_and_go", "stop-and-go", "test", None,
                   note="one synthetic leader: 25 m/s, " + ("one braking (--quick)" if quick else
                                                            "three brakings") + " at -5 m/s² to 1 m/s")
-    classical = classical_models()
+    classical = classical_models(plant=plant if suite == "real" else "ideal")
+    if suite == "real":
+        classical = {"idm-external": BUILTIN_MODELS["idm-external"], **classical}
     table1_models = ("human", "idm", "krauss", *classical, "maddpg_10", "ddpg_1", "ca_ddpg_10",
                      "td3_1", "ca_td3_10", "ca_td3_ploeg_10")
     seed_models = None if all_seeds else SEED_MODELS if seeds else ()
@@ -287,7 +310,8 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
                      "ca_ddpg_10", "ca_td3_10", "ca_ddpg_20", "ca_td3_20", "ca_td3_ploeg_10")
     tables = [
         TableSpec("table1_ngsim_test", "Table 1: NGSIM test split, 10 followers", test, (10,),
-                  table1_models, figures=True, paired=PAIRED_COMPARISONS,
+                  table1_models, figures=True,
+                  paired=tuple(p for p in PAIRED_COMPARISONS if set(p) <= set(table1_models)),
                   seed_models=seed_models),
         TableSpec("table2_generalization", "Table 2: generalization to other platoon lengths",
                   test, (10, 20) if quick else (10, 20, 50), table2_models,
@@ -314,7 +338,7 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
             check_fits(route, e, max(spec.followers))
     figures = {spec.events.key: figure_event(loaded[spec.events.key]) for spec in tables
                if spec.figures}
-    return Suite(tables, models, loaded, figures, data, quick, warmup_s=warmup_s)
+    return Suite(tables, models, loaded, figures, data, quick, warmup_s=warmup_s, name=suite)
 
 
 def table_cells(spec: TableSpec, suite: Suite):

@@ -192,14 +192,17 @@ def _impairments(imp) -> str:
     """One line of the impairments a suite ran with."""
     return (f"delay {imp.delay_s:g} s, loss {imp.loss:g} (bursts of {imp.burst:g} steps), "
             f"timeout {imp.timeout_s:g} s, fade {imp.fade_s:g} s, "
-            f"sensor noise {'on' if imp.sensor_noise else 'off'}, impairment seed {imp.seed}")
+            f"sensor noise {'on' if imp.sensor_noise else 'off'}, impairment seed {imp.seed}"
+            + (f"; vehicle dynamics: fleet {imp.plant.describe()} (`docs/vehicles.md`)"
+               if imp.plant is not None else ""))
 
 
 def suite_readme(suite: Suite, sections: list[str], figure_files: list[tuple[str, str]],
                  wall: float, simulated: float, cpu: float, workers: int, n_tasks: int,
                  command: str) -> str:
     n_events = {k: len(v) for k, v in suite.events.items()}
-    lines = ["# carl-sumo evaluate: the paper suite" + (" (--quick)" if suite.quick else ""), "",
+    lines = [f"# carl-sumo evaluate: the {suite.name} suite" + (" (--quick)" if suite.quick else ""),
+             "",
              f"- command: `{command}`" if command else "- command: (Python API)",
              f"- data: `{suite.data}`; events per table: "
              + ", ".join(f"{k} {v}" for k, v in n_events.items()),

@@ -1,4 +1,11 @@
-"""``carl-sumo tune ploeg``: the Ploeg CACC's gains tuned on the training events, in SUMO.
+"""``carl-sumo tune ploeg|acc``: a constant-time-gap law's gains tuned on the training events, in
+SUMO, for one plant (the ideal plant, or a fleet with lag and V2V delay: ``--plant real`` ...).
+
+With a plant (``string_stable``), a point must also be string stable on every class of the fleet:
+‖Γ‖∞ ≤ 1 over the links behind a follower (a CACC's V2V links), for each class at both ends of
+its lag and dead-time ranges, computed with the exact discrete-time transfer function of the law
+(:func:`carl_sumo.control.transfer.robust_hinf`, which the measurement in SUMO matches to 1e-4);
+gains that are not are not simulated. One gain set serves the whole fleet (robust tuning).
 
 For each time gap h, a grid of (kp, kd) runs on every training event (10 followers by default)
 through the same SUMO loop as ``simulate``. A point is **safe** when it is at least as safe as
@@ -34,6 +41,8 @@ from pathlib import Path
 from typing import Callable
 
 from carl_sumo.control.cacc import TEXTBOOK, TUNED_FILE, PloegParams
+from carl_sumo.control.channel import Impairments
+from carl_sumo.control.transfer import robust_hinf
 from carl_sumo.errors import InputError
 from carl_sumo.sim.metrics import METRIC_KEYS, aggregate
 from carl_sumo.files import write_text_atomic
@@ -61,6 +70,27 @@ class TuneConfig:
     net: str = str(DEFAULT_NET)
     workers: int = 2
     command: str = ""
+    law: str = "ploeg"                  # ploeg (CACC) or acc (radar only)
+    impairments: Impairments | None = None  # the plant (fleet) and V2V channel tuned for
+    warmup_s: float = 0.0               # every event first settles this long (s)
+    string_stable: bool = False         # also require hinf <= 1 on every class of the fleet
+
+    @property
+    def plant_key(self) -> str:
+        return self.impairments.plant_key if self.impairments is not None else "ideal"
+
+    def params(self, h: float, kp: float, kd: float) -> PloegParams:
+        return PloegParams(h, kp, kd, feed_forward=self.law == "ploeg")
+
+    def robust_hinf(self, h: float, kp: float, kd: float) -> float:
+        """‖Γ‖∞ of the exact discrete law over the links behind a follower (a CACC's V2V links)
+        of every class of the fleet at both ends of its ranges, each in a platoon of its own
+        class (:func:`carl_sumo.control.transfer.robust_hinf`)."""
+        imp = self.impairments
+        plant = imp.plant if imp is not None else None
+        corners = plant.corners() if plant is not None else [(0.0, 0)]
+        return robust_hinf(h, kp, kd, corners, imp.delay_steps if imp is not None else 0,
+                           cacc=self.law == "ploeg")
 
 
 @dataclass
@@ -73,27 +103,28 @@ class GridPoint:
     colliding_events: int = 0
     objective: float = math.nan
     safe: bool = False
+    hinf: float = math.nan            # robust ‖Γ‖∞ (TuneConfig.robust_hinf), with string_stable
 
 
 # ------------------------------------------------------------------------------- running
 _EVENTS: list = []
 
 
-def _worker_init(data: str, split: str, limit: int | None) -> None:
+def _worker_init(data: str, split: str, limit: int | None, warmup_s: float = 0.0) -> None:
     from carl_sumo.data import load_events
     from carl_sumo.scale.workers import worker_init as torch_threads
 
     torch_threads()
     global _EVENTS
-    _EVENTS = load_events(data, split, limit=limit)
+    _EVENTS = [e.with_warmup(warmup_s) for e in load_events(data, split, limit=limit)]
 
 
-def _run_point(task: tuple[str, int, int, int, str]) -> tuple[str, list[dict]]:
+def _run_point(task: tuple) -> tuple[str, list[dict]]:
     """Per-event metrics of one controller name on a slice of this worker's events."""
     from carl_sumo.experiments.simulate import score_events
 
-    name, start, stop, n, net = task
-    return name, score_events(name, _EVENTS[start:stop], n, net)
+    name, start, stop, n, net, impairments = task
+    return name, score_events(name, _EVENTS[start:stop], n, net, impairments=impairments)
 
 
 def _score(point: GridPoint, per_event: list[dict]) -> None:
@@ -116,15 +147,16 @@ class _Runner:
             import multiprocessing as mp
 
             self.pool = mp.get_context("spawn").Pool(
-                workers, initializer=_worker_init, initargs=(cfg.data, cfg.split, limit))
+                workers, initializer=_worker_init,
+                initargs=(cfg.data, cfg.split, limit, cfg.warmup_s))
         else:
             self.pool = None
-            _worker_init(cfg.data, cfg.split, limit)
+            _worker_init(cfg.data, cfg.split, limit, cfg.warmup_s)
 
     def run(self, points: list[GridPoint]) -> None:
-        names = {PloegParams(p.h, p.kp, p.kd).name(): p for p in points}
-        tasks = [(name, a, b, self.cfg.n_followers, self.cfg.net) for name in names
-                 for a, b in self.chunks]
+        names = {self.cfg.params(p.h, p.kp, p.kd).name(): p for p in points}
+        tasks = [(name, a, b, self.cfg.n_followers, self.cfg.net, self.cfg.impairments)
+                 for name in names for a, b in self.chunks]
         parts: dict[str, list[tuple[int, list[dict]]]] = {name: [] for name in names}
         outputs = self.pool.imap(_run_point, tasks) if self.pool is not None \
             else map(_run_point, tasks)
@@ -144,11 +176,15 @@ class _Runner:
 
 # -------------------------------------------------------------------------------- search
 def _judge(point: GridPoint, reference: GridPoint, cfg: TuneConfig) -> None:
+    if not point.metrics:  # not simulated: string unstable in theory
+        point.safe = False
+        return
     m, ref = point.metrics, reference.metrics
     point.objective = m["jerk_mps3"] / ref["jerk_mps3"] + \
         m["dampening_ratio"] / ref["dampening_ratio"]
     point.safe = (m["collisions"] == 0 and m["ttc_lt_1_5s_count"] <= ref["ttc_lt_1_5s_count"]
-                  and m["headway_s"] <= ref["headway_s"] * (1.0 + cfg.headway_tolerance))
+                  and m["headway_s"] <= ref["headway_s"] * (1.0 + cfg.headway_tolerance)
+                  and (not cfg.string_stable or point.hinf <= 1.0 + 1e-9))
 
 
 def _grown(values: list[float], at_low: bool, at_high: bool) -> list[float]:
@@ -173,7 +209,11 @@ def tune_gap(h: float, cfg: TuneConfig, runner: _Runner,
         if (TEXTBOOK.kp, TEXTBOOK.kd) not in points and not any(
                 (t.kp, t.kd) == (TEXTBOOK.kp, TEXTBOOK.kd) for t in todo):
             todo.append(reference)
-        runner.run(todo)
+        if cfg.string_stable:  # only gains that are string stable in theory are simulated
+            for t in todo:
+                t.hinf = cfg.robust_hinf(t.h, t.kp, t.kd)
+        runner.run([t for t in todo if not cfg.string_stable or t.hinf <= 1.0 + 1e-9
+                    or (t.kp, t.kd) == (TEXTBOOK.kp, TEXTBOOK.kd)])
         for point in todo:
             points[(point.kp, point.kd)] = point
         reference = points[(TEXTBOOK.kp, TEXTBOOK.kd)]
@@ -194,8 +234,8 @@ def tune_gap(h: float, cfg: TuneConfig, runner: _Runner,
 
 def _point_row(p: GridPoint) -> dict:
     return {"h": p.h, "kp": p.kp, "kd": p.kd, "objective": p.objective, "safe": p.safe,
-            "colliding_events": p.colliding_events, "max_ttc15_per_event": p.max_ttc15_event,
-            **p.metrics}
+            "hinf": p.hinf, "colliding_events": p.colliding_events,
+            "max_ttc15_per_event": p.max_ttc15_event, **p.metrics}
 
 
 def reusable_points(path: Path, cfg: TuneConfig, n_events: int) -> list[GridPoint]:
@@ -204,8 +244,10 @@ def reusable_points(path: Path, cfg: TuneConfig, n_events: int) -> list[GridPoin
     the file was made on other data."""
     try:
         payload = json.loads(Path(path).read_text())
-        same = (payload["data"], payload["split"], payload["events"], payload["followers"]) == \
-            (cfg.data, cfg.split, n_events, cfg.n_followers)
+        same = (payload["data"], payload["split"], payload["events"], payload["followers"],
+                payload.get("controller", "ploeg"), payload.get("plant", "ideal"),
+                payload.get("warmup_s", 0.0)) == \
+            (cfg.data, cfg.split, n_events, cfg.n_followers, cfg.law, cfg.plant_key, cfg.warmup_s)
         rows = payload["grid"]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise InputError(f"--reuse {path}: not a result file of `carl-sumo tune ploeg` "
@@ -219,7 +261,8 @@ def reusable_points(path: Path, cfg: TuneConfig, n_events: int) -> list[GridPoin
         point = GridPoint(row["h"], row["kp"], row["kd"],
                           max_ttc15_event=row["max_ttc15_per_event"],
                           colliding_events=row["colliding_events"])
-        point.metrics = {k: row[k] for k in METRIC_KEYS}
+        point.metrics = {k: row[k] for k in METRIC_KEYS} if METRIC_KEYS[0] in row else {}
+        point.hinf = row.get("hinf", math.nan)
         points.append(point)
     return points
 
@@ -244,20 +287,23 @@ def tune_ploeg(cfg: TuneConfig, out: Path = TUNED_FILE, events_limit: int | None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(desc="tune ploeg", unit="gains", leave=False)
+        bar = tqdm(desc=f"tune {cfg.law}", unit="gains", leave=False)
     start = time.perf_counter()
     runner = _Runner(cfg, len(events), events_limit, bar.update if bar is not None else None)
     entries, grid = [], []
     partial = Path(out).with_suffix(".partial.json")
 
     def result() -> dict:
-        return {"controller": "ploeg", "command": cfg.command, "date": date.today().isoformat(),
+        return {"controller": cfg.law, "plant": cfg.plant_key, "warmup_s": cfg.warmup_s,
+                "string_stable": cfg.string_stable,
+                "command": cfg.command, "date": date.today().isoformat(),
                 "data": cfg.data, "split": cfg.split, "events": len(events),
                 "followers": cfg.n_followers, "objective": OBJECTIVE,
                 "constraints": {"collisions": 0,
                                 "ttc_lt_1_5s_count": "at most the textbook gains' at the same h",
                                 "headway_at_most_textbook_times": 1.0 + cfg.headway_tolerance},
-                "grid_growth": GROWTH, "config": asdict(cfg),
+                "grid_growth": GROWTH,
+                "config": {k: v for k, v in asdict(cfg).items() if k != "impairments"},
                 "wall_time_s": round(time.perf_counter() - start, 1),
                 "entries": entries, "grid": grid}
 
@@ -325,7 +371,9 @@ def grid_figure(payload: dict, path: Path) -> Path:
                         c=[g["objective"] for g in grid], cmap="viridis_r", s=120,
                         vmin=1.0, vmax=2.6)
         for g in grid:
-            if g["collisions"] > 0:
+            if "collisions" not in g:  # not simulated: string unstable in theory
+                ax.plot(g["kp"], g["kd"], "+", color="grey", ms=12, mew=2)
+            elif g["collisions"] > 0:
                 ax.plot(g["kp"], g["kd"], "x", color="red", ms=12, mew=2)
             elif not g["safe"]:
                 ax.plot(g["kp"], g["kd"], "o", mfc="none", mec="orange", ms=14, mew=2)
@@ -338,8 +386,10 @@ def grid_figure(payload: dict, path: Path) -> Path:
         ax.set_ylabel("kd (1/s)")
         ax.set_title(f"h = {entry['h']:g} s")
     fig.colorbar(sc, ax=axes[0].tolist(), label="J = jerk/jerk_tb + damp./damp._tb")
-    fig.suptitle("Ploeg gains on the training events: red x collides, orange o unsafe "
-                 "(TTC<1.5 s or headway), square textbook, star chosen")
+    fig.suptitle(f"{payload.get('controller', 'ploeg')} gains on the training events "
+                 f"({payload.get('plant', 'ideal')}): red x collides, orange o unsafe (TTC<1.5 s, "
+                 "headway or string stability), grey + string unstable (not run), square "
+                 "textbook, star chosen", fontsize=9)
     return save_png(fig, path)
 
 

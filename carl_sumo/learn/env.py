@@ -27,6 +27,7 @@ from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
 from carl_sumo.control.sensors import Sensors
 from carl_sumo.sim.sumo import DEFAULT_NET, PlatoonSim, check_fits
+from carl_sumo.sim.vehicle import Plant
 
 
 class PlatoonEnv(ParallelEnv):
@@ -38,7 +39,8 @@ class PlatoonEnv(ParallelEnv):
                  net_path: str | Path = DEFAULT_NET, reward: RewardConfig = REWARD,
                  idm: IDMParams = IDM, bounds: ControlBounds = BOUNDS,
                  scenario: ScenarioConfig = SCENARIO, base: str = "idm",
-                 observe_ahead: bool = False, shield_ttc_s: float = 0.0):
+                 observe_ahead: bool = False, shield_ttc_s: float = 0.0,
+                 plant: Plant | None = None):
         if not events:
             raise InputError("the environment needs at least one event")
         self.events = list(events)
@@ -46,6 +48,7 @@ class PlatoonEnv(ParallelEnv):
         for event in self.events:
             check_fits(self.sim.route, event, n_followers, scenario)
         self.n_followers = n_followers
+        self.plant = plant  # the followers' vehicle dynamics (None: the ideal plant)
         self.reward_cfg, self.idm, self.bounds = reward, idm, bounds
         self.base = base
         self._base = controllers.base_controller(base)  # None: IDM, in the compiled kernel
@@ -83,12 +86,16 @@ class PlatoonEnv(ParallelEnv):
         ``impairments`` (:mod:`carl_sumo.control.channel`): this episode's vehicles measure their gap and
         relative speed with noise (control, observations and shield use the measured values,
         the reward the true ones), and a classical base's predecessor messages cross impaired
-        links; the CA module's own messages are the caller's (``channel.PlatoonLinks``)."""
+        links; the CA module's own messages are the caller's (``channel.PlatoonLinks``); its
+        ``plant`` (else the env's) gives the followers' vehicle dynamics."""
         if seed is not None:
             self._rng = np.random.default_rng(seed)
         self.event = event if event is not None else \
             self.events[int(self._rng.integers(len(self.events)))]
-        self.sim.reset(self.event, self.n_followers)
+        plant = impairments.plant if impairments is not None and impairments.plant is not None \
+            else self.plant
+        self.sim.reset(self.event, self.n_followers, plant=plant,
+                       plant_seed=impairments.seed if impairments is not None else 0)
         self._sensors = Sensors.of(impairments, self.event.event_id)
         if self._base is not None:
             self._base.reset(self.n_followers)

@@ -71,7 +71,8 @@ class TrainConfig:
     comm_randomize: bool = False   # every episode its own V2V delay/loss and sensor noise (randomize.py)
     randomize_sensors: bool = True  # with comm_randomize: sensor noise in half the episodes
     val_impaired: bool = False     # validate also under selection.VALIDATION_IMPAIRMENTS
-    comm_delay: float = 0.0        # fixed impairments of every training episode (channel.py)
+    comm_delay: float | None = None  # fixed impairments of every episode (channel.py; None: 0,
+    # or the real plant's V2V delay with plant="real")
     comm_loss: float = 0.0
     comm_burst: float = 1.0
     comm_timeout: float = 1.0
@@ -79,6 +80,10 @@ class TrainConfig:
     sensor_noise: bool = False
     sensor_filter: bool = False    # noisy measurements are tracked (sensors.py), fixed or random
     impairment_seed: int = 0
+    plant: str = "ideal"           # the followers' vehicle dynamics (sim/vehicle.py): ideal, real
+    fleet: str | None = None       # vehicle classes with fractions (--fleet)
+    vehicle_lag: float | None = None      # τ of every follower (s)
+    actuation_delay: float | None = None  # dead time of every follower (s)
     init: str | None = None        # a policy file whose actor starts the run (a warm start)
     imitate: str | None = None     # a Ploeg CACC the actor copies first (carl_sumo.learn.imitation)
     imitate_updates: int = 4_000   # behaviour-cloning gradient steps at learning_starts
@@ -158,11 +163,16 @@ def validation_conditions(cfg: TrainConfig) -> tuple:
     """What validation runs every event under: a perfect channel, and with ``--val-impaired``
     also :data:`carl_sumo.learn.selection.VALIDATION_IMPAIRMENTS` (with clean sensors for a run
     randomised without sensor noise, filtered with ``--sensor-filter``), or a run's fixed
-    impairments (impairment seed 0)."""
+    impairments (impairment seed 0). On a plant (``--plant``, ``--fleet`` ...) every condition
+    has its vehicle dynamics and V2V delay."""
+    fixed = cfg.fixed_impairments
+    if fixed is not None and fixed.plant is not None:  # validation runs on the training plant
+        plain = Impairments(delay_s=fixed.delay_s, plant=fixed.plant)
+        return (plain,) if not cfg.val_impaired else (plain, replace(fixed, seed=0))
     if not cfg.val_impaired:
         return (None,)
-    if cfg.fixed_impairments is not None:
-        return (None, replace(cfg.fixed_impairments, seed=0))
+    if fixed is not None:
+        return (None, replace(fixed, seed=0))
     noisy = not cfg.comm_randomize or cfg.randomize_sensors
     return (None, replace(VALIDATION_IMPAIRMENTS, sensor_noise=noisy,
                           sensor_filter=noisy and cfg.sensor_filter))

@@ -30,6 +30,7 @@ from numba import njit
 from carl_sumo.config import DT_S, SCENARIO, ScenarioConfig
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
+from carl_sumo.sim.vehicle import Plant, Powertrains
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 VTYPES_FILE = REPO_ROOT / "routes" / "vtypes.add.xml"
@@ -153,8 +154,9 @@ def lane_route(net_path: str | Path, ngsim_lane: int = SCENARIO.ngsim_lane) -> L
 
 
 @njit(cache=True)
-def _observe(speed, acc, pos, leader_front, leader_speed, vehicle_length):
-    """Observation rows [v, a, d, Δv] of a platoon, head first (see PlatoonSim.observation)."""
+def _observe(speed, acc, pos, leader_front, leader_speed, lengths):
+    """Observation rows [v, a, d, Δv] of a platoon, head first (see PlatoonSim.observation);
+    ``lengths``: the followers' lengths (m)."""
     n = speed.shape[0]
     out = np.empty((n, 4))
     front, pred_speed = leader_front, leader_speed
@@ -163,26 +165,30 @@ def _observe(speed, acc, pos, leader_front, leader_speed, vehicle_length):
         out[i, 1] = acc[i]
         out[i, 2] = front - pos[i]
         out[i, 3] = pred_speed - speed[i]
-        front = pos[i] - vehicle_length
+        front = pos[i] - lengths[i]
         pred_speed = speed[i]
     return out
 
 
-def platoon_start_m(event: Event, n_followers: int, scenario: ScenarioConfig = SCENARIO) -> float:
-    """Route coordinate of the leader's front bumper at t = 0 so that the whole platoon fits (m)."""
+def platoon_start_m(event: Event, n_followers: int, scenario: ScenarioConfig = SCENARIO,
+                    extra_m: float = 0.0) -> float:
+    """Route coordinate of the leader's front bumper at t = 0 so that the whole platoon fits (m);
+    ``extra_m``: how much longer the followers are together than the scenario's vehicles."""
     return (scenario.start_margin_m + event.leader_length_m
-            + n_followers * (max(event.initial_gap_m, 0.0) + scenario.vehicle_length_m))
+            + n_followers * (max(event.initial_gap_m, 0.0) + scenario.vehicle_length_m)) + extra_m
 
 
-def required_length_m(event: Event, n_followers: int, scenario: ScenarioConfig = SCENARIO) -> float:
+def required_length_m(event: Event, n_followers: int, scenario: ScenarioConfig = SCENARIO,
+                      extra_m: float = 0.0) -> float:
     """Length of lane route a platoon needs to run an event to its end (m)."""
-    return platoon_start_m(event, n_followers, scenario) + event.leader_travel_m + scenario.end_margin_m
+    return (platoon_start_m(event, n_followers, scenario, extra_m) + event.leader_travel_m
+            + scenario.end_margin_m)
 
 
 def check_fits(route: LaneRoute, event: Event, n_followers: int,
-               scenario: ScenarioConfig = SCENARIO) -> None:
+               scenario: ScenarioConfig = SCENARIO, extra_m: float = 0.0) -> None:
     """Raise InputError when the network is too short for this event and platoon."""
-    needed = required_length_m(event, n_followers, scenario)
+    needed = required_length_m(event, n_followers, scenario, extra_m)
     if needed > route.length_m:
         raise InputError(f"network {route.net_path} is too short for event {event.event_id} with "
                          f"{n_followers} followers: it needs {needed:.0f} m of lane, the road has "
@@ -261,34 +267,53 @@ class PlatoonSim:
         self.event: Event | None = None
         self.n = 0
         self.k = 0
+        self.powertrains: Powertrains | None = None
+        self.lengths = np.zeros(0)
 
     # ----------------------------------------------------------------------------------------
     def reset(self, event: Event, n_followers: int, fcd_path: Path | None = None,
-              seed: int = 0) -> None:
+              seed: int = 0, plant: Plant | None = None, plant_seed: int = 0) -> None:
         """Load SUMO afresh and place the leader and ``n_followers`` at the event's t = 0 state.
 
         Followers start at the recorded follower's initial speed, one behind the other with the
-        recorded initial bumper gap.
+        recorded initial bumper gap. ``plant``: their vehicle dynamics (None: the ideal plant),
+        drawn for this event with ``plant_seed`` (:meth:`carl_sumo.sim.vehicle.Plant.draw`).
         """
         if n_followers < 1:
             raise InputError(f"a platoon needs at least 1 follower, got {n_followers}")
-        check_fits(self.route, event, n_followers, self.scenario)
+        if plant is not None and self.follower_model != "external":
+            raise InputError("vehicle dynamics (--plant, --fleet, --vehicle-lag, "
+                             "--actuation-delay) apply to the followers carl-sumo drives, not to "
+                             "SUMO's own models or the recorded follower")
+        self.powertrains = None if plant is None else plant.draw(n_followers, event.event_id,
+                                                                 plant_seed)
+        length = self.scenario.vehicle_length_m
+        lengths = np.full(n_followers, length) if self.powertrains is None \
+            else self.powertrains.length_m
+        extra = float(np.sum(lengths - length)) if self.powertrains is not None else 0.0
+        check_fits(self.route, event, n_followers, self.scenario, extra)
         ls = _libsumo()
         start_sumo(sumo_args(self.route.net_path, fcd_path, seed))
         self.event, self.n, self.k = event, n_followers, 0
         for i in range(len(self.route.edges)):  # one route per edge a vehicle may start on
             ls.route.add(f"platoon{i}", list(self.route.edges[i:]))
-        x_leader = platoon_start_m(event, n_followers, self.scenario)
-        gap0, length = max(event.initial_gap_m, 0.0), self.scenario.vehicle_length_m
-        starts = x_leader - event.leader_length_m - gap0 - np.arange(n_followers) * (length + gap0)
+        x_leader = platoon_start_m(event, n_followers, self.scenario, extra)
+        gap0 = max(event.initial_gap_m, 0.0)
+        if extra == 0.0:
+            offsets = np.arange(n_followers) * (length + gap0)
+        else:
+            offsets = np.concatenate([[0.0], np.cumsum(lengths[:-1] + gap0)])
+        starts = x_leader - event.leader_length_m - gap0 - offsets
+        self.lengths = lengths
         self._leader_offset = x_leader
         self._starts = starts
         self.leader_id = "leader"
         self.ids = [f"f{i}" for i in range(n_followers)]
         v0 = event.initial_speed_mps
         self._add("leader", "ngsim_leader", x_leader, float(event.leader_speed_mps[0]))
-        ftype = FOLLOWER_TYPES[self.follower_model]
-        for vid, x in zip(self.ids, starts):
+        ftypes = [FOLLOWER_TYPES[self.follower_model]] * n_followers \
+            if self.powertrains is None else self.powertrains.vtypes
+        for vid, x, ftype in zip(self.ids, starts, ftypes):
             self._add(vid, ftype, float(x), v0)
         ls.simulationStep()  # inserts every vehicle at its depart state, without moving it
         ls.vehicle.setLength(self.leader_id, event.leader_length_m)
@@ -351,7 +376,7 @@ class PlatoonSim:
         d_i is the bumper-to-bumper gap to the predecessor (the leader for i = 0).
         """
         return _observe(self.speed, self.acc, self.pos, self._leader_front[self.k],
-                        self._leader_speed[self.k], self.scenario.vehicle_length_m)
+                        self._leader_speed[self.k], self.lengths)
 
     def step(self, accel: np.ndarray | None = None) -> None:
         """Advance SUMO by one step; ``accel`` (m/s², shape (n,)) drives external followers."""
@@ -360,6 +385,8 @@ class PlatoonSim:
         if self.follower_model == "external":
             if accel is None:
                 raise ValueError("external followers need an acceleration every step")
+            if self.powertrains is not None:  # the command through lag and dead time
+                accel = self.powertrains.step(accel)
             for vid, v, a in zip(ids, self.speed.tolist(), accel.tolist()):
                 v += a * DT_S
                 set_speed(vid, v if v > 0.0 else 0.0)

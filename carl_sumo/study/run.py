@@ -236,6 +236,9 @@ def _simulate(ls, cfg: StudyConfig, kind: str,
     first_measured = int(round(cfg.warmup_s / DT_S)) + 1
     lookahead = max(cfg.v2v_range_m, SENSOR_RANGE_M)
     external = kind == "external"
+    plant = cfg.impairments.plant if cfg.impairments is not None else None
+    seed = cfg.impairments.seed if cfg.impairments is not None else 0
+    powertrains: dict = {}
     acc = _Accumulator()
     min_gap: dict[str, float] = {}
     prev_speed: dict[str, float] = {}
@@ -257,6 +260,10 @@ def _simulate(ls, cfg: StudyConfig, kind: str,
                 vehicle.setLaneChangeMode(vid, 0)
                 if external:
                     vehicle.setSpeedMode(vid, SPEED_MODE_CACC)
+                    if plant is not None:  # its class (vType) and powertrain, drawn by its ID
+                        powertrains[vid] = plant.draw(1, vid, seed)
+                        if powertrains[vid].vtypes[0] != CACC_TYPES["external"]:
+                            vehicle.setType(vid, powertrains[vid].vtypes[0])
         measuring = k >= first_measured
         ids = get_ids()
         cidx = [i for i, v in enumerate(ids) if v in cacc_ids] if external or measuring else []
@@ -281,7 +288,7 @@ def _simulate(ls, cfg: StudyConfig, kind: str,
             _drive_cacc(ls, cfg, controller, sensors, [ids[i] for i in cidx],
                         [ahead[i] for i in cidx] if ahead is not None else None,
                         [speeds[i] for i in cidx], [accel[i] for i in cidx], speed_of, min_gap,
-                        prev_acc, merging, acc if measuring else None)
+                        prev_acc, merging, acc if measuring else None, powertrains)
     wall = time.perf_counter() - start
     sim_s = n_steps * DT_S
     return acc, (heat_sum, heat_n), {"sim_speed": sim_s / wall, "sumo_share": sumo_time / wall,
@@ -303,10 +310,12 @@ def _drive_cacc(ls, cfg: StudyConfig, controller: ChainController | PloegChains,
                 sensors: Sensors | None, cids: list[str],
                 cahead: list[tuple[str, float] | None] | None, speeds: list[float],
                 accel: list[float | None], speed_of: dict[str, float], min_gap: dict[str, float],
-                prev_acc: dict[str, float], merging: dict, acc: _Accumulator | None) -> None:
+                prev_acc: dict[str, float], merging: dict, acc: _Accumulator | None,
+                powertrains: dict | None = None) -> None:
     """One step of carl-sumo's CACC vehicles ``cids``: what each sees ahead (zipper merges
-    included), their chains, the controller's accelerations applied exactly with setSpeed;
-    ``acc``: add the chain statistics (None outside the measurement interval)."""
+    included), their chains, the controller's accelerations applied with setSpeed, through each
+    vehicle's powertrain when the study has a plant (``powertrains`` by vehicle ID); ``acc``: add
+    the chain statistics (None outside the measurement interval)."""
     vehicle = ls.vehicle
     lookahead = max(cfg.v2v_range_m, SENSOR_RANGE_M)
     if cahead is None:
@@ -321,6 +330,9 @@ def _drive_cacc(ls, cfg: StudyConfig, controller: ChainController | PloegChains,
     if sensors is not None:  # a track per vehicle and its current predecessor
         obs = sensors.measure(obs, cids, [None if c is None else c[0] for c in chain_ahead])
     accel_cmd = controller.acceleration(obs, chains, cids, chain_ahead, prev_acc)
+    if powertrains:  # the commands through each vehicle's lag and dead time
+        accel_cmd = np.array([powertrains[v].step(np.array([a]))[0]
+                              for v, a in zip(cids, accel_cmd.tolist())])
     set_speed = vehicle.setSpeed
     for vid, v, a in zip(cids, obs[:, 0].tolist(), accel_cmd.tolist()):
         v += a * DT_S

@@ -1,0 +1,120 @@
+"""String stability in frequency, in theory: the transfer function Γ(jω) of one platoon link
+(follower i's acceleration over its predecessor's) for the linear constant-time-gap laws of
+:mod:`carl_sumo.control.cacc` on a vehicle with lag and dead time (:mod:`carl_sumo.sim.vehicle`).
+
+Continuous (Ploeg et al. 2011, 2014): with the vehicle G(s) = e^{-φs} / (s²(τs + 1)) from command
+to position, the controller K(s) = kp + kd·s, the spacing policy H(s) = 1 + h·s and the V2V
+feed-forward D(s) = e^{-θs} (CACC) or 0 (ACC, radar only):
+
+    Γ(s) = (G·K + D) / (H·(1 + G·K))
+
+Discrete (:func:`gamma_discrete`): the same links as carl-sumo runs them every dt = 0.1 s, exactly:
+the controller's Euler step u(k+1) = u(k) + (dt/h)(-u + kp·e + kd·ė + u_pred), the command u(k+1)
+through D steps of dead time and the lag a(k+1) = α·c(k) + (1 - α)·a(k), and SUMO's integration
+v(k+1) = v(k) + a(k+1)·dt, x(k+1) = x(k) + v(k+1)·dt. A link is string stable when
+‖Γ‖∞ = max_ω |Γ(jω)| ≤ 1; :func:`h_min` is the smallest such time gap.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from carl_sumo.config import DT_S
+
+
+def gamma_continuous(omega: np.ndarray, h: float, kp: float, kd: float, tau: float,
+                     phi: float = 0.0, theta: float = 0.0, cacc: bool = True,
+                     first_link: bool = False) -> np.ndarray:
+    """Γ(jω) (complex, shape of ``omega`` in rad/s) of the continuous law: time gap ``h`` (s),
+    gains ``kp`` (1/s²), ``kd`` (1/s), lag ``tau`` (s), dead time ``phi`` (s), V2V delay ``theta``
+    (s), with (``cacc``) or without the feed-forward. ``first_link``: the feed-forward is the
+    leader's realised acceleration, not its command, so D(s) is the follower's own e^{-φs}/(τs+1)
+    (the head of a carl-sumo platoon measures the leader's acceleration)."""
+    s = 1j * np.asarray(omega, dtype=float)
+    lag = np.exp(-phi * s) / (tau * s + 1.0)
+    g = lag / s ** 2
+    gk = g * (kp + kd * s)
+    d = (lag if first_link else np.exp(-theta * s)) if cacc else 0.0
+    return (gk + d) / ((1.0 + h * s) * (1.0 + gk))
+
+
+def gamma_discrete(omega: np.ndarray, h: float, kp: float, kd: float, tau: float,
+                   dead_steps: int = 0, delay_steps: int = 0, cacc: bool = True,
+                   pred_tau: float | None = None, pred_dead_steps: int | None = None,
+                   first_link: bool = False, dt: float = DT_S) -> np.ndarray:
+    """Γ(e^{jωdt}) of a link as carl-sumo runs it (see the module docstring): the follower's lag
+    ``tau`` (s) and dead time ``dead_steps``, its predecessor's (default: the same; they set how
+    the predecessor's message u relates to its acceleration), the V2V delay ``delay_steps``.
+    ``first_link``: the predecessor is the leader, whose measured acceleration over the last step
+    is the head's feed-forward (not a V2V message)."""
+    z = np.exp(1j * np.asarray(omega, dtype=float) * dt)
+    integ = dt * z / (z - 1.0)                    # v from a, x from v (SUMO's Euler update)
+    f = kp * integ ** 2 + kd * integ              # kp·e + kd·ė on the predecessor's a
+    own = f + h * (kp * integ + kd)               # ... and on the follower's own a
+    plant = _plant(z, tau, dead_steps, dt)        # a = P·u
+    ctrl = z - 1.0 + dt / h                       # (z - 1 + dt/h)·U = (dt/h)·(...)
+    if not cacc:
+        feed = 0.0
+    elif first_link:
+        feed = 1.0                                # the leader's measured acceleration
+    else:
+        pred = _plant(z, tau if pred_tau is None else pred_tau,
+                      dead_steps if pred_dead_steps is None else pred_dead_steps, dt)
+        feed = z ** (-delay_steps) / pred         # u_pred = a_pred / P_pred, delayed
+    return (dt / h) * (f + feed) / (ctrl / plant + (dt / h) * own)
+
+
+def _plant(z: np.ndarray, tau: float, dead_steps: int, dt: float) -> np.ndarray:
+    """a(z)/u(z): the command u(k+1) of step k, D steps of dead time, the first-order lag."""
+    alpha = dt / (tau + dt)
+    return alpha * z ** (1 - dead_steps) / (z - 1.0 + alpha)
+
+
+def log_frequencies(n: int = 24, low: float = 0.05, high: float = 3.0) -> np.ndarray:
+    """``n`` log-spaced frequencies from ``low`` to ``high`` (rad/s)."""
+    return np.geomspace(low, high, n)
+
+
+def hinf(omega: np.ndarray, gamma: np.ndarray) -> float:
+    """max_ω |Γ(jω)| over the given frequencies."""
+    return float(np.max(np.abs(gamma)))
+
+
+def h_min(kp: float, kd: float, tau: float, phi: float = 0.0, theta: float = 0.0,
+          cacc: bool = True, h_high: float = 20.0, tol: float = 1e-3,
+          omega: np.ndarray | None = None) -> float:
+    """The smallest time gap (s) with ‖Γ‖∞ ≤ 1 for the continuous law (bisection; the peak
+    falls as h grows); ``inf`` when even ``h_high`` is not string stable."""
+    w = np.geomspace(1e-3, 30.0, 3000) if omega is None else omega
+
+    def stable(h: float) -> bool:
+        return hinf(w, gamma_continuous(w, h, kp, kd, tau, phi, theta, cacc)) <= 1.0 + 1e-9
+
+    if not stable(h_high):
+        return float("inf")
+    lo, hi = 0.0, h_high
+    while hi - lo > tol:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if stable(mid) else (mid, hi)
+    return hi
+
+
+ROBUST_OMEGAS = np.geomspace(0.01, 10.0, 400)
+"""Frequencies (rad/s) of the robust check: the peak of a constant-time-gap link lies in them."""
+
+
+def robust_hinf(h: float, kp: float, kd: float, corners: list[tuple[float, int]],
+                delay_steps: int, cacc: bool = True, omegas: np.ndarray = ROBUST_OMEGAS,
+                mixed: bool = False, first_link: bool = False) -> float:
+    """The largest ‖Γ‖∞ of the discrete law over platoons of each vehicle (τ s, dead steps) in
+    ``corners``, behind one like itself (a V2V link of a CACC); ``mixed``: also behind every
+    other corner (a heterogeneous link); ``first_link``: also behind the leader."""
+    worst = 0.0
+    for tau, dead in corners:
+        if first_link:
+            worst = max(worst, hinf(omegas, gamma_discrete(
+                omegas, h, kp, kd, tau, dead, delay_steps, cacc, first_link=True)))
+        for pred_tau, pred_dead in (corners if mixed else [(tau, dead)]):
+            worst = max(worst, hinf(omegas, gamma_discrete(
+                omegas, h, kp, kd, tau, dead, delay_steps, cacc, pred_tau, pred_dead)))
+    return worst
