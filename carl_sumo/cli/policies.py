@@ -61,8 +61,12 @@ def check_train_args(args: argparse.Namespace) -> Path:
             raise InputError(f"--scale-rates: --tau times --update-every is {scaled_tau:g}, "
                              "above 1; give a smaller --tau or --update-every")
     warmup_from(args)
-    if args.comm_fallback is not None:  # AgentConfig says what is wrong, before any run
-        AgentConfig(algo=args.algo, comm_fallback=args.comm_fallback)
+    if args.comm_fallback is not None or args.comm_off:  # AgentConfig says what is wrong
+        AgentConfig(algo=args.algo, comm_fallback=args.comm_fallback or "boundary",
+                    comm_off=bool(args.comm_off))
+    if args.plant_randomize and (args.comm_randomize or impairments_from(args) is not None):
+        raise InputError("--plant-randomize draws every episode's plant and channel itself; "
+                         "leave out --comm-randomize, --plant and the --comm-* options")
     if args.randomize_sensors is False and not args.comm_randomize:
         raise InputError("--no-sensor-randomize narrows --comm-randomize; give both, or neither")
     if impairments_from(args) is not None and args.comm_randomize:
@@ -116,6 +120,13 @@ def _add_robust_training_options(p: argparse.ArgumentParser) -> None:
                         "delay and sensor noise (clean sensors with --no-sensor-randomize; with "
                         "fixed --comm-* options: under those), and keep the checkpoint that is "
                         "best over both")
+    p.add_argument("--plant-randomize", action="store_true", default=None,
+                   help="every episode its own fleet (0-50 %% trucks), lags (per class, or one "
+                        "0.05-0.8 s lag and 0-0.3 s dead time for all), V2V delay (0-0.3 s) and "
+                        "message loss (0-30 %%); validation on the real plant (docs/vehicles.md)")
+    p.add_argument("--comm-off", action="store_true", default=None,
+                   help="CA models: cut the V2V messages (every vehicle hears only the boundary "
+                        "messages), the communication ablation; part of the policy file")
     p.add_argument("--comm-fallback", default=None, metavar="{boundary,base}",
                    help="what a CA vehicle does at run time when it hears no neighbour past "
                         "--comm-timeout: boundary (default: it acts as a chain end) or base (it "
@@ -232,7 +243,7 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "jerk_sc
                    "comm_fallback", "comm_randomize", "randomize_sensors", "val_impaired",
                    "comm_delay", "comm_loss", "comm_burst", "comm_timeout", "comm_fade", "warmup",
                    "sensor_noise", "sensor_filter", "impairment_seed", "plant", "fleet",
-                   "vehicle_lag", "actuation_delay")
+                   "vehicle_lag", "actuation_delay", "plant_randomize", "comm_off")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 

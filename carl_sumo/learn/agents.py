@@ -16,7 +16,7 @@ TD3 (Fujimoto et al. 2018) adds twin critics, target policy smoothing and delaye
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
@@ -25,6 +25,7 @@ from torch import nn
 
 from carl_sumo.learn.ca_scan import ca_forward
 from carl_sumo.config import BOUNDS, DT_S, IDM
+from carl_sumo.control.channel import Impairments
 from carl_sumo.errors import InputError
 from carl_sumo.learn.models import CentralCritic, CommunicationAware, PerAgentActors, PerVehicle
 
@@ -78,6 +79,8 @@ class AgentConfig:
     shield_ttc_s: float = 0.0     # no a_adj > 0 while closing in below this TTC (s; 0: off)
     comm_fallback: str = "boundary"  # hearing no neighbour: "boundary" (act as a chain end) or
                                      # also "base" (a_adj fades out with the messages; channel.py)
+    comm_off: bool = False        # CA models: the messages are cut, every vehicle hears only the
+                                  # boundary messages (the communication ablation, "CA-off")
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -88,9 +91,18 @@ class AgentConfig:
         if self.comm_fallback not in COMM_FALLBACKS:
             raise InputError(f"unknown --comm-fallback {self.comm_fallback!r}; choose one of "
                              f"{', '.join(COMM_FALLBACKS)}")
+        if self.comm_off and not self.communication_aware:
+            raise InputError("--comm-off cuts the CA messages: it is for ca-td3 and ca-ddpg")
         if self.comm_fallback != "boundary" and not self.communication_aware:
             raise InputError("--comm-fallback is for CA models (ca-td3, ca-ddpg), whose vehicles "
                              "exchange messages; the others hear nothing to lose")
+
+    def message_impairments(self, impairments: Impairments | None) -> Impairments | None:
+        """What the CA messages cross: ``impairments`` (None: a perfect channel), or with
+        ``comm_off`` a channel that loses every message."""
+        if self.comm_off:
+            return replace(impairments or Impairments(), loss=1.0)
+        return impairments
 
     @property
     def residual(self) -> bool:

@@ -132,6 +132,8 @@ class PolicyController:
             self._ahead.reset()
         self._links = None
         self._n = n_followers
+        if self.agent.cfg.comm_off and self._actor.message_dim:  # CA-off: nothing is heard
+            self.connect(Impairments(), "comm-off")
 
     def connect(self, impairments: Impairments, event_id: str) -> None:
         """Carry this episode's CA messages over impaired links (:mod:`carl_sumo.control.channel`:
@@ -139,7 +141,8 @@ class PolicyController:
         (DDPG, TD3, MADDPG) has nothing to send. Call after :meth:`reset`."""
         m = self._actor.message_dim
         if m:
-            self._links = PlatoonLinks(self._n, m, impairments, event_id)
+            self._links = PlatoonLinks(self._n, m, self.agent.cfg.message_impairments(impairments),
+                                       event_id)
 
     def adjustment(self, obs: np.ndarray) -> np.ndarray:
         """a_adj (m/s², shape (n,)) for one platoon observation (n, 4) of a step; a policy that

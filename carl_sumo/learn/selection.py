@@ -40,9 +40,11 @@ def validate_events(agent: Agent, env: PlatoonEnv, events: Sequence[Event],
         for event in events:
             obs = env.reset_array(event=event, impairments=impairments)
             links = None
-            if (impairments is not None and not impairments.perfect_channel
+            heard = agent.cfg.message_impairments(impairments) if isinstance(agent, Agent) \
+                else impairments
+            if (heard is not None and not heard.perfect_channel
                     and isinstance(act, CompiledActor) and act.message_dim):
-                links = PlatoonLinks(len(obs), act.message_dim, impairments, event.event_id)
+                links = PlatoonLinks(len(obs), act.message_dim, heard, event.event_id)
             true = env.true_observation
             speeds, gaps, leader = [true[:, 0]], [true[:, 2]], [env.sim.leader_speed]
             collisions, done = 0, False

@@ -34,6 +34,7 @@ from carl_sumo.learn.models import CommunicationAware
 from carl_sumo.learn.policy import save_policy
 from carl_sumo.learn.selection import (MARGIN_KEYS, BaseOnly, improvement_z,
                                  selection_score, validate_events)
+from carl_sumo.control.channel import Impairments
 from carl_sumo.learn.randomize import RandomisedChannels
 from carl_sumo.learn.replay_buffer import ReplayBuffer
 from carl_sumo.learn.checkpoint import (CHECKPOINT_FORMAT, read_checkpoint,  # noqa: F401
@@ -244,14 +245,18 @@ def _new_agent(cfg: TrainConfig, init_actor: dict | None) -> Agent:
 
 
 def _randomised_channels(cfg: TrainConfig, agent: Agent) -> RandomisedChannels | None:
-    """The impaired V2V links and sensors of the training episodes (``--comm-randomize`` or
-    fixed impairments), or None for a perfect channel."""
+    """The impaired V2V links, sensors and plants of the training episodes (``--comm-randomize``,
+    fixed impairments, ``--plant-randomize``; ``--comm-off`` cuts the CA messages), or None for
+    a perfect channel on the ideal plant."""
     fixed = cfg.fixed_impairments
-    if not (cfg.comm_randomize or fixed is not None):
+    if not (cfg.comm_randomize or fixed is not None or cfg.comm_off or cfg.plant_randomize):
         return None
+    if fixed is None and not cfg.comm_randomize:  # CA-off or random plants alone
+        fixed = Impairments()
     return RandomisedChannels(cfg.num_envs, cfg.n_vehicles, cfg.message_dim if
                               agent.cfg.communication_aware else 0, cfg.seed,
-                              cfg.randomize_sensors, fixed, cfg.sensor_filter)
+                              cfg.randomize_sensors, fixed, cfg.sensor_filter, cfg.comm_off,
+                              cfg.plant_randomize)
 
 
 def _validate_base(cfg: TrainConfig, val_env: PlatoonEnv, val_events: Sequence[Event], log

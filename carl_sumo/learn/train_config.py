@@ -15,6 +15,7 @@ from carl_sumo.errors import InputError
 from carl_sumo.learn.agents import AgentConfig
 from carl_sumo.learn.selection import VALIDATION_IMPAIRMENTS
 from carl_sumo.sim.sumo import DEFAULT_NET
+from carl_sumo.sim.vehicle import REAL_COMM_DELAY_S, REAL_PLANT
 
 
 @dataclass
@@ -84,6 +85,8 @@ class TrainConfig:
     fleet: str | None = None       # vehicle classes with fractions (--fleet)
     vehicle_lag: float | None = None      # τ of every follower (s)
     actuation_delay: float | None = None  # dead time of every follower (s)
+    plant_randomize: bool = False  # every episode its own fleet, lags, V2V delay and loss
+    comm_off: bool = False         # CA models: cut the messages (the communication ablation)
     init: str | None = None        # a policy file whose actor starts the run (a warm start)
     imitate: str | None = None     # a Ploeg CACC the actor copies first (carl_sumo.learn.imitation)
     imitate_updates: int = 4_000   # behaviour-cloning gradient steps at learning_starts
@@ -104,7 +107,8 @@ class TrainConfig:
                            adj_l2=self.adj_l2,
                            gamma=self.gamma, adj_max=self.adj_max, base=self.base,
                            batch_size=self.batch_size, observe_ahead=self.observe_ahead,
-                           shield_ttc_s=self.shield_ttc, comm_fallback=self.comm_fallback)
+                           shield_ttc_s=self.shield_ttc, comm_fallback=self.comm_fallback,
+                           comm_off=self.comm_off)
 
     @property
     def fixed_impairments(self) -> Impairments | None:
@@ -166,6 +170,8 @@ def validation_conditions(cfg: TrainConfig) -> tuple:
     impairments (impairment seed 0). On a plant (``--plant``, ``--fleet`` ...) every condition
     has its vehicle dynamics and V2V delay."""
     fixed = cfg.fixed_impairments
+    if cfg.plant_randomize:  # randomised plants: validate on the real plant
+        return (Impairments(delay_s=REAL_COMM_DELAY_S, plant=REAL_PLANT),)
     if fixed is not None and fixed.plant is not None:  # validation runs on the training plant
         plain = Impairments(delay_s=fixed.delay_s, plant=fixed.plant)
         return (plain,) if not cfg.val_impaired else (plain, replace(fixed, seed=0))
