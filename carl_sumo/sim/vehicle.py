@@ -23,6 +23,7 @@ import zlib
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from carl_sumo.config import BOUNDS, DT_S, SCENARIO
 from carl_sumo.errors import InputError
@@ -191,7 +192,6 @@ class Powertrains:
         self.a_max, self.b_max, self.length_m, self.vtypes = a_max_mps2, b_max_mps2, length_m, \
             vtypes
         self.alpha = DT_S / (tau_s + DT_S)
-        self._keep = 1.0 - self.alpha
         n = len(classes)
         self._slots = int(dead_steps.max(initial=0)) + 1
         self._rows = np.arange(n)
@@ -200,16 +200,25 @@ class Powertrains:
     def reset(self, acceleration: np.ndarray | None = None) -> None:
         """Start from a realised acceleration (m/s², default 0) with no command in the pipe."""
         n = len(self.classes)
-        self.a = np.zeros(n) if acceleration is None else np.array(acceleration, dtype=float)
+        self.a = np.zeros(n) if acceleration is None else np.array(acceleration, dtype=np.float64)
         self._pipe = np.zeros((self._slots, n))
         self._k = 0
 
     def step(self, command: np.ndarray) -> np.ndarray:
         """Take this step's commands u(k) (m/s², shape (n,)); return a(k+1) (m/s²)."""
-        u = np.minimum(np.maximum(command, -self.b_max), self.a_max)
-        self._pipe[self._k % self._slots] = u
-        c = self._pipe[(self._k - self.dead_steps) % self._slots, self._rows]
+        _step(np.ascontiguousarray(command, dtype=np.float64), self._pipe, self._k,
+              self.dead_steps, self.alpha, self.a, self.a_max, self.b_max)
         self._k += 1
-        a = self.alpha * c + self._keep * self.a
-        self.a = np.minimum(np.maximum(a, -self.b_max), self.a_max)
-        return self.a
+        return self.a.copy()
+
+
+@njit(cache=True)
+def _step(command, pipe, k, dead_steps, alpha, a, a_max, b_max):
+    """One step of every powertrain, in place on ``pipe`` (slots, n) and ``a`` (n,)."""
+    slots = pipe.shape[0]
+    for i in range(command.shape[0]):
+        u = min(max(command[i], -b_max[i]), a_max[i])
+        pipe[k % slots, i] = u
+        c = pipe[(k - dead_steps[i]) % slots, i]
+        x = alpha[i] * c + (1.0 - alpha[i]) * a[i]
+        a[i] = min(max(x, -b_max[i]), a_max[i])
