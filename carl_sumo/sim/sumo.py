@@ -238,9 +238,14 @@ def start_sumo(args: list[str]) -> None:
         raise InputError(f"{what}: {' '.join(str(exc).split())}") from exc
 
 
+_OWNER: object | None = None
+"""The PlatoonSim whose episode this process's libsumo simulation runs (the last one reset)."""
+
+
 def close_sumo() -> None:
     """Close this process's libsumo simulation (writes and closes SUMO's output files)."""
-    global _sumo_running
+    global _sumo_running, _OWNER
+    _OWNER = None
     if _sumo_running:
         try:
             _libsumo().close()
@@ -294,6 +299,8 @@ class PlatoonSim:
         check_fits(self.route, event, n_followers, self.scenario, extra)
         ls = _libsumo()
         start_sumo(sumo_args(self.route.net_path, fcd_path, seed))
+        global _OWNER
+        _OWNER = self  # libsumo runs one simulation per process: this episode's, until a reset
         self.event, self.n, self.k = event, n_followers, 0
         for i in range(len(self.route.edges)):  # one route per edge a vehicle may start on
             ls.route.add(f"platoon{i}", list(self.route.edges[i:]))
@@ -379,7 +386,13 @@ class PlatoonSim:
                         self._leader_speed[self.k], self.lengths)
 
     def step(self, accel: np.ndarray | None = None) -> None:
-        """Advance SUMO by one step; ``accel`` (m/s², shape (n,)) drives external followers."""
+        """Advance SUMO by one step; ``accel`` (m/s², shape (n,)) drives external followers.
+        InputError when another PlatoonSim of this process has reset SUMO since this one's
+        episode started (libsumo holds one simulation per process)."""
+        if _OWNER is not self:
+            raise InputError("this platoon's SUMO simulation was replaced by another environment "
+                             "in the same process (libsumo runs one simulation per process); run "
+                             "each environment in its own process (e.g. a subprocess vector env)")
         k1 = self.k + 1
         set_speed, ids = self._set_speed, self.ids
         if self.follower_model == "external":

@@ -147,3 +147,21 @@ def test_a_bad_warmup_gets_one_line_and_exit_2(capsys):
     assert main(["train", "--warmup", "0.05", "--steps", "10"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 4 and err.count("multiple of the 0.1 s step") == 2
+
+
+def test_two_live_platoons_in_one_process_fail_with_one_clear_line():
+    """libsumo holds one simulation per process: stepping one environment after another has
+    reset SUMO used to corrupt both silently; now it is an InputError (reset again to reuse)."""
+    from carl_sumo.data import load_events
+    from carl_sumo.errors import InputError
+    from carl_sumo.learn.env import PlatoonEnv
+
+    events = load_events("default", "test")[:1]
+    a, b = PlatoonEnv(events, 3, NET), PlatoonEnv(events, 3, NET)
+    a.reset_array(event=events[0])
+    b.reset_array(event=events[0])
+    b.step_array(np.zeros(3))
+    with pytest.raises(InputError, match="one simulation per process"):
+        a.step_array(np.zeros(3))
+    a.reset_array(event=events[0])  # a reset takes the simulation back
+    a.step_array(np.zeros(3))
