@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 import math
 import sys
 from contextlib import contextmanager
@@ -18,8 +19,20 @@ class Parser(argparse.ArgumentParser):
         raise InputError(f"{message} (see `{self.prog} --help`)")
 
 
+def net_option(text: str) -> str:
+    """``--net``: the path as given, or, when no such file exists, the shipped network of that
+    file name (``--net i80.net.xml`` from any folder, as ``--data default`` finds its leaders)."""
+    from carl_sumo.sim.sumo import REPO_ROOT
+
+    shipped = REPO_ROOT / "networks" / Path(text).name
+    return text if Path(text).exists() or not shipped.is_file() else str(shipped)
+
+
+NET_HELP = "SUMO network (.net.xml; a shipped network's file name works from any folder)"
+
+
 def add_common(p: argparse.ArgumentParser, split_default: str = "test") -> None:
-    p.add_argument("--net", default="networks/i80.net.xml", help="SUMO network (.net.xml)")
+    p.add_argument("--net", type=net_option, default="networks/i80.net.xml", help=NET_HELP)
     p.add_argument("--data", default="default",
                    help="default | stop-and-go | PATH of an event table or a raw NGSIM CSV")
     p.add_argument("--split", default=split_default, help="test | train | us101 | all")

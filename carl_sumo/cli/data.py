@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from carl_sumo.cli.common import (Parser)
+from carl_sumo.cli.common import (NET_HELP, net_option, Parser)
 from carl_sumo.files import check_output_file
 
 if TYPE_CHECKING:
@@ -36,7 +36,7 @@ def _data_parser(sub: argparse._SubParsersAction) -> None:
     d.add_argument("--data", default="default")
     d.add_argument("--split", default="all")
     d = data_sub.add_parser("make-default", help="regenerate the shipped default leader set")
-    d.add_argument("--net", default="networks/i80.net.xml")
+    d.add_argument("--net", type=net_option, default="networks/i80.net.xml", help=NET_HELP)
     d.add_argument("--out", type=Path, default=None)
     d.add_argument("--seed", type=int, default=42)
 

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from carl_sumo.cli.common import (add_common, add_impairments, add_plant, add_ray, add_warmup,
+from carl_sumo.cli.common import (NET_HELP, net_option, add_common, add_impairments, add_plant, add_ray, add_warmup,
                                    check_ray, fmt, impairments_from, positive, ray_session,
                                    warmup_from, workers_for)
 from carl_sumo.errors import InputError
@@ -144,7 +144,7 @@ def _evaluate_parser(sub: argparse._SubParsersAction) -> None:
                    help="only the first K events of each table (default: all; --quick: 2)")
     p.add_argument("--policies", type=Path, default=None,
                    help="directory of the policy files (default: policies/)")
-    p.add_argument("--net", default="networks/i80.net.xml", help="SUMO network (.net.xml)")
+    p.add_argument("--net", type=net_option, default="networks/i80.net.xml", help=NET_HELP)
     p.add_argument("--workers", type=int, default=None,
                    help="parallel SUMO processes (default: the number of cores; with --ray: the "
                         "cluster's CPUs)")
@@ -212,7 +212,7 @@ def _run_evaluate(args: argparse.Namespace, workers: int, impairments: Impairmen
 
 def _bench_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="env steps/s beside a bare libsumo loop")
-    p.add_argument("--net", default="networks/i80.net.xml")
+    p.add_argument("--net", type=net_option, default="networks/i80.net.xml", help=NET_HELP)
     p.add_argument("--sizes", default="10,20,100", help="platoon sizes, comma-separated")
     p.add_argument("--steps", type=int, default=2000)
     p.add_argument("--rounds", type=int, default=3)

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from carl_sumo.cli.common import (add_impairments, add_ray, check_ray, impairments_from, positive, ray_session,
+from carl_sumo.cli.common import (NET_HELP, net_option, add_impairments, add_ray, check_ray, impairments_from, positive, ray_session,
                                    workers_for)
 from carl_sumo.errors import InputError
 from carl_sumo.files import check_output_dir
@@ -22,7 +22,7 @@ if TYPE_CHECKING:
 def _study_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("study", help="mixed human/CACC traffic on the freeway against the "
                        "CACC penetration rate: tables and figures")
-    p.add_argument("--net", default="networks/i80.net.xml", help="SUMO network (.net.xml)")
+    p.add_argument("--net", type=net_option, default="networks/i80.net.xml", help=NET_HELP)
     p.add_argument("--controller", default="idm-external",
                    help="CACC controller: idm-external | sumo-cacc | ploeg[:h=H:kp=KP:kd=KD] | "
                         "ploeg-tuned:h=H | POLICY.pt (not MADDPG)")

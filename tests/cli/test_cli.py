@@ -259,3 +259,13 @@ def test_train_refuses_a_soft_update_rate_outside_0_1(capsys, tau):
 def test_train_refuses_scaled_rates_without_fewer_updates_or_above_1(capsys, argv):
     code, _, err = run(capsys, "train", "--scale-rates", *argv, "--steps", "10")
     assert code == 2 and "--scale-rates" in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_shipped_network_is_found_by_name_from_any_folder(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["simulate", "--net", "i80.net.xml", "--controller", "idm", "--events", "1",
+                 "--vehicles", "2"]) == 0
+    assert main(["simulate", "--controller", "idm", "--events", "1", "--vehicles", "2"]) == 0
+    assert main(["simulate", "--net", "nowhere.net.xml", "--controller", "idm", "--events",
+                 "1"]) == 2
+    assert "does not exist" in capsys.readouterr().err
