@@ -29,6 +29,24 @@ def _add_reward_options(p: argparse.ArgumentParser) -> None:
                    help="jerk that normalises the comfort term (m/s³)")
 
 
+MAX_TRAIN_VEHICLES = 200
+"""The longest platoon ``train`` accepts (its replay buffer grows with the platoon)."""
+
+
+def _check_learning_values(args: argparse.Namespace) -> None:
+    """InputError for a learning option outside its range (before any allocation or run)."""
+    if args.vehicles > MAX_TRAIN_VEHICLES:
+        raise InputError(f"--vehicles {args.vehicles} is more than {MAX_TRAIN_VEHICLES}; a "
+                         "shared-weight policy trained on a shorter platoon runs any length")
+    for name in ("actor_lr", "critic_lr", "imitate_lr"):
+        value = getattr(args, name, None)
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise InputError(f"--{name.replace('_', '-')} must be a positive learning rate, "
+                             f"got {value}")
+    if args.gamma is not None and not (math.isfinite(args.gamma) and 0 < args.gamma <= 1):
+        raise InputError(f"--gamma is a discount per step in (0, 1], got {args.gamma}")
+
+
 def check_train_args(args: argparse.Namespace) -> Path:
     """InputError for any bad ``train`` option (before anything runs); the policy file path."""
     from carl_sumo.learn.agents import ALGOS, AgentConfig
@@ -40,6 +58,7 @@ def check_train_args(args: argparse.Namespace) -> Path:
     for name in ("update_every", "batch_size", "imitate_updates"):
         if getattr(args, name) is not None:
             positive(getattr(args, name), "--" + name.replace("_", "-"))
+    _check_learning_values(args)
     if args.base is not None:
         from carl_sumo.control.controllers import check_base
 
@@ -86,6 +105,10 @@ def check_train_args(args: argparse.Namespace) -> Path:
         if args.base not in (None, "idm"):
             raise InputError("--imitate warm-starts the paper's IDM-based adjustment; a run on "
                              "a classical --base starts on that base already: leave one out")
+    starts = args.learning_starts
+    if starts is not None and (starts < 0 or starts >= args.steps):
+        raise InputError(f"--learning-starts {starts} leaves no training step in --steps "
+                         f"{args.steps}; give fewer learning starts or more steps")
     return check_output_file(args.out or Path("policies") / f"{args.algo.replace('-', '_')}.pt",
                              "--out")
 

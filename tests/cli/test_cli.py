@@ -269,3 +269,15 @@ def test_a_shipped_network_is_found_by_name_from_any_folder(tmp_path, monkeypatc
     assert main(["simulate", "--net", "nowhere.net.xml", "--controller", "idm", "--events",
                  "1"]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("options,message", [
+    (["--actor-lr", "-1"], "--actor-lr must be a positive"),
+    (["--gamma", "1.5"], "--gamma is a discount"),
+    (["--vehicles", "100000"], "--vehicles 100000 is more than"),
+    (["--steps", "500", "--learning-starts", "1000"], "leaves no training step"),
+])
+def test_bad_learning_options_are_one_line_and_exit_2(capsys, tmp_path, options, message):
+    code, _, err = run(capsys, "train", "--out", str(tmp_path / "x.pt"), *options)
+    assert code == 2 and message in err and "\n" not in err.strip()
+    assert not list(tmp_path.iterdir())
