@@ -9,7 +9,9 @@ Controllers by name:
   :mod:`carl_sumo.control.cacc`, applied through libsumo; ``acc``, ``acc:h=3``, ``acc-tuned:h=H``:
   the same law fed by radar only;
 - ``human``: the recorded NGSIM follower of each event (one follower), scored the same way;
-- a path to a policy file (``.pt``): a learned a_adj on top of IDM (:mod:`carl_sumo.learn.policy`).
+- a path to a policy file (``.pt``): a learned a_adj on top of IDM (:mod:`carl_sumo.learn.policy`);
+- ``module:attribute`` or ``file.py:attribute``: a controller from outside carl-sumo
+  (:mod:`carl_sumo.control.external`).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import numpy as np
 
 from carl_sumo.control.cacc import is_ploeg_name, ploeg_controller
 from carl_sumo.control.channel import Impairments
+from carl_sumo.control.external import is_external_name, load_external
 from carl_sumo.control.controllers import AccelerationController, Controller, ZeroAdjustment, \
     applied_acceleration
 from carl_sumo.data.events import Event
@@ -49,6 +52,8 @@ def resolve_controller(name: str, plant: str = "ideal"
         return "external", ploeg_controller(name, plant=plant)
     if name == "human":
         return "human", None
+    if is_external_name(name):  # module:attribute or file.py:attribute
+        return "external", load_external(name)
     if name.endswith(".pt") or Path(name).suffix == ".pt":
         try:
             from carl_sumo.learn.policy import load_controller
@@ -141,7 +146,7 @@ def event_trajectories(controller_name: str, events: Sequence[Event], n_follower
 def impairable(controller_name: str) -> bool:
     """Whether a controller runs in carl-sumo and so can have impairments (not SUMO's native
     models, whose V2V and sensing are inside SUMO, nor the recorded human follower)."""
-    if is_ploeg_name(controller_name):
+    if is_ploeg_name(controller_name) or is_external_name(controller_name):
         return True
     return resolve_controller(controller_name)[0] == "external"
 
