@@ -156,10 +156,11 @@ def validate_event_table(table: pd.DataFrame, name: str) -> None:
         raise InputError(f"{name} holds no rows; give a table with at least one event")
     for column in NUMERIC_REQUIRED:
         values = pd.to_numeric(table[column], errors="coerce")
-        bad = values.isna()
+        bad = values.isna() | np.isinf(values.to_numpy(float))
         if bad.any():
             row = int(np.flatnonzero(bad.to_numpy())[0])
-            raise InputError(f"{name}: column {column} has a missing or non-numeric value (NaN) in "
+            raise InputError(f"{name}: column {column} has a missing, infinite or non-numeric "
+                             f"value (NaN, inf) in "
                              f"event {table['event_id'].iloc[row]} at data row {row + 2}; "
                              "fix or drop that event")
         table[column] = values.astype(float)
@@ -199,7 +200,7 @@ def _check_plausible(rows: pd.DataFrame, event_id, name: str) -> None:
             continue
         values = rows[column].to_numpy(float)
         outside = (values > high) | ((values <= low) if column == "gap_m" else (values < low))
-        bad = np.flatnonzero(outside & np.isfinite(values))
+        bad = np.flatnonzero(outside & ~np.isnan(values))  # an infinite value is outside too
         if bad.size:
             k = int(bad[0])
             bound = f"above 0 and at most {high:g}" if column == "gap_m" else \
@@ -234,6 +235,9 @@ def events_from_table(table: pd.DataFrame, name: str = "event table") -> list[Ev
         leader_speed = rows["leader_speed_mps"].to_numpy(float)
         _check_plausible(rows, event_id, name)
         pos = rows["leader_pos_m"].to_numpy(float) if has_pos else None
+        if pos is not None and np.isinf(pos).any():
+            raise InputError(f"{name}: event {event_id} has an infinite leader_pos_m; fix or "
+                             "drop that event")
         if pos is None or np.isnan(pos).any():
             pos = np.concatenate([[0.0], np.cumsum(leader_speed[1:]) * DT_S])
         else:

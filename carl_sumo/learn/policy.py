@@ -98,6 +98,11 @@ def policy_fingerprint(path: Path, over_links: bool = True) -> str:
 def load_policy(path: Path) -> tuple[Agent, dict[str, Any]]:
     """The agent (actor loaded) and metadata of a policy file; InputError if it is not one."""
     payload = read_policy_payload(path)
+    bad = [k for k, v in payload["actor"].items()
+           if isinstance(v, torch.Tensor) and v.is_floating_point() and not bool(v.isfinite().all())]
+    if bad:
+        raise InputError(f"policy file {path} has non-finite weights ({bad[0]}); retrain it or "
+                         "restore it from git")
     try:
         cfg = AgentConfig(**payload["agent_config"])
         agent = Agent(cfg)

@@ -148,3 +148,18 @@ def test_shared_ngsim_protocol_splits(ngsim_dir):
     train = select_split(table, "train")
     assert set(train.site) == {"i-80"} and train.event_id.nunique() == 1176 - 403
     assert select_split(table, "us101").event_id.nunique() == 165
+
+
+@pytest.mark.parametrize("column,row", [("leader_speed_mps", 40), ("follower_speed_mps", 0),
+                                        ("gap_m", 10), ("leader_pos_m", 20)])
+def test_an_infinite_value_is_refused_with_one_line(tmp_path, capsys, column, row):
+    """Found by fault injection: an infinite leader speed mid-event used to run and score."""
+    from carl_sumo.data import DEFAULT_EVENTS
+
+    table = pd.read_csv(DEFAULT_EVENTS)
+    first = table[table["event_id"] == table["event_id"].iloc[0]].copy()
+    first.iloc[row, first.columns.get_loc(column)] = np.inf
+    path = tmp_path / "inf.csv"
+    first.to_csv(path, index=False)
+    with pytest.raises(InputError, match="infinite|implausible"):
+        load_events(str(path), "all")

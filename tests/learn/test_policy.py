@@ -147,3 +147,21 @@ def test_the_fingerprint_is_what_a_policy_computes_not_its_metadata(tmp_path):
     f = tmp_path / "f.pt"
     assert policy_fingerprint(f) != a  # over impaired links it drives otherwise
     assert policy_fingerprint(f, over_links=False) == policy_fingerprint(tmp_path / "a.pt", False)
+
+
+def test_a_policy_file_with_nan_weights_is_refused(tmp_path):
+    """Found by fault injection: a NaN weight used to load and drive (nonsense metrics)."""
+    import torch
+
+    from carl_sumo.errors import InputError
+    from carl_sumo.learn.policy import load_policy
+
+    from pathlib import Path
+
+    shipped = Path(__file__).resolve().parents[2] / "policies" / "td3_1.pt"
+    payload = torch.load(shipped, weights_only=True)
+    key = next(iter(payload["actor"]))
+    payload["actor"][key] = payload["actor"][key].clone().fill_(float("nan"))
+    torch.save(payload, tmp_path / "nan.pt")
+    with pytest.raises(InputError, match="non-finite weights"):
+        load_policy(tmp_path / "nan.pt")
