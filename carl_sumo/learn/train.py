@@ -91,6 +91,8 @@ def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: flo
                 ", a_base m/s^2]" if agent.cfg.residual else
                 ", a_ahead m/s^2]" if agent.cfg.observe_ahead else "]"),
             "reward": asdict(cfg.reward), "comm_randomize": cfg.comm_randomize,
+            "plant": "randomised per episode (--plant-randomize)" if cfg.plant_randomize
+            else cfg.plant, "comm_off": cfg.comm_off,
             "randomize_sensors": cfg.randomize_sensors, "sensor_filter": cfg.sensor_filter,
             "impairments": asdict(fixed) if (fixed := cfg.fixed_impairments) else None,
             "val_impaired": cfg.val_impaired, "init": cfg.init,
