@@ -29,7 +29,7 @@ from typing import Sequence
 import numpy as np
 
 from carl_sumo.config import DT_S
-from carl_sumo.control.cacc import is_ploeg_name, parse_ploeg
+from carl_sumo.control.cacc import TEXTBOOK, is_ploeg_name, parse_ploeg
 from carl_sumo.control.channel import Impairments
 from carl_sumo.control.transfer import gamma_continuous, gamma_discrete, log_frequencies
 from carl_sumo.data.events import Event
@@ -111,6 +111,9 @@ def equilibrium_gap(controller: str, speed_mps: float) -> float:
     """Where a follower starts (m): the law's own spacing s0 + h·v for the linear laws, else a
     1.5 s gap (about IDM's)."""
     if is_ploeg_name(controller):
+        if controller.split(":")[0].endswith("-tuned"):  # its time gap, whichever plant's gains
+            options = dict(part.partition("=")[::2] for part in controller.split(":")[1:])
+            return TEXTBOOK.standstill_gap_m + float(options["h"]) * speed_mps
         p = parse_ploeg(controller)
         return p.standstill_gap_m + p.time_gap_s * speed_mps
     return 2.0 + 1.5 * speed_mps
@@ -210,6 +213,10 @@ def string_stability(controllers: Sequence[str], plant: Plant | None,
     for name in controllers:
         check_run(name, omegas, n, test, net)
     comm_delay = impairments.delay_s if impairments is not None else 0.0
+    # a -tuned law runs the gains tuned for this plant (the fleet), on every class of it
+    fleet_key = impairments.plant_key if impairments is not None else "ideal"
+    gains = {name: parse_ploeg(name, plant=fleet_key).name()
+             if name.split(":")[0].endswith("-tuned") else name for name in controllers}
     runs = []
     for cls, case in plant_cases(plant):
         imp = replace(impairments or Impairments(), plant=case)
@@ -217,8 +224,9 @@ def string_stability(controllers: Sequence[str], plant: Plant | None,
             entry = {"controller": name, "class": cls,
                      "plant": "ideal" if case is None else case.describe(),
                      "comm_delay_s": comm_delay,
-                     **measure(name, omegas, n, test, imp if imp.active else None, net, workers)}
-            theory = analytic(name, omegas, case, comm_delay)
+                     **measure(gains[name], omegas, n, test, imp if imp.active else None, net,
+                               workers)}
+            theory = analytic(gains[name], omegas, case, comm_delay)
             if theory is not None:
                 entry["analytic"] = theory
             runs.append(entry)
