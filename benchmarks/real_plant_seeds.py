@@ -10,7 +10,7 @@ two amplitudes (carl-sumo string-stability, 5 followers, 8 frequencies 0.05-3 ra
 interpolated at the learned model's headway, and paired t-tests (by seed) of CA against CA-off.
 
 Usage: python benchmarks/real_plant_seeds.py [MODEL_OR_classical ...]   (about 30 min on 2 cores;
-the rows already in docs/results_real/learned.json are kept, the named ones (default: all) run)
+each run writes docs/results_real/learned_<names>.json; the report reads them all)
 """
 import glob
 import json
@@ -58,8 +58,8 @@ def main() -> None:
     train = [e.with_warmup(60.0) for e in load_events(data, "train")]
     real = Impairments(delay_s=REAL_COMM_DELAY_S, plant=REAL_PLANT)
     OUT.mkdir(parents=True, exist_ok=True)
-    saved = OUT / "learned.json"
-    rows = json.loads(saved.read_text()) if saved.exists() else {}
+    saved = OUT / f"learned_{'_'.join(sorted(wanted))}.json"  # one file per run: runs overlap
+    rows = {}
     if "classical" in wanted:
         rows.update({name: score(name, test, train, real, name == BASE) for name in CLASSICAL})
         saved.write_text(json.dumps(rows, indent=1))
@@ -70,6 +70,9 @@ def main() -> None:
             rows[path] = score(path, test, train, real, model == MODELS[0])
             print(path, rows[path], flush=True)
             saved.write_text(json.dumps(rows, indent=1))
+    rows = {}
+    for part in sorted(OUT.glob("learned*.json")):  # every run's rows
+        rows.update(json.loads(part.read_text()))
     if all(c in rows for c in CLASSICAL):
         (OUT / "learned.md").write_text(report(rows))
         print(report(rows))
