@@ -242,13 +242,9 @@ def string_stability(controllers: Sequence[str], plant: Plant | None,
 def plot(result: dict, path: Path) -> None:
     """Magnitude |Γ| against ω (log), one curve per controller and class, theory dashed, the
     line |Γ| = 1 drawn."""
-    import matplotlib
+    from carl_sumo.experiments.figures import pyplot, save_png
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from carl_sumo.files import atomic_output
-
+    plt = pyplot()
     w = result["frequencies_rad_s"]
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for run in result["runs"]:
@@ -265,13 +261,7 @@ def plot(result: dict, path: Path) -> None:
     ax.legend(fontsize=7)
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
-    tmp = atomic_output(Path(path))
-    try:
-        fig.savefig(tmp, format=Path(path).suffix.lstrip(".") or "png", dpi=120)
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
-        plt.close(fig)
+    save_png(fig, path, dpi=120)
 
 
 # ------------------------------------------------------------------------- minimum time gaps
@@ -347,14 +337,9 @@ def h_min_markdown(rows: list[dict], kp: float, kd: float) -> str:
 
 def h_min_plot(rows: list[dict], path: Path) -> None:
     """h_min against V2V delay, one line per lag for CACC, ACC dashed (measured: markers)."""
-    import matplotlib
+    from carl_sumo.experiments.figures import pyplot, save_png
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from carl_sumo.files import atomic_output
-
-    fig, ax = plt.subplots(figsize=(6.5, 4))
+    fig, ax = pyplot().subplots(figsize=(6.5, 4))
     for tau in H_MIN_LAGS_S:
         cacc = sorted((r for r in rows if r["law"] == "ploeg" and r["lag_s"] == tau),
                       key=lambda r: r["comm_delay_s"])
@@ -371,13 +356,7 @@ def h_min_plot(rows: list[dict], path: Path) -> None:
     ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    tmp = atomic_output(Path(path))
-    try:
-        fig.savefig(tmp, format="png", dpi=120)
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
-        plt.close(fig)
+    save_png(fig, path, dpi=120)
 
 
 # --------------------------------------------------------------------------- the real suite
