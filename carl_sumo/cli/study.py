@@ -25,7 +25,8 @@ def _study_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--net", type=net_option, default="networks/i80.net.xml", help=NET_HELP)
     p.add_argument("--controller", default="idm-external",
                    help="CACC controller: idm-external | sumo-cacc | ploeg[:h=H:kp=KP:kd=KD] | "
-                        "ploeg-tuned:h=H | POLICY.pt (not MADDPG)")
+                        "ploeg-tuned:h=H | POLICY.pt (not MADDPG) | module:attribute | "
+                        "file.py:attribute (a controller of your own, see README)")
     p.add_argument("--penetration", default="0,0.25,0.5,0.75,1",
                    help="CACC penetration rates in [0, 1], comma-separated")
     p.add_argument("--duration", type=float, default=900.0, help="measured simulated time (s)")
@@ -105,7 +106,7 @@ def cmd_study(args: argparse.Namespace) -> None:
     if cfg.impairments is not None and kind != "external":
         raise InputError(f"{cfg.controller}: impairments (--comm-*, --sensor-noise) apply to "
                          "CACC vehicles controlled in carl-sumo (idm-external, ploeg, a policy "
-                         "file), not to SUMO's own CACC")
+                         "file, module:attribute), not to SUMO's own CACC")
     _check_detector(cfg)
     start = time.perf_counter()
     with ray_session(args, args.workers or os.cpu_count()):

@@ -10,11 +10,41 @@ import numpy as np
 from carl_sumo.config import BOUNDS
 from carl_sumo.control.cacc import PloegChains, is_ploeg_name, parse_ploeg
 from carl_sumo.control.channel import Impairments, KeyedChannel
-from carl_sumo.control.controllers import adjustment_bounds, shield_adjustment, total_acceleration
+from carl_sumo.control.controllers import (adjustment_bounds, applied_acceleration,
+                                           shield_adjustment, total_acceleration)
+from carl_sumo.control.external import is_external_name, load_external
 from carl_sumo.errors import InputError
 
 STUDY_CONTROLLERS = ("idm-external", "sumo-cacc", "ploeg[:h=H:kp=KP:kd=KD]", "ploeg-tuned:h=H")
-"""Built-in CACC controllers of a study; a policy file (.pt) is the third kind."""
+"""Built-in CACC controllers of a study; a policy file (.pt) and ``module:attribute`` /
+``file.py:attribute`` (:mod:`carl_sumo.control.external`) are the others."""
+
+
+class ExternalChains:
+    """An external controller (:func:`carl_sumo.control.external.load_external`) on the CACC
+    chains of a study: each chain is a platoon of its own, observations (len(chain), 4) head
+    first. Chains form and break every step in traffic, so ``reset(len(chain))`` comes before
+    each chain's call: the controller keeps no state from one step to the next here."""
+
+    def __init__(self, name: str):
+        self.name = name
+        self.inner = load_external(name)
+
+    def connect(self, impairments: Impairments, run_id: str) -> None:
+        """Hand the impaired channel to the controller when it takes one."""
+        if hasattr(self.inner, "connect"):
+            self.inner.connect(impairments, run_id)
+
+    def acceleration(self, obs: np.ndarray, chains: list[list[int]], ids: list[str],
+                     ahead: list[tuple[str, float] | None],
+                     last_acc: dict[str, float]) -> np.ndarray:
+        """a (m/s², shape (m,)) of the CACC vehicles, one chain at a time (the interface of
+        :class:`ChainController`)."""
+        out = np.zeros(obs.shape[0])
+        for chain in chains:
+            self.inner.reset(len(chain))
+            out[chain] = applied_acceleration(self.inner, np.ascontiguousarray(obs[chain]))
+        return np.clip(out, BOUNDS.acc_min_mps2, BOUNDS.acc_max_mps2)
 
 
 class ChainController:
@@ -93,7 +123,8 @@ class ChainController:
         return shield_adjustment(obs, out, self.agent.cfg.shield_ttc_s)
 
 
-def resolve_study_controller(name: str) -> tuple[str, ChainController | PloegChains | None]:
+def resolve_study_controller(name: str) -> tuple[str, ChainController | PloegChains
+                                                 | ExternalChains | None]:
     """(CACC kind of :data:`carl_sumo.sim.traffic.CACC_TYPES`, controller); InputError if unknown."""
     if name == "sumo-cacc":
         return "sumo", None
@@ -101,5 +132,7 @@ def resolve_study_controller(name: str) -> tuple[str, ChainController | PloegCha
         return "external", PloegChains(parse_ploeg(name), name)
     if name == "idm-external" or name.endswith(".pt"):
         return "external", ChainController(name)
-    raise InputError(f"unknown study controller {name!r}; choose {', '.join(STUDY_CONTROLLERS)} "
-                     "or the path of a policy file (.pt)")
+    if is_external_name(name):
+        return "external", ExternalChains(name)
+    raise InputError(f"unknown study controller {name!r}; choose {', '.join(STUDY_CONTROLLERS)}, "
+                     "the path of a policy file (.pt) or module:attribute / file.py:attribute")

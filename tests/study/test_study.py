@@ -306,3 +306,42 @@ def test_sumos_own_cacc_refuses_impairments(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "impairments" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+# ------------------------------------------------------------------ external controllers (issue 36)
+EXAMPLE = REPO_ROOT / "examples" / "my_controller.py"
+
+
+def test_external_controller_runs_each_chain_as_a_platoon():
+    from carl_sumo.study.controllers import ExternalChains
+
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("my_controller_ref", EXAMPLE)
+    ref = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ref)
+    controller = ExternalChains(f"{EXAMPLE}:constant_gap")
+    rng = np.random.default_rng(1)
+    obs = np.column_stack([rng.uniform(10, 30, 7), rng.uniform(-1, 1, 7), rng.uniform(5, 60, 7),
+                           rng.uniform(-2, 2, 7)])
+    chains = [[3, 0], [1, 2, 6], [4], [5]]
+    out = controller.acceleration(obs, chains, [f"c{i}" for i in range(7)], [None] * 7, {})
+    for chain in chains:
+        assert np.allclose(out[chain], np.clip(ref.constant_gap(obs[chain]), -9.0, 3.0))
+
+
+def test_study_with_an_external_zero_adjustment_is_the_idm_run(tmp_path):
+    cfg = StudyConfig(controller="idm-external", duration_s=30.0, warmup_s=60.0, demand=LOW,
+                      seeds=(0,), detector_pos_m=100.0)
+    idm = run_one(cfg, 1.0, 0, tmp_path / "idm")
+    ext = run_one(replace(cfg, controller=f"{EXAMPLE}:ZeroAdjust"), 1.0, 0, tmp_path / "ext")
+    assert idm.metrics["cacc_share"] == 1.0 and idm.metrics["throughput_vph"] > 0
+    assert _files(ext.run_dir) == _files(idm.run_dir)
+    law = run_one(replace(cfg, controller=f"{EXAMPLE}:constant_gap"), 1.0, 0, tmp_path / "law")
+    assert _files(law.run_dir) != _files(idm.run_dir)
+
+
+def test_study_names_a_missing_external_controller(tmp_path, capsys):
+    code = main(["study", "--controller", f"{EXAMPLE}:nothing_here", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 2 and "no attribute 'nothing_here'" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
