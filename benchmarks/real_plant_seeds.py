@@ -23,6 +23,7 @@ from carl_sumo.data import load_events
 from carl_sumo.errors import InputError
 from carl_sumo.experiments.simulate import simulate
 from carl_sumo.experiments.string_stability import SineTest, string_stability
+from carl_sumo.files import write_text_atomic
 from carl_sumo.sim.vehicle import REAL_COMM_DELAY_S, REAL_PLANT
 
 OUT = Path("docs/results_real")
@@ -63,9 +64,9 @@ def main() -> None:
     OUT.mkdir(parents=True, exist_ok=True)
     ca = test_split("ca_td3_real_10", events)
     add_hinf(ca)
-    (OUT / "learned_test.json").write_text(json.dumps(ca, indent=1))
+    write_text_atomic(OUT / "learned_test.json", json.dumps(ca, indent=1))
     off = test_split("ca_td3_real_nocomm_10", events)
-    (OUT / "learned_test_nocomm.json").write_text(json.dumps(off, indent=1))
+    write_text_atomic(OUT / "learned_test_nocomm.json", json.dumps(off, indent=1))
     pairs = [(ca[p], off[p.replace("ca_td3_real_10", "ca_td3_real_nocomm_10")]) for p in ca
              if p.replace("ca_td3_real_10", "ca_td3_real_nocomm_10") in off]
     for key in KEYS:

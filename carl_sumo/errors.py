@@ -6,3 +6,9 @@ class InputError(Exception):
 
     The message says what is wrong and what to do; the CLI prints it on one line and exits 2.
     """
+
+
+class OutputError(InputError):
+    """An output could not be written whole (a full disk, a read-only or failing file system, a
+    SUMO output that is incomplete): nothing was moved into place, no temporary file is left, and
+    the CLI prints one line and exits 2, as for bad input."""

@@ -1,48 +1,177 @@
 """Output files: what carl-sumo writes is written whole or not at all, where it can be written.
 
-Every writer of the package (tables, figures, policies, FCD output, networks, routes, results)
-writes to a temporary file beside its target and then moves it into place with ``os.replace``, so
-a reader never sees a half-written file and an interrupted run leaves the previous file as it was:
+Every writer of the package (tables, figures, policies, checkpoints, learning curves, FCD output,
+networks, routes, results) writes to a temporary file beside its target (``.NAME.PID.tmp``) and
+moves it into place with ``os.replace`` after an ``fsync``, so a reader never sees a half-written
+file and an interrupted run leaves the previous file as it was:
 
-- :func:`atomic_output`: the temporary path to write to (its folder is created);
+- :func:`atomic_write`: ``with atomic_write(path, "wb") as f:`` a file object to write to;
+- :func:`atomic_path`: ``with atomic_path(path) as tmp:`` the temporary path, for writers that
+  take a path (``torch.save``, SUMO's own outputs, ``netconvert``); ``verify(tmp)`` (e.g.
+  :func:`check_xml`) runs on the finished file before it moves into place;
 - :func:`write_text_atomic`: a text file written that way.
+
+Each of them refuses a target that is neither a regular file nor absent (a device, a pipe, a
+socket: ``--json /dev/null`` leaves /dev/null alone), and turns an OS error while writing (a full
+disk, a read-only or failing file system) into :class:`~carl_sumo.errors.OutputError` (one line,
+exit status 2) after removing its temporary file. An exception or a signal in the block (the CLI
+turns SIGTERM and SIGHUP into one) removes the temporary file too.
 
 The command line checks every output path it is given before any long work starts:
 
 - :func:`check_output_file` (``--json``, ``--fcd``, ``train --out``, ...) and
   :func:`check_output_dir` (``evaluate --out``, ``study --out``) raise
-  :class:`~carl_sumo.errors.InputError`, one line and exit status 2, when the path is a folder
-  where a file is wanted (or a file where a folder is wanted), or when its folder can neither be
-  created nor written; the check leaves nothing behind.
+  :class:`~carl_sumo.errors.InputError`, one line and exit status 2, when the path is empty, a
+  folder where a file is wanted (or a file where a folder is wanted), a device or other special
+  file, or when its folder can neither be created nor written; the check leaves nothing behind.
 """
 
 from __future__ import annotations
 
+import errno
 import os
+import stat
+from contextlib import contextmanager
 from pathlib import Path
+from typing import IO, Callable, Iterator
 
-from carl_sumo.errors import InputError
+from carl_sumo.errors import InputError, OutputError
 
 FIX = "give a path in a folder you can write to"
 """What the message of an unwritable output path tells the user to do."""
 
+TEMP_SUFFIX = ".tmp"
+"""How the name of every temporary output file ends (``.NAME.PID.tmp``)."""
+
 
 def atomic_output(path: Path) -> Path:
-    """A temporary path beside ``path`` to write to before ``os.replace`` moves it in place."""
+    """The temporary path beside ``path`` that :func:`atomic_path` writes to (its folder is
+    created)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    return path.with_name(f".{path.name}.{os.getpid()}{TEMP_SUFFIX}")
 
 
-def write_text_atomic(path: Path, text: str) -> Path:
+def check_target(path: str | Path, option: str = "") -> None:
+    """InputError unless ``path`` is absent or a regular file (a symbolic link counts as what it
+    points to): a device, pipe or socket is never replaced by an output file."""
+    what = f"{option} {path}" if option else str(path)
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:  # absent, or a dangling link: os.replace puts a file there
+        return
+    if stat.S_ISDIR(mode):
+        raise InputError(f"{what} is a folder; give the path of a file")
+    if not stat.S_ISREG(mode):
+        raise InputError(f"{what} is a device, pipe or socket, not a regular file; carl-sumo "
+                         "writes its outputs as files and never replaces one of those: give the "
+                         "path of a file")
+
+
+def output_error(exc: OSError, path: Path) -> OutputError:
+    """The one-line error of an OS error while ``path`` was being written."""
+    reason = exc.strerror or type(exc).__name__
+    code = errno.errorcode.get(exc.errno or 0)
+    hint = ("free some space" if exc.errno in (errno.ENOSPC, errno.EDQUOT)
+            else "write to another folder")
+    return OutputError(f"cannot write {path}: {reason}{f' ({code})' if code else ''}; nothing "
+                       f"was written and any previous {path.name} is as it was: {hint} and run "
+                       "the command again")
+
+
+def _fsync_path(path: Path, directory: bool = False) -> None:
+    """Flush a file's (or a folder's entries') data to the disk; a folder that cannot be opened
+    or synced (some file systems) is left to the kernel."""
+    try:
+        fd = os.open(path, os.O_RDONLY | (getattr(os, "O_DIRECTORY", 0) if directory else 0))
+    except OSError:
+        if directory:
+            return
+        raise
+    try:
+        os.fsync(fd)
+    except OSError as exc:
+        if not directory or exc.errno not in (errno.EINVAL, errno.EBADF, errno.EROFS):
+            raise
+    finally:
+        os.close(fd)
+
+
+def _remove(tmp: Path) -> None:
+    try:
+        tmp.unlink(missing_ok=True)
+    except OSError:  # a failing file system: nothing more can be done here
+        pass
+
+
+@contextmanager
+def atomic_path(path: str | Path, verify: Callable[[Path], None] | None = None
+                ) -> Iterator[Path]:
+    """The temporary path to write ``path`` at; when the block ends without an error (and
+    ``verify(tmp)`` raises none) it is synced and moved into place, else removed. OSError while
+    writing: :class:`OutputError`; a target that is not a regular file: InputError."""
+    path = Path(path)
+    check_target(path)
+    try:
+        tmp = atomic_output(path)
+    except OSError as exc:
+        raise output_error(exc, path) from None
+    try:
+        yield tmp
+        if verify is not None:
+            verify(tmp)
+        _fsync_path(tmp)
+        check_target(path)  # nothing special appeared there while the file was written
+        os.replace(tmp, path)
+        _fsync_path(path.parent, directory=True)
+    except OSError as exc:
+        raise output_error(exc, path) from None
+    finally:
+        _remove(tmp)
+
+
+@contextmanager
+def atomic_write(path: str | Path, mode: str = "w", **open_kw) -> Iterator[IO]:
+    """``open(path, mode)`` written whole or not at all (see :func:`atomic_path`)."""
+    if not mode.startswith("w"):
+        raise ValueError(f"atomic_write writes a new file; mode {mode!r} is not one of w, wb")
+    with atomic_path(path) as tmp:
+        with open(tmp, mode, **open_kw) as f:
+            yield f
+
+
+def write_text_atomic(path: str | Path, text: str) -> Path:
     """Write ``text`` to ``path`` through a temporary file: never a half-written file."""
     path = Path(path)
-    tmp = atomic_output(path)
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with atomic_write(path, "w") as f:
+        f.write(text)
     return path
+
+
+def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` through a temporary file: never a half-written file."""
+    path = Path(path)
+    with atomic_write(path, "wb") as f:
+        f.write(data)
+    return path
+
+
+def check_xml(tmp: Path, what: str = "SUMO's output") -> None:
+    """OutputError unless ``tmp`` (plain or gzip) is one complete XML document: an output that
+    SUMO or netconvert could not finish (a full disk) never moves into place."""
+    import gzip
+    from xml.etree.ElementTree import ParseError, iterparse
+
+    try:
+        with open(tmp, "rb") as raw:
+            gzipped = raw.read(2) == b"\x1f\x8b"
+        with (gzip.open(tmp, "rb") if gzipped else open(tmp, "rb")) as f:
+            for _, element in iterparse(f, events=("end",)):
+                element.clear()
+    except (ParseError, EOFError, gzip.BadGzipFile) as exc:
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise OutputError(f"{what} is incomplete or not XML ({reason}; was the disk full?); "
+                          "nothing was moved into place: free some space or write to another "
+                          "folder and run the command again") from None
 
 
 def _unwritable(folder: Path) -> str | None:
@@ -74,12 +203,19 @@ def _unwritable(folder: Path) -> str | None:
     return None
 
 
+def _not_empty(path: str | Path, option: str) -> None:
+    if isinstance(path, str) and not path.strip():
+        raise InputError(f"{option} is an empty path; give the path to write to (an empty path "
+                         "never means the current folder)")
+
+
 def check_output_file(path: str | Path, option: str) -> Path:
     """``path`` as a Path, or InputError when ``option`` (e.g. ``--json``) cannot be written
-    there: a folder stands at ``path``, or its folder cannot be created or written."""
+    there: the path is empty, a folder or a special file (a device, pipe or socket) stands at
+    ``path``, or its folder cannot be created or written."""
+    _not_empty(path, option)
     path = Path(path)
-    if path.is_dir():
-        raise InputError(f"{option} {path} is a folder; give the path of a file")
+    check_target(path, option)
     reason = _unwritable(path.parent)
     if reason:
         raise InputError(f"cannot write {option} {path}: {reason}; {FIX}")
@@ -88,7 +224,9 @@ def check_output_file(path: str | Path, option: str) -> Path:
 
 def check_output_dir(path: str | Path, option: str) -> Path:
     """``path`` as a Path, or InputError when ``option`` (e.g. ``--out``) cannot be a folder of
-    outputs: a file stands at ``path``, or the folder cannot be created or written."""
+    outputs: the path is empty, a file stands at ``path``, or the folder cannot be created or
+    written."""
+    _not_empty(path, option)
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise InputError(f"{option} {path} is a file; give a folder")

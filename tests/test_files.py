@@ -12,7 +12,8 @@ from carl_sumo.errors import InputError
 from carl_sumo.files import atomic_output, check_output_dir, check_output_file, write_text_atomic
 
 PACKAGE = Path(carl_sumo.__file__).parent
-HELPERS = {"atomic_output", "write_text_atomic"}
+HELPERS = {"atomic_output", "atomic_path", "atomic_write", "write_text_atomic", "write_bytes_atomic",
+           "check_xml"}
 
 
 def test_write_text_atomic_creates_folders_and_leaves_no_temporary(tmp_path):

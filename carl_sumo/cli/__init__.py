@@ -2,6 +2,8 @@
 
 Bad input (missing or malformed files, unknown options, events, controllers, a network too short)
 ends with one line ``carl-sumo: error: ...`` on stderr and exit status 2; nothing is half-written.
+Ctrl-C, SIGTERM and SIGHUP stop a command with exit status 128 + the signal's number, its worker
+processes and any sumo-gui with it, and leave no output or temporary file.
 """
 
 from __future__ import annotations
@@ -21,7 +23,8 @@ from carl_sumo.cli.stability import _string_stability_parser, cmd_string_stabili
 from carl_sumo.cli.study import _study_parser, cmd_study
 from carl_sumo.cli.sweep import _sweep_parser, cmd_sweep
 from carl_sumo.errors import InputError
-from carl_sumo.scale.workers import WorkerError
+from carl_sumo.interrupts import exit_status, stop_on_signals
+from carl_sumo.scale.workers import WorkerError, stop_children
 
 __all__ = ["COMMANDS", "build_parser", "format_table", "main"]
 
@@ -49,6 +52,16 @@ COMMANDS = {"simulate": cmd_simulate, "evaluate": cmd_evaluate, "train": cmd_tra
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; its exit status: 0 done, 2 bad input or an output that cannot be
+    written, 1 a worker died for good, 128 + n stopped by signal n (SIGINT, SIGTERM, SIGHUP)."""
+    restore_signals = stop_on_signals()
+    try:
+        return _run(argv)
+    finally:
+        restore_signals()
+
+
+def _run(argv: list[str] | None) -> int:
     try:
         args = build_parser().parse_args(argv)
         COMMANDS[args.command](args)
@@ -58,9 +71,10 @@ def main(argv: list[str] | None = None) -> int:
     except WorkerError as exc:  # a worker process died twice on the same task
         print(f"carl-sumo: error: {exc}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP: every `finally` has run
+        stop_children()
         print("carl-sumo: interrupted", file=sys.stderr)
-        return 130
+        return exit_status(exc)
     except BrokenPipeError:  # the reader went away (`carl-sumo rank ... | head`): not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0

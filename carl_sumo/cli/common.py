@@ -18,6 +18,20 @@ class Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # type: ignore[override]
         raise InputError(f"{message} (see `{self.prog} --help`)")
 
+    def _get_value(self, action: argparse.Action, arg_string: str):  # type: ignore[override]
+        """An empty path (``--out ""``) is refused: it would mean the current folder."""
+        if (action.type in (Path, net_option) or action.dest in PATH_DESTS) \
+                and isinstance(arg_string, str) and not arg_string.strip():
+            name = "/".join(action.option_strings) or action.dest
+            raise InputError(f"{name} is an empty path; give the path of a file or folder (an "
+                             "empty path never means the current folder)")
+        return super()._get_value(action, arg_string)
+
+
+PATH_DESTS = frozenset({"data", "init", "resume", "out", "json", "fcd", "plot", "policies",
+                        "results", "spec", "checkpoint", "policy", "files", "h_min_table"})
+"""Options whose value is a path even where argparse keeps it as a string."""
+
 
 def net_option(text: str) -> str:
     """``--net``: the path as given, or, when no such file exists, the shipped network of that

@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from carl_sumo.errors import InputError
-from carl_sumo.files import atomic_output, check_output_dir
+from carl_sumo.files import atomic_path, check_output_dir
 
 SPEC_KEYS = {"name", "out", "results", "search", "samples", "random_seed", "cpus_per_trial",
              "max_failures", "ship", "train", "grid", "random"}
@@ -288,9 +288,8 @@ def _restore(checkpoint, out: Path) -> tuple[Path | None, int]:
         for suffix in (".ckpt", ".csv", ".pt"):
             saved = Path(folder) / f"run{suffix}"
             if saved.exists():
-                tmp = atomic_output(out.with_suffix(suffix))
-                shutil.copy2(saved, tmp)
-                os.replace(tmp, out.with_suffix(suffix))
+                with atomic_path(out.with_suffix(suffix)) as tmp:
+                    shutil.copy2(saved, tmp)
     from carl_sumo.learn.policy import load_torch
 
     ckpt = out.with_suffix(".ckpt")
@@ -330,9 +329,5 @@ def ship(best: Path, target: Path) -> None:
     """Copy the best run's policy file and curve to ``target`` (.pt) and its .csv, atomically
     (what ``policies/recipe.sh`` did with ``cp``)."""
     for suffix in (".pt", ".csv"):
-        tmp = atomic_output(target.with_suffix(suffix))
-        try:
+        with atomic_path(target.with_suffix(suffix)) as tmp:
             shutil.copy2(best.with_suffix(suffix), tmp)
-            os.replace(tmp, target.with_suffix(suffix))
-        finally:
-            tmp.unlink(missing_ok=True)

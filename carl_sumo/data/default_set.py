@@ -16,9 +16,7 @@ from __future__ import annotations
 
 import argparse
 import gzip
-import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -28,6 +26,7 @@ import pandas as pd
 from carl_sumo.data.events import DT_S, EVENT_COLUMNS, MIN_EVENT_SAMPLES
 from carl_sumo.data.raw import TRAJ_COLUMNS, extract_events
 from carl_sumo.errors import InputError
+from carl_sumo.files import atomic_write
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_NET = REPO_ROOT / "networks" / "i80.net.xml"
@@ -199,29 +198,16 @@ def select_events(events: pd.DataFrame, max_events: int,
 
 
 def write_table_atomic(table: pd.DataFrame, out: Path) -> None:
-    """Write ``table`` as gzip CSV (``%.4f``) via a temporary file in the same folder + os.replace.
+    """Write ``table`` as gzip CSV (``%.4f``) whole or not at all (:mod:`carl_sumo.files`).
 
     The gzip header carries no file name and no time stamp, so equal tables give equal bytes.
     """
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     data = table.to_csv(index=False, float_format="%.4f", lineterminator="\n").encode("utf-8")
-    fd, tmp = tempfile.mkstemp(prefix=out.name + ".", suffix=".tmp", dir=out.parent)
-    umask = os.umask(0)
-    os.umask(umask)
-    try:
-        os.chmod(tmp, 0o666 & ~umask)
-        with os.fdopen(fd, "wb") as raw_file:
-            with gzip.GzipFile(filename="", mode="wb", fileobj=raw_file, compresslevel=9,
-                               mtime=0) as gz:
-                gz.write(data)
-        os.replace(tmp, out)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    with atomic_write(out, "wb") as raw_file:
+        with gzip.GzipFile(filename="", mode="wb", fileobj=raw_file, compresslevel=9,
+                           mtime=0) as gz:
+            gz.write(data)
 
 
 def make_default_set(net: Path, out: Path, seed: int = 42, duration_s: float = 1200.0,

@@ -19,13 +19,12 @@ figure draws them all). Every file is written to a temporary name and renamed in
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from carl_sumo.files import atomic_output
+from carl_sumo.files import atomic_path
 from carl_sumo.sim.metrics import aggregate
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -57,12 +56,10 @@ def pyplot():
 def save_png(fig, path: Path, dpi: int = 90, **savefig_kw) -> Path:
     """Write a figure as PNG through a temporary file (never half-written), then close it."""
     path = Path(path)
-    tmp = atomic_output(path)
     try:
-        fig.savefig(tmp, format="png", dpi=dpi, **savefig_kw)
-        os.replace(tmp, path)
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format="png", dpi=dpi, **savefig_kw)
     finally:
-        tmp.unlink(missing_ok=True)
         pyplot().close(fig)
     return path
 

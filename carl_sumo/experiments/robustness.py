@@ -254,6 +254,8 @@ def _figures(out: Path, rows: list[dict]) -> list[str]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from carl_sumo.experiments.figures import save_png
+
     written = []
     for axis, label, pick in (
             ("loss", "message loss probability", lambda r: r["delay_s"] == 0),
@@ -280,7 +282,6 @@ def _figures(out: Path, rows: list[dict]) -> list[str]:
         axes[0].legend(fontsize=7)
         fig.tight_layout()
         name = f"robustness_vs_{'loss' if axis == 'loss' else 'delay'}.png"
-        fig.savefig(out / name, dpi=110)
-        plt.close(fig)
+        save_png(fig, out / name, dpi=110)  # atomically; closes the figure
         written.append(name)
     return written

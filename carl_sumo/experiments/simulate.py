@@ -16,7 +16,6 @@ Controllers by name:
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Iterator, Sequence
 
@@ -30,9 +29,10 @@ from carl_sumo.control.controllers import AccelerationController, Controller, Ze
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
 from carl_sumo.control.sensors import Sensors
-from carl_sumo.files import atomic_output
+from carl_sumo.files import atomic_path, check_xml
 from carl_sumo.sim.metrics import PlatoonTrajectory, aggregate, score_event
-from carl_sumo.sim.sumo import DEFAULT_NET, PlatoonSim, close_sumo, use_gui
+from carl_sumo.sim.sumo import (DEFAULT_NET, PlatoonSim, abandon_sumo, close_sumo,
+                               gui_connection_lost, use_gui)
 from carl_sumo.scale.workers import run_parallel
 
 NATIVE_CONTROLLERS = {"idm": "idm", "krauss": "krauss", "sumo-cacc": "sumo-cacc"}
@@ -243,17 +243,23 @@ def replay(controller_name: str, event: Event, n_followers: int, fcd_path: Path,
     fcd_path = Path(fcd_path)
     sim = PlatoonSim(net_path, follower_model)
     use_gui(gui)
-    tmp = atomic_output(fcd_path)
-    try:
+    # SUMO writes a temporary file; it moves into place once SUMO has closed it and it parses
+    with atomic_path(fcd_path, verify=lambda tmp: check_xml(tmp, f"SUMO's FCD output {fcd_path}")
+                     ) as tmp:
         try:
             traj = run_event(sim, event, n_followers, controller, fcd_path=tmp,
                              impairments=impairments)
+            close_sumo()  # SUMO finishes the FCD file when the simulation closes (sumo-gui:
+            # when its window is closed)
+        except BaseException as exc:  # an error, an interrupt, a closed sumo-gui window
+            lost = gui_connection_lost(exc)
+            abandon_sumo()  # a sumo-gui goes down with the run
+            if lost:
+                raise InputError("sumo-gui was closed before the event ended; nothing was "
+                                 f"written to {fcd_path}: run it again and let the event end "
+                                 "(or run without --gui)") from None
+            raise
         finally:
-            close_sumo()  # SUMO finishes the FCD file when the simulation closes
             if gui:
                 use_gui(False)
-        os.replace(tmp, fcd_path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     return score_event(traj)

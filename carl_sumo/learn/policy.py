@@ -8,7 +8,6 @@ package versions, training command, validation metrics). Files are written atomi
 
 from __future__ import annotations
 
-import os
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -22,7 +21,7 @@ from carl_sumo.control.controllers import AheadAcceleration, adjustment_bounds, 
     shield_adjustment
 from carl_sumo.errors import InputError
 from carl_sumo.learn.inference import CompiledActor
-from carl_sumo.files import atomic_output
+from carl_sumo.files import atomic_path
 
 FORMAT = "carl-sumo-policy"
 FORMAT_VERSION = 1
@@ -30,13 +29,8 @@ FORMAT_VERSION = 1
 
 def save_torch_atomic(payload: dict[str, Any], path: Path) -> None:
     """torch.save to a temporary file beside ``path``, then rename: never a half-written file."""
-    path = Path(path)
-    tmp = atomic_output(path)
-    try:
+    with atomic_path(path) as tmp:
         torch.save(payload, tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def load_torch(path: Path, what: str) -> dict[str, Any]:

@@ -8,9 +8,8 @@ training events; the best policy by :func:`selection_score` is the one written t
 
 from __future__ import annotations
 
-import csv
-import io
 import random
+import shutil
 import sys
 import time
 from dataclasses import asdict
@@ -41,26 +40,11 @@ from carl_sumo.learn.checkpoint import (CHECKPOINT_FORMAT, read_checkpoint,  # n
                                         restore_checkpoint, save_checkpoint)
 from carl_sumo.learn.train_config import (TrainConfig, held_out_split,  # noqa: F401
                                           split_validation, validation_conditions)
-from carl_sumo.files import write_text_atomic
+from carl_sumo.files import atomic_path
 from carl_sumo.sim.sumo import check_fits
 
-LOG_COLUMNS = ["step", "transitions", "wall_s", "train_reward", "val_reward", "headway_s",
-               "jerk_mps3", "speed_mps", "dampening_ratio", "collisions",
-               *(name for name, _ in MARGIN_KEYS.values())]
-"""Columns of the learning-curve CSV written beside the policy."""
-
-
-def _upgrade_log(path: Path) -> None:
-    """Give a learning curve written by an older carl-sumo (fewer columns) the current header,
-    its missing values empty, so that a resumed run can append to it."""
-    with open(path, newline="") as f:
-        rows = list(csv.reader(f))
-    if not rows or rows[0] == LOG_COLUMNS:
-        return
-    width = len(LOG_COLUMNS)
-    out = io.StringIO()
-    csv.writer(out).writerows([LOG_COLUMNS] + [r + [""] * (width - len(r)) for r in rows[1:]])
-    write_text_atomic(path, out.getvalue())
+from carl_sumo.learn.curve import LOG_COLUMNS, LearningCurve  # noqa: F401
+from carl_sumo.learn.curve import upgrade_log as _upgrade_log  # noqa: F401
 
 
 def seed_everything(seed: int) -> None:
@@ -130,7 +114,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     start_step, best, wall_before = 0, -np.inf, 0.0
     if resume is not None:
         buffer, start_step, best, wall_before = restore_checkpoint(resume, cfg, agent, rng)
-        log(f"resumed {resume} at step {start_step}")
+        if _keep_policy(resume, out, start_step, cfg, log):  # nothing left to train
+            return dict(validation={}, validation_base={}, wall_time_s=wall_before, best_score=best)
     val_env = _validation_env(cfg, train_events, val_events)
     baseline, baseline_events = _validate_base(cfg, val_env, val_events, log)
     if resume is None:
@@ -182,6 +167,28 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     wall = wall_before + time.perf_counter() - t0
     return {"validation": val, "validation_base": baseline, "wall_time_s": wall,
             "best_score": best}
+
+
+def _keep_policy(resume: Path, out: Path, start_step: int, cfg: TrainConfig, log) -> bool:
+    """A resumed run has its policy file at ``out`` from the start: where ``out`` is new, the
+    kept policy of the run that wrote the checkpoint (its ``--out``) is copied there, or, where
+    that file is gone, the checkpoint's actor is written. True (and says so) when the checkpoint
+    is at ``--steps`` already: nothing is left to train."""
+    log(f"resumed {resume} at step {start_step}")
+    done = start_step >= cfg.steps
+    if done:
+        log(f"{resume} is at step {start_step} already (--steps {cfg.steps}): nothing to train")
+    if out.exists():
+        return done
+    kept = Path(read_checkpoint(resume)["train_config"]["out"])
+    if kept.is_file() and kept.resolve() != out.resolve():
+        with atomic_path(out) as tmp:
+            shutil.copyfile(kept, tmp)
+        log(f"copied the run's kept policy {kept} to {out}")
+    else:
+        export_policy(resume, out)
+        log(f"wrote the checkpoint's actor to {out} (the run's kept policy {kept} is missing)")
+    return done
 
 
 def _validation_env(cfg: TrainConfig, train_events: Sequence[Event], val_events: Sequence[Event]
@@ -335,19 +342,12 @@ def _validate(cfg: TrainConfig, agent: Agent, val_env: PlatoonEnv, val_events: S
 
 
 class _Report:
-    """Where a run reports: the learning-curve CSV beside the policy (appended to on resume),
+    """Where a run reports: the learning-curve CSV beside the policy (continued on resume),
     TensorBoard when it is installed, and a progress bar."""
 
     def __init__(self, cfg: TrainConfig, out: Path, resumed: bool, start_step: int,
                  progress: bool):
-        log_path = out.with_suffix(".csv")
-        new_log = not (resumed and log_path.exists())
-        if not new_log:
-            _upgrade_log(log_path)
-        self.file = open(log_path, "w" if new_log else "a", newline="")
-        self.writer = csv.writer(self.file)
-        if new_log:
-            self.writer.writerow(LOG_COLUMNS)
+        self.curve = LearningCurve(out.with_suffix(".csv"), start_step if resumed else None)
         self.board = _tensorboard(out.with_suffix(".tb"))
         self.num_envs = cfg.num_envs
         self.bar = None
@@ -360,13 +360,12 @@ class _Report:
     def validation(self, done_steps: int, wall_s: float, train_reward: float,
                    val: dict[str, float]) -> None:
         """One row of the learning curve, its TensorBoard scalars and the bar's summary."""
-        self.writer.writerow([done_steps, done_steps * self.num_envs, f"{wall_s:.1f}",
-                              f"{train_reward:.4f}", f"{val['val_reward']:.4f}",
-                              *(f"{val[k]:.4f}" for k in ("headway_s", "jerk_mps3", "speed_mps",
-                                                           "dampening_ratio")),
-                              val["collisions"],
-                              *(f"{val[name]:.3f}" for name, _ in MARGIN_KEYS.values())])
-        self.file.flush()
+        self.curve.append([done_steps, done_steps * self.num_envs, f"{wall_s:.1f}",
+                           f"{train_reward:.4f}", f"{val['val_reward']:.4f}",
+                           *(f"{val[k]:.4f}" for k in ("headway_s", "jerk_mps3", "speed_mps",
+                                                        "dampening_ratio")),
+                           val["collisions"],
+                           *(f"{val[name]:.3f}" for name, _ in MARGIN_KEYS.values())])
         if self.board is not None:
             for key, value in val.items():
                 self.board.add_scalar(f"validation/{key}", value, done_steps)
@@ -377,14 +376,13 @@ class _Report:
                                  min_z=f"{min(val[k] for k, _ in MARGIN_KEYS.values()):.2f}")
 
     def flush(self) -> None:
-        self.file.flush()
+        """The curve is on disk already (written whole with every row)."""
 
     def advance(self) -> None:
         if self.bar is not None:
             self.bar.update(1)
 
     def close(self) -> None:
-        self.file.close()
         if self.board is not None:
             self.board.close()
         if self.bar is not None:

@@ -18,6 +18,7 @@ import numpy as np
 from carl_sumo.control.channel import Impairments
 from carl_sumo.config import BOUNDS, REWARD, ControlBounds, RewardConfig
 from carl_sumo.data.events import Event
+from carl_sumo.interrupts import die_with_parent
 from carl_sumo.scale.workers import WorkerError
 
 
@@ -51,6 +52,7 @@ class EnvRunner:
 
 
 def _worker(conn, *args) -> None:
+    die_with_parent()  # no environment outlives a killed training run
     runner = EnvRunner(*args)
     while True:
         cmd, data = conn.recv()

@@ -25,6 +25,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 from carl_sumo.scale import workers
 from carl_sumo.errors import InputError
+from carl_sumo.interrupts import reinstall
 
 EXTRA_HINT = ("--ray needs the optional Ray extra: pip install -e \".[ray]\" (or leave out --ray "
               "to use local processes)")
@@ -94,6 +95,7 @@ def connect(address: str, num_cpus: int | None = None) -> None:
                          "`ray start --head`, or give --ray local (a cluster with token "
                          "authentication, Ray's default for `ray start`, needs RAY_AUTH_MODE=token "
                          "and its token: docs/scale.md)") from None
+    reinstall()  # ray.init makes SIGTERM a bare sys.exit: it stops the command cleanly again
     last_nodes.clear()
     workers.set_backend(run_ray)
 

@@ -21,6 +21,8 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Iterator, Sequence
 
+from carl_sumo.interrupts import die_with_parent
+
 
 class WorkerError(RuntimeError):
     """A worker process died again while running the same task."""
@@ -37,10 +39,25 @@ def set_backend(runner: Callable[..., Iterator[Any]] | None) -> None:
 
 
 def worker_init() -> None:
-    """Each worker: one torch thread (the networks are small; threads only contend)."""
+    """Each worker: one torch thread (the networks are small; threads only contend), and it
+    dies with the command that started it (:func:`carl_sumo.interrupts.die_with_parent`)."""
     import torch
 
+    die_with_parent()
     torch.set_num_threads(1)
+
+
+def stop_children(timeout_s: float = 5.0) -> None:
+    """Terminate every worker process this process started that still runs (after an
+    interrupt), and wait up to ``timeout_s`` for them; those still alive then are killed."""
+    children = mp.active_children()
+    for child in children:
+        child.terminate()
+    for child in children:
+        child.join(timeout_s)
+        if child.is_alive():
+            child.kill()
+            child.join(1.0)
 
 
 def _pool(workers: int) -> ProcessPoolExecutor:
@@ -54,6 +71,7 @@ def _run_pool(fn: Callable[..., Any], items: Sequence[tuple], indices: Sequence[
     the indices of tasks lost with a dead worker are appended to ``lost``."""
     executor = _pool(workers)
     futures = {executor.submit(fn, *items[i]): i for i in indices}
+    finished_all = False
     try:
         while futures:
             finished, _ = wait(futures, timeout=WATCHDOG_S, return_when=FIRST_COMPLETED)
@@ -70,11 +88,13 @@ def _run_pool(fn: Callable[..., Any], items: Sequence[tuple], indices: Sequence[
                     lost.append(i)
                     continue
                 yield i, result
+        finished_all = True
     finally:
         processes = list((getattr(executor, "_processes", None) or {}).values())
         call_queue = getattr(executor, "_call_queue", None)  # shutdown forgets it
-        executor.shutdown(wait=not lost, cancel_futures=True)
-        if lost:  # a broken pool: no worker of it may outlive it (or block the exit)
+        abandoned = lost or not finished_all  # an exception, an interrupt, a closed generator
+        executor.shutdown(wait=not abandoned, cancel_futures=True)
+        if abandoned:  # a broken or abandoned pool: no worker of it may outlive it
             for process in processes:
                 if process.is_alive():
                     process.terminate()

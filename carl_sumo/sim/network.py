@@ -6,14 +6,13 @@ netconvert options (``i80.netccfg``); ``networks/i80.net.xml`` is what netconver
 
 from __future__ import annotations
 
-import os
 import re
 import shutil
 import subprocess
 from pathlib import Path
 
 from carl_sumo.errors import InputError
-from carl_sumo.files import atomic_output
+from carl_sumo.files import atomic_path, check_xml
 from carl_sumo.sim.sumo import REPO_ROOT
 
 NET_SOURCES = REPO_ROOT / "networks" / "i80" / "i80.netccfg"
@@ -42,14 +41,16 @@ def build_network(config: Path = NET_SOURCES, out: Path = NET_FILE) -> Path:
     if not config.is_file():
         raise InputError(f"netconvert configuration {config} does not exist; give the .netccfg "
                          "beside the plain-XML sources (networks/i80/i80.netccfg)")
-    tmp = atomic_output(out).with_suffix(".net.xml")
-    result = subprocess.run([netconvert_binary(), "-c", str(config), "-o", str(tmp)],
-                            capture_output=True, text=True, cwd=config.parent)
-    if result.returncode != 0 or not tmp.is_file():
-        tmp.unlink(missing_ok=True)
-        message = (result.stderr or result.stdout).strip().splitlines()
-        raise InputError(f"netconvert failed on {config}: {message[-1] if message else 'no output'}")
-    os.replace(tmp, out)
+    binary = netconvert_binary()
+    # netconvert writes a temporary file; it moves into place once it parses as a whole network
+    with atomic_path(out, verify=lambda tmp: check_xml(tmp, f"netconvert's network {out}")) \
+            as tmp:
+        result = subprocess.run([binary, "-c", str(config), "-o", str(tmp)],
+                                capture_output=True, text=True, cwd=config.parent)
+        if result.returncode != 0 or not tmp.is_file():
+            message = (result.stderr or result.stdout).strip().splitlines()
+            raise InputError(f"netconvert failed on {config}: "
+                             f"{message[-1] if message else 'no output'}")
     return out
 
 

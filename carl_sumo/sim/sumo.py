@@ -253,6 +253,40 @@ def close_sumo() -> None:
             _sumo_running = False
 
 
+def gui_connection_lost(exc: BaseException) -> bool:
+    """Whether ``exc`` says that sumo-gui went away (its window was closed) during a run."""
+    return _gui and (isinstance(exc, OSError) or type(exc).__name__ == "FatalTraCIError")
+
+
+def abandon_sumo() -> None:
+    """Close this process's simulation after an interruption or a lost sumo-gui: a sumo-gui
+    process is killed (not waited for until its window closes), a lost connection forgotten."""
+    global _sumo_running, _OWNER
+    _OWNER = None
+    if not _gui:
+        close_sumo()
+        return
+    _sumo_running = False
+    import traci
+
+    try:
+        connection = traci.getConnection()
+    except Exception:  # no connection open
+        return
+    process = getattr(connection, "_process", None)
+    if process is not None and process.poll() is None:
+        process.kill()
+        process.wait()
+    sock = getattr(connection, "_socket", None)
+    if sock is not None:  # nothing more is sent to a killed sumo-gui
+        sock.close()
+        connection._socket = None
+    try:
+        connection.close(wait=False)
+    except Exception:
+        pass
+
+
 class PlatoonSim:
     """A leader replaying an :class:`Event` and ``n`` followers on one SUMO lane (0.1 s steps).
 

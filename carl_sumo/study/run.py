@@ -57,7 +57,7 @@ from carl_sumo.control.cacc import PloegChains
 from carl_sumo.control.channel import Impairments
 from carl_sumo.errors import InputError
 from carl_sumo.control.sensors import Sensors
-from carl_sumo.files import write_text_atomic
+from carl_sumo.files import check_xml, output_error, write_text_atomic
 from carl_sumo.study.controllers import ChainController, resolve_study_controller
 from carl_sumo.study.chains import cacc_observations, form_chains, merging_lanes, zipper_ahead
 from carl_sumo.study.results import RunResult, markdown_table, run_name, summarise, write_csv
@@ -200,10 +200,15 @@ def run_one(cfg: StudyConfig, penetration: float, seed: int, out_dir: Path) -> R
                                           sensors)
         finally:
             close_sumo()  # SUMO writes and closes its output files
+        for output in sorted(work.glob("*.xml*")):  # whole, or the run is not kept (full disk)
+            check_xml(output, f"SUMO's output {final / output.name}")
         metrics = _score(cfg, acc, outputs)
         metrics.update(timing)
         shutil.rmtree(final, ignore_errors=True)
         os.replace(work, final)
+    except OSError as exc:
+        shutil.rmtree(work, ignore_errors=True)
+        raise output_error(exc, final) from None
     except BaseException:
         shutil.rmtree(work, ignore_errors=True)
         raise

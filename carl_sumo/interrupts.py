@@ -1,0 +1,97 @@
+"""Stopping on a signal: SIGTERM and SIGHUP stop a command as Ctrl-C (SIGINT) does.
+
+The command line (:func:`carl_sumo.cli.main`) installs :func:`stop_on_signals` for the time a
+command runs: SIGINT, SIGTERM and SIGHUP raise :class:`Interrupted` (a KeyboardInterrupt) in the
+main thread, so every ``finally`` runs: temporary output files are removed
+(:mod:`carl_sumo.files`), worker pools, Ray runtimes and sumo-gui are stopped, and the command
+exits with status 128 + the signal's number, writing nothing. A second signal while that clean-up
+runs is ignored (SIGKILL still stops the process at once).
+
+Worker processes call :func:`die_with_parent`: on Linux they are killed when the process that
+started them ends, even by SIGKILL, so no worker outlives its command.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+from typing import Any, Callable
+
+STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP")
+                     if hasattr(signal, name))
+"""The signals that stop a command cleanly (SIGHUP: the terminal went away)."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """A stop signal arrived; ``signum`` is its number (exit status 128 + signum)."""
+
+    def __init__(self, signum: int):
+        super().__init__(f"signal {signum}")
+        self.signum = signum
+
+    @property
+    def exit_status(self) -> int:
+        return 128 + self.signum
+
+
+def exit_status(exc: KeyboardInterrupt) -> int:
+    """The exit status of a command stopped by ``exc`` (130 for a plain Ctrl-C)."""
+    return exc.exit_status if isinstance(exc, Interrupted) else 128 + signal.SIGINT
+
+
+_stopping = False
+
+
+def _raise(signum: int, frame: Any) -> None:
+    """Raise Interrupted once; later signals arrive while the command cleans up: ignored."""
+    global _stopping
+    if _stopping:
+        return
+    _stopping = True
+    raise Interrupted(signum)
+
+
+def stop_on_signals() -> Callable[[], None]:
+    """Make SIGINT, SIGTERM and SIGHUP raise :class:`Interrupted` (main thread only; elsewhere
+    nothing changes); returns the function that puts the previous handlers back."""
+    global _stopping
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    _stopping = False
+    previous = {s: signal.signal(s, _raise) for s in STOP_SIGNALS}
+
+    def restore() -> None:
+        for s, handler in previous.items():
+            signal.signal(s, handler if handler is not None else signal.SIG_DFL)
+
+    return restore
+
+
+def reinstall() -> None:
+    """Take the stop signals back after a library replaced their handlers (``ray.init`` makes
+    SIGTERM a plain ``sys.exit``); nothing changes where :func:`stop_on_signals` is not active."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    if any(signal.getsignal(s) is _raise for s in STOP_SIGNALS):
+        for s in STOP_SIGNALS:
+            signal.signal(s, _raise)
+
+
+def die_with_parent() -> None:
+    """In a worker process (Linux): be killed when the process that started it ends, however it
+    ends; a worker whose parent has already gone exits at once. Elsewhere: nothing."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    import multiprocessing
+
+    parent = multiprocessing.parent_process()
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if parent is not None and os.getppid() != parent.pid:  # it ended before prctl
+        os._exit(1)
