@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
@@ -97,9 +98,54 @@ def _replay_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--event", required=True, help="event ID (stop_and_go with --data stop-and-go)")
     p.add_argument("--fcd", type=Path, required=True, help="FCD output file (.xml)")
     p.add_argument("--gui", action="store_true",
-                   help="show the run in sumo-gui (needs a display; closes when you close it)")
+                   help="show the run in sumo-gui (needs a display; closes when you close it, or "
+                        "at the end with --quit-on-end)")
+    _gui_options(p)
     add_impairments(p)
     add_warmup(p)
+
+
+def _gui_options(p: argparse.ArgumentParser) -> None:
+    """The options of ``replay --gui`` (carl_sumo.sim.gui.GuiView)."""
+    g = p.add_argument_group("sumo-gui (with --gui)")
+    g.add_argument("--track", default=None, metavar="VEHICLE",
+                   help="vehicle the view follows: leader, f0 (the head follower, default) .. fN-1")
+    g.add_argument("--delay", type=float, default=None, metavar="MS",
+                   help="delay between simulation steps in ms (default 100: real time)")
+    g.add_argument("--zoom", type=float, default=None, metavar="PERCENT",
+                   help="zoom in percent (default: the view fits the platoon with as much road "
+                        "again around it)")
+    g.add_argument("--quit-on-end", action="store_true",
+                   help="close sumo-gui when the event ends (no end-of-simulation dialog)")
+    g.add_argument("--screenshot", default=None, metavar="PNG[@TIME]",
+                   help="save the view to PNG at simulated time TIME s (default 0: the start)")
+
+
+def gui_view_from(args: argparse.Namespace, n_followers: int):
+    """The GuiView of ``replay``'s options (None without --gui); InputError for gui options
+    without --gui, a delay or zoom that is not positive, an unknown --track, a bad
+    --screenshot."""
+    from carl_sumo.sim.gui import GuiView, check_track, parse_screenshot
+
+    given = [name for name, value in (("--track", args.track), ("--delay", args.delay),
+                                      ("--zoom", args.zoom), ("--quit-on-end", args.quit_on_end),
+                                      ("--screenshot", args.screenshot)) if value]
+    if not args.gui:
+        if given:
+            raise InputError(f"{given[0]} is an option of sumo-gui: add --gui")
+        return None
+    if args.delay is not None and not 0 <= args.delay < math.inf:
+        raise InputError(f"--delay must be a number of milliseconds >= 0, got {args.delay:g}")
+    if args.zoom is not None and not 0 < args.zoom < math.inf:
+        raise InputError(f"--zoom must be a positive percentage, got {args.zoom:g}")
+    view = GuiView(track=args.track, zoom=args.zoom, quit_on_end=args.quit_on_end)
+    if args.delay is not None:
+        view.delay_ms = args.delay
+    if args.screenshot is not None:
+        view.screenshot, view.screenshot_s = parse_screenshot(args.screenshot)
+        check_output_file(view.screenshot, "--screenshot")
+    check_track(view, n_followers)
+    return view
 
 
 def cmd_replay(args: argparse.Namespace) -> None:
@@ -112,16 +158,33 @@ def cmd_replay(args: argparse.Namespace) -> None:
     impairments = impairments_from(args)
     warmup_s = warmup_from(args)
     check_output_file(args.fcd, "--fcd")
-    if args.gui and not has_display():
-        use_gui(True)  # raises the one-line "no display" error before anything runs
+    view = gui_view_from(args, args.vehicles)
     (event,) = load_events(args.data, args.split, event_ids=[args.event])
     event = event.with_warmup(warmup_s)  # the FCD file has the warm-up, the metrics do not
-    metrics = replay(args.controller, event, args.vehicles, args.fcd, args.net, gui=args.gui,
-                     impairments=impairments)
+    shot = view.screenshot if view is not None else None
+    if shot is not None and view.screenshot_s > event.duration_s:
+        raise InputError(f"--screenshot at {view.screenshot_s:g} s is after the end of event "
+                         f"{event.event_id} ({event.duration_s:.1f} s)")
+    if args.gui and not has_display():
+        use_gui(True)  # raises the one-line "no display" error before anything runs
+    if shot is not None:
+        # sumo-gui writes a temporary file (its suffix names the format), moved into place after
+        view.screenshot = shot.with_name(f".{shot.stem}.{os.getpid()}.tmp{shot.suffix}")
+    try:
+        metrics = replay(args.controller, event, args.vehicles, args.fcd, args.net,
+                         gui=view or False, impairments=impairments)
+        if shot is not None:
+            if not view.screenshot.is_file():
+                raise InputError(f"sumo-gui saved no screenshot for {shot}; let the event run "
+                                 "to the screenshot's time")
+            os.replace(view.screenshot, shot)
+    finally:
+        if shot is not None:
+            view.screenshot.unlink(missing_ok=True)
     print(f"wrote {args.fcd}: event {event.event_id}, {args.vehicles} followers, "
           f"{event.duration_s:.1f} s" + (f" ({warmup_s:g} s of it warm-up, not scored)"
                                          if warmup_s else "")
-          + f", controller {args.controller}")
+          + f", controller {args.controller}" + (f"; view saved to {shot}" if shot else ""))
     print(", ".join(f"{k}={fmt(v)}" for k, v in metrics.items() if not k.startswith("n_")
                     and k != "event_id"))
 

@@ -47,6 +47,7 @@ FCD_ATTRIBUTES = ("id,type,x,y,angle,speed,acceleration,pos,lane,odometer,leader
 
 _sumo_running = False  # whether this process has a libsumo simulation open
 _gui = False  # whether simulations of this process run in sumo-gui through TraCI
+_gui_view = None  # what sumo-gui shows (carl_sumo.sim.gui.GuiView) while _gui
 
 
 def _libsumo():
@@ -69,17 +70,22 @@ def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
-def use_gui(enabled: bool) -> None:
-    """Run the next simulations of this process in sumo-gui (through TraCI) instead of libsumo.
+def use_gui(enabled) -> None:
+    """Run the next simulations of this process in sumo-gui (through TraCI) instead of libsumo;
+    ``enabled``: a bool or a :class:`carl_sumo.sim.gui.GuiView` (zoom, tracking, colours, delay,
+    screenshot; True: the default view).
 
     Raises InputError when no display exists. Closes a simulation that is open.
     """
-    global _gui
+    global _gui, _gui_view
+    from carl_sumo.sim.gui import GuiView
+
     if enabled and not has_display():
         raise InputError("--gui needs a display and none is set (DISPLAY is empty); run without "
                          "--gui and open the FCD file, or run on a desktop session")
     close_sumo()
-    _gui = enabled
+    _gui = bool(enabled)
+    _gui_view = (enabled if isinstance(enabled, GuiView) else GuiView()) if enabled else None
 
 
 @dataclass(frozen=True)
@@ -224,7 +230,7 @@ def start_sumo(args: list[str]) -> None:
             # a fixed port: if sumo-gui exits at once (no usable display) TraCI gives up at once
             # instead of restarting it; TraCI's "Retrying" lines are not shown
             with contextlib.redirect_stdout(io.StringIO()):
-                libsumo.start([sumolib.checkBinary("sumo-gui"), "--start", "--delay", "50"] + args,
+                libsumo.start([sumolib.checkBinary("sumo-gui")] + _gui_view.start_args() + args,
                               port=sumolib.miscutils.getFreeSocketPort(), numRetries=30)
             _sumo_running = True
         else:
@@ -376,6 +382,12 @@ class PlatoonSim:
         self.pos = starts.copy()
         self.acc = np.zeros(n_followers)
         self._bind_calls()
+        if _gui:  # zoom to the platoon, track a vehicle, colour them by role
+            from carl_sumo.sim.gui import apply_calls
+
+            ends = [ls.vehicle.getPosition(v) for v in (self.leader_id, self.ids[-1])]
+            apply_calls(ls, _gui_view.setup_calls(self.leader_id, self.ids, self.follower_model,
+                                                  *ends) + _gui_view.step_calls(0.0))
 
     def _add(self, vid: str, vtype: str, x: float, speed: float) -> None:
         lane, lane_pos = self.route.locate(x)
@@ -448,6 +460,10 @@ class PlatoonSim:
         self.acc = (speed - self.speed) * (1.0 / DT_S)
         self.speed = speed
         self.k = k1
+        if _gui:  # a screenshot due at this time
+            from carl_sumo.sim.gui import apply_calls
+
+            apply_calls(_libsumo(), _gui_view.step_calls(k1 * DT_S))
 
     def leader_sumo_position(self) -> float:
         """The leader's route coordinate as SUMO has it now (m); for checking the replay."""

@@ -30,6 +30,9 @@ class ExternalChains:
         self.name = name
         self.inner = load_external(name)
 
+    def reset(self) -> None:
+        """A new run: nothing to forget (``reset(len(chain))`` comes before every chain's call)."""
+
     def connect(self, impairments: Impairments, run_id: str) -> None:
         """Hand the impaired channel to the controller when it takes one."""
         if hasattr(self.inner, "connect"):
