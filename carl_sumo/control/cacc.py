@@ -302,6 +302,10 @@ class PloegChains:
         self.links: KeyedChannel | None = None
         self._k = 0
 
+    def reset(self) -> None:
+        """Forget every state and link: a new run starts (every vehicle's u at 0)."""
+        self.u, self.links, self._k = {}, None, 0
+
     def connect(self, impairments: Impairments, run_id: str) -> None:
         """Carry the predecessor states over impaired vehicle-keyed links
         (:class:`carl_sumo.control.channel.KeyedChannel`, stream 1 of ``run_id``)."""

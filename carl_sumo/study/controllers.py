@@ -77,6 +77,12 @@ class ChainController:
             if agent.cfg.residual:
                 self.base = PloegChains(parse_ploeg(agent.cfg.base), agent.cfg.base)
 
+    def reset(self) -> None:
+        """Forget the links and the base's states: a new run starts."""
+        self.links, self._k = None, 0
+        if self.base is not None:
+            self.base.reset()
+
     def connect(self, impairments: Impairments, run_id: str) -> None:
         """Carry the CA messages (streams 2 and 3 of ``run_id``) and a classical base's
         predecessor states over impaired vehicle-keyed links (:class:`KeyedChannel`)."""

@@ -1,0 +1,294 @@
+"""A platoon whose members change during a run: the SUMO side of a manoeuvre
+(:mod:`carl_sumo.sim.scenario`).
+
+:class:`ScenarioSim` is a :class:`carl_sumo.sim.sumo.PlatoonSim` whose followers are no longer a
+fixed column: every vehicle carl-sumo tracks (the followers, a human who cuts in, a joiner) has
+its predecessor and bumper gap from SUMO's ``vehicle.getLeader`` (plus the follower's minGap),
+in whichever lane SUMO has it, so a follower sees a vehicle that cut in ahead of it. Vehicles
+enter and leave the platoon lane by SUMO's own ``vehicle.changeLane`` (laneChangeMode 0: the
+request is carried out as asked), so FCD output and sumo-gui show the lane changes.
+
+The **members** are the CACC followers in the platoon lane, front first: carl-sumo drives them
+(``follower_model="external"``) or SUMO does (a native model). A member leaves when its cut-out
+lane change is done (SUMO then drives it in the adjacent lane) and a joiner becomes one when its
+lane change into the platoon lane is done. A human who cuts in is never a member: it is driven by
+SUMO's IDM (``human_idm``) from the step it is in the platoon lane, and it sends no V2V.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from carl_sumo.config import DT_S, SCENARIO, ScenarioConfig
+from carl_sumo.data.events import Event
+from carl_sumo.errors import InputError
+from carl_sumo.sim.scenario import MIN_ROOM_M, Manoeuvre
+from carl_sumo.sim.sumo import DEFAULT_NET, FOLLOWER_TYPES, LaneRoute, PlatoonSim, _libsumo, \
+    lane_route
+from carl_sumo.sim.vehicle import Plant
+
+SENSOR_RANGE_M = 300.0
+"""How far a follower sees the vehicle ahead (m): beyond it d = this and Δv = 0."""
+HUMAN_TYPE = "human_idm"
+"""SUMO vType of the human who cuts in (SUMO's IDM with the paper's parameters)."""
+LANE_CHANGE_S = 5.0
+"""How long a ``changeLane`` request holds (s)."""
+ENTERING_ID = {"cut-in": "human", "join": "joiner"}
+
+
+def adjacent_route(net_path: str | Path, ngsim_lane: int) -> LaneRoute:
+    """The lane beside the platoon's (NGSIM lane ``ngsim_lane`` + 1, its right neighbour) along
+    the whole road; InputError when the network has none."""
+    try:
+        return lane_route(net_path, ngsim_lane + 1)
+    except InputError as exc:
+        raise InputError(f"--scenario does not fit network {net_path}: the platoon's lane (NGSIM "
+                         f"lane {ngsim_lane}) needs a lane beside it on its right along the whole "
+                         f"road for vehicles to enter and leave ({exc})") from None
+
+
+class ScenarioSim(PlatoonSim):
+    """A leader, ``n`` followers and one :class:`Manoeuvre` (see the module docstring).
+
+    After :meth:`start` and every :meth:`advance`: ``members`` (CACC followers in the platoon
+    lane, front first), ``order`` (every tracked vehicle in the platoon lane, front first),
+    ``ahead[vid]`` = (predecessor ID or None, bumper gap m), ``speeds`` / ``accels`` (m/s, m/s²),
+    ``done_step`` (the step the manoeuvre was complete, None before) and ``behind`` (the vehicles
+    behind the manoeuvre, from then on).
+    """
+
+    def __init__(self, net_path: str | Path = DEFAULT_NET, follower_model: str = "external",
+                 scenario: ScenarioConfig = SCENARIO):
+        super().__init__(net_path, follower_model, scenario)
+        self.adjacent = adjacent_route(net_path, scenario.ngsim_lane)
+        self.base_scenario = scenario
+
+    # ----------------------------------------------------------------------------------------
+    def start(self, event: Event, n_followers: int, manoeuvre: Manoeuvre,
+              fcd_path: Path | None = None, seed: int = 0, plant: Plant | None = None,
+              plant_seed: int = 0) -> None:
+        """Load SUMO and place the platoon as :meth:`PlatoonSim.reset` does (a merge's second
+        platoon ``extra_gap_m`` further back); the manoeuvre starts at its step."""
+        extra = manoeuvre.extra_gap_m
+        self.scenario = replace(self.base_scenario,
+                                start_margin_m=self.base_scenario.start_margin_m + extra)
+        try:
+            self.reset(event, n_followers, fcd_path, seed, plant, plant_seed)
+        finally:
+            self.scenario = self.base_scenario
+        ls = _libsumo()
+        self.manoeuvre = manoeuvre
+        self.members = list(self.ids)
+        self.tracked = list(self.ids)
+        self.speeds = dict(zip(self.ids, self.speed.tolist()))
+        self.speeds["leader"] = self.leader_speed
+        self.accels = {vid: 0.0 for vid in self.ids}
+        self.entering: str | None = ENTERING_ID.get(manoeuvre.kind)
+        self.phase = "waiting"
+        self.done_step: int | None = None
+        self.behind: list[str] = []
+        self.radar_only: set[str] = set()
+        self.offset: dict[str, float] = {}
+        self._enter_speed = 0.0
+        self._joiner_plant = None if plant is None else plant.draw(1, event.event_id + "/joiner",
+                                                                   plant_seed)
+        if manoeuvre.kind == "merge":
+            for vid, x in zip(self.ids[manoeuvre.position:], self._starts[manoeuvre.position:]):
+                lane, pos = self.route.locate(float(x) - extra)
+                ls.vehicle.moveTo(vid, lane, pos)
+            head = self.ids[manoeuvre.position]
+            self.radar_only.add(head)
+            self.offset[head] = extra
+            if self.follower_model != "external":  # SUMO's models keep the offset as minGap
+                ls.vehicle.setMinGap(head, ls.vehicle.getMinGap(head) + extra)
+        self._sense(ls)
+
+    # ----------------------------------------------------------------------------------------
+    def _route_x(self, ls, vid: str) -> float:
+        """Route coordinate of a vehicle's front bumper in the platoon lane (m)."""
+        lane = ls.vehicle.getLaneID(vid)
+        start = self.route.lane_starts[self.route.lanes.index(lane)]
+        return start + ls.vehicle.getLanePosition(vid)
+
+    def _sense(self, ls) -> None:
+        """The platoon-lane order and every tracked vehicle's predecessor and gap, from SUMO."""
+        lanes = set(self.route.lanes)
+        in_lane = [v for v in self.tracked if ls.vehicle.getLaneID(v) in lanes]
+        self.order = sorted(in_lane, key=lambda v: -self._route_x(ls, v))
+        self.ahead: dict[str, tuple[str | None, float]] = {}
+        for vid in self.order:
+            item = ls.vehicle.getLeader(vid, SENSOR_RANGE_M)
+            if item is None or item[0] == "":
+                self.ahead[vid] = (None, SENSOR_RANGE_M)
+            else:
+                self.ahead[vid] = (item[0], item[1] + ls.vehicle.getMinGap(vid))
+        member_set = set(self.members)
+        self.members = [v for v in self.order if v in member_set]
+
+    def observe(self) -> tuple[list[str], np.ndarray, list[tuple[str, float] | None]]:
+        """(member IDs front first, observations [v, a, d, Δv] (m, 4), what each sees ahead as
+        (ID, gap); a radar-only link, the second platoon of a merge before it links, is named
+        ``radar:ID`` so that no V2V input is found for it)."""
+        ids = list(self.members)
+        obs = np.empty((len(ids), 4))
+        seen: list[tuple[str, float] | None] = []
+        for row, vid in enumerate(ids):
+            pred, gap = self.ahead[vid]
+            v = self.speeds[vid]
+            gap -= self.offset.get(vid, 0.0)
+            obs[row] = (v, self.accels[vid], gap,
+                        (self.speeds.get(pred, v) - v) if pred is not None else 0.0)
+            if pred is None:
+                seen.append(None)
+            else:
+                seen.append((f"radar:{pred}" if vid in self.radar_only else pred, gap))
+        return ids, obs, seen
+
+    # ----------------------------------------------------------------------------------------
+    def advance(self, accel: dict[str, float] | None = None) -> None:
+        """One 0.1 s step: the manoeuvre's actions, then ``accel`` (m/s² by member ID) applied as
+        :meth:`PlatoonSim.step` applies it (through the powertrains on the real plant)."""
+        ls = _libsumo()
+        self._act(ls)
+        set_speed = ls.vehicle.setSpeed
+        if self.follower_model == "external":
+            if accel is None:
+                raise ValueError("external followers need an acceleration every step")
+            for vid, a in self._realised(accel).items():
+                v = self.speeds[vid] + a * DT_S
+                set_speed(vid, v if v > 0.0 else 0.0)
+        if self.entering in self.tracked and self.phase in ("inserted", "changing"):
+            set_speed(self.entering, self._enter_speed)  # keeps pace beside the gap
+        k1 = self.k + 1
+        set_speed(self.leader_id, self._leader_speed[k1])
+        ls.simulationStep()
+        ls.vehicle.moveTo(self.leader_id, self._leader_lane[k1], self._leader_lane_pos[k1])
+        ls.vehicle.setPreviousSpeed(self.leader_id, self._leader_speed[k1])
+        if self.phase == "inserted" and self.entering not in self.tracked:
+            self.tracked.append(self.entering)
+            self.speeds[self.entering] = self._enter_speed
+        for vid in self.tracked:
+            v = ls.vehicle.getSpeed(vid)
+            self.accels[vid] = (v - self.speeds[vid]) / DT_S
+            self.speeds[vid] = v
+        self.speeds["leader"] = self._leader_speed[k1]
+        self.k = k1
+        self._complete(ls)
+        self._sense(ls)
+
+    def _realised(self, accel: dict[str, float]) -> dict[str, float]:
+        """The accelerations the members realise this step (m/s²): the commands themselves on
+        the ideal plant, through each vehicle's lag and dead time on the real one."""
+        if self.powertrains is None:
+            return accel
+        command = np.array([accel.get(vid, 0.0) for vid in self.ids])
+        realised = self.powertrains.step(command)
+        out = {vid: float(a) for vid, a in zip(self.ids, realised) if vid in accel}
+        if self._joiner_plant is not None and self.entering == "joiner":
+            a = self._joiner_plant.step(np.array([accel.get("joiner", 0.0)]))[0]
+            if "joiner" in accel:
+                out["joiner"] = float(a)
+        return out
+
+    # ----------------------------------------------------------------------------------------
+    def _act(self, ls) -> None:
+        """What the manoeuvre does before this step's SUMO step."""
+        m = self.manoeuvre
+        if self.phase == "inserted":
+            ls.vehicle.setLaneChangeMode(self.entering, 0)
+            ls.vehicle.changeLane(self.entering, ls.vehicle.getLaneIndex(self.entering) + 1,
+                                  LANE_CHANGE_S)
+            self.phase = "changing"
+        if self.phase != "waiting" or self.k < m.step:
+            return
+        if m.kind == "cut-out":
+            leaver = self.ids[m.position - 1]
+            ls.vehicle.setLaneChangeMode(leaver, 0)
+            ls.vehicle.changeLane(leaver, ls.vehicle.getLaneIndex(leaver) - 1, LANE_CHANGE_S)
+            self.phase = "changing"
+        elif m.kind == "merge":
+            head = self.ids[m.position]
+            self.radar_only.discard(head)
+            extra = self.offset.pop(head)
+            if self.follower_model != "external":
+                ls.vehicle.setMinGap(head, ls.vehicle.getMinGap(head) - extra)
+            self.done_step, self.phase = self.k, "done"
+            self.behind = [v for v in self.order[self.order.index(head):]]
+        else:
+            self._insert(ls)
+
+    def _insert(self, ls) -> None:
+        """Insert the entering vehicle beside its gap, when the gap has room."""
+        m = self.manoeuvre
+        original = self.ids
+        if m.position == self.n:  # join behind the tail, at the gap the tail keeps
+            tail = original[-1]
+            if tail not in self.order:
+                return
+            gap = self.ahead[tail][1]
+            front = self._route_x(ls, tail) - self.lengths[-1] - gap
+            speed = self.speeds[tail]
+        else:
+            behind = original[m.position]
+            if behind not in self.order:
+                return
+            pred, gap = self.ahead[behind]
+            length = self._entering_length()
+            room = gap - length
+            if room < MIN_ROOM_M:
+                return
+            front = self._route_x(ls, behind) + m.gap_fraction * room + length
+            speed = 0.5 * (self.speeds[behind] + self.speeds.get(pred, self.speeds[behind]))
+        lane, lane_pos = self.adjacent.locate(front)
+        route_index = self.adjacent.lanes.index(lane)
+        ls.vehicle.add(self.entering, f"platoon{route_index}", self._entering_type(),
+                       depart="now", departLane=lane.rsplit("_", 1)[1],
+                       departPos=f"{lane_pos:.6f}", departSpeed=f"{speed:.6f}")
+        self._enter_speed = speed
+        self.phase = "inserted"
+
+    def _entering_type(self) -> str:
+        if self.manoeuvre.kind == "cut-in":
+            return HUMAN_TYPE
+        if self._joiner_plant is not None:
+            return self._joiner_plant.vtypes[0]
+        return FOLLOWER_TYPES[self.follower_model]
+
+    def _entering_length(self) -> float:
+        if self.manoeuvre.kind == "join" and self._joiner_plant is not None:
+            return float(self._joiner_plant.length_m[0])
+        return self.scenario.vehicle_length_m
+
+    def _complete(self, ls) -> None:
+        """Whether this step's lane change finished the manoeuvre; hand vehicles over."""
+        if self.phase != "changing":
+            return
+        lanes = set(self.route.lanes)
+        m = self.manoeuvre
+        if m.kind == "cut-out":
+            leaver = self.ids[m.position - 1]
+            if ls.vehicle.getLaneID(leaver) in lanes:
+                return
+            self.members.remove(leaver)
+            self.tracked.remove(leaver)
+            if self.follower_model == "external":  # SUMO drives it from now on
+                ls.vehicle.setSpeedMode(leaver, 31)
+                ls.vehicle.setSpeed(leaver, -1)
+            self.behind = [v for v in self.order[self.order.index(leaver) + 1:]]
+        else:
+            if ls.vehicle.getLaneID(self.entering) not in lanes:
+                return
+            ls.vehicle.setLaneChangeMode(self.entering, 0)
+            if m.kind == "join" and self.follower_model == "external":
+                ls.vehicle.setSpeedMode(self.entering, 0)
+                self.accels[self.entering] = 0.0
+            else:
+                ls.vehicle.setSpeed(self.entering, -1)  # SUMO's own model drives it
+            if m.kind == "join":
+                self.members.append(self.entering)  # _sense puts it in its place
+            x = self._route_x(ls, self.entering)
+            self.behind = [v for v in self.order if self._route_x(ls, v) < x]
+        self.done_step, self.phase = self.k, "done"

@@ -1,0 +1,267 @@
+"""Manoeuvres in real SUMO on the shipped default leaders and networks/i80.net.xml: cut-in,
+cut-out, join and merge with SUMO's own lane changes; their metrics against hand computations;
+bad scenarios refused before any simulation."""
+
+from __future__ import annotations
+
+import subprocess
+
+import numpy as np
+import pytest
+
+from carl_sumo.config import DT_S
+from carl_sumo.data import load_events
+from carl_sumo.errors import InputError
+from carl_sumo.sim.manoeuvre_metrics import (ScenarioTrace, manoeuvre_metrics,
+                                             settle_and_overshoot, whole_run_metrics)
+from carl_sumo.sim.scenario import Manoeuvre, parse_scenario
+from carl_sumo.sim.scenario_sim import ScenarioSim
+from carl_sumo.study.scenarios import (NotApplicable, chains_of, check_scenario,
+                                       heard_accelerations, run_scenario_event,
+                                       scenario_controller, score_trace)
+
+from conftest import NET
+
+EVENT_ID = "sumo42_f1865_l1847_fr5798"  # test split, leader at 6-10 m/s, 27 s
+N = 6
+PLATOON_INDEX = 4  # SUMO lane index of NGSIM lane 2 on i80_approach
+
+
+@pytest.fixture(scope="module")
+def event():
+    (e,) = load_events("default", "test", event_ids=[EVENT_ID])
+    return e
+
+
+def _drive(sim: ScenarioSim, controller, watch) -> list:
+    """Run the sim to its end with a scenario controller; ``watch(sim)`` after every step."""
+    import libsumo
+
+    seen = []
+    controller.reset()
+    while not sim.done:
+        ids, obs, ahead = sim.observe()
+        accel = controller.acceleration(obs, chains_of(ids, ahead), ids, ahead,
+                                        {v: sim.accels[v] for v in ids})
+        sim.advance(dict(zip(ids, accel.tolist())))
+        seen.append(watch(sim, libsumo))
+    return seen
+
+
+def test_cut_in_changes_lane_into_the_gap_and_splits_the_chain(event):
+    _, controller = scenario_controller("ploeg-tuned:h=0.8")
+    sim = ScenarioSim(NET, "external")
+    sim.start(event, N, Manoeuvre("cut-in", 3, 6.0, 0.5))
+
+    def watch(s, ls):
+        lane = ls.vehicle.getLaneIndex("human") if "human" in s.tracked else None
+        return (s.k, lane, ls.vehicle.getLeader("f3", 300)[0], list(s.order), list(s.members),
+                min(s.ahead[v][1] for v in s.order))
+
+    seen = _drive(sim, controller, watch)
+    lanes = [lane for _, lane, *_ in seen if lane is not None]
+    assert lanes[0] == PLATOON_INDEX - 1 and lanes[-1] == PLATOON_INDEX  # SUMO's lane change
+    assert sim.done_step is not None and sim.done_step * DT_S >= 6.0
+    order = sim.order
+    assert order.index("human") == order.index("f2") + 1 == order.index("f3") - 1
+    assert seen[-1][2] == "human"  # SUMO has the human ahead of follower 4 ...
+    ids, obs, ahead = sim.observe()
+    assert ahead[ids.index("f3")][0] == "human"  # ... and so does its controller
+    assert "human" not in sim.members and len(sim.members) == N
+    chains = [[ids[i] for i in c] for c in chains_of(ids, ahead)]
+    assert chains == [["f0", "f1", "f2"], ["f3", "f4", "f5"]]  # no message reaches f3
+    assert min(gap for *_, gap in seen) > 0
+    assert sim.behind == ["f3", "f4", "f5"]
+
+
+def test_the_follower_behind_a_cut_in_acts_on_radar_alone(event):
+    """The Ploeg CACC of the follower behind the human gets no feed-forward: its acceleration
+    is the radar-only ACC law's on its own measurements, where the follower ahead of the human
+    still takes its predecessor's message."""
+    from dataclasses import replace
+
+    from carl_sumo.control.cacc import PloegController
+
+    _, controller = scenario_controller("ploeg-tuned:h=0.8")
+    sim = ScenarioSim(NET, "external")
+    sim.start(event, N, Manoeuvre("cut-in", 3, 6.0, 0.5))
+    _drive(sim, controller, lambda s, ls: None)
+    ids, obs, ahead = sim.observe()
+    row = ids.index("f3")
+    u_f3 = controller.u["f3"]
+    heard = heard_accelerations(sim, ids, 0.0)
+    assert "human" not in heard
+    got = controller.acceleration(obs, chains_of(ids, ahead), ids, ahead, heard, commit=False)
+    acc = PloegController(replace(controller.controller.params, feed_forward=False))
+    expected = acc.step(obs[[row]], np.array([u_f3]), 0.0)
+    assert got[row] == pytest.approx(expected[0], abs=1e-12)
+    cacc_row = ids.index("f2")  # inside the first chain: the law with f1's message
+    with_message = controller.controller.step(obs[[cacc_row - 1, cacc_row]],
+                                              np.array([controller.u["f1"], controller.u["f2"]]),
+                                              0.0)
+    assert got[cacc_row] == pytest.approx(with_message[1], abs=1e-12)
+
+
+def test_cut_out_leaves_the_lane_and_relinks_the_chain(event):
+    _, controller = scenario_controller("ploeg-tuned:h=0.8")
+    sim = ScenarioSim(NET, "external")
+    sim.start(event, N, Manoeuvre("cut-out", 3, 6.0))
+
+    def watch(s, ls):
+        return ls.vehicle.getLaneIndex("f2"), ls.vehicle.getLeader("f3", 300)[0]
+
+    seen = _drive(sim, controller, watch)
+    assert seen[0][0] == PLATOON_INDEX and seen[-1][0] == PLATOON_INDEX - 1
+    assert seen[0][1] == "f2" and seen[-1][1] == "f1"
+    ids, obs, ahead = sim.observe()
+    assert "f2" not in ids and ahead[ids.index("f3")][0] == "f1"
+    assert chains_of(ids, ahead) == [list(range(N - 1))]  # one chain again
+    assert sim.behind == ["f3", "f4", "f5"]
+
+
+def test_join_grows_the_platoon_by_one(event):
+    _, controller = scenario_controller("policies/ca_td3_ploeg_10.pt")
+    sim = ScenarioSim(NET, "external")
+    sim.start(event, N, Manoeuvre("join", 3, 6.0, 0.5))
+    sizes = _drive(sim, controller, lambda s, ls: len(s.members))
+    assert sizes[0] == N and sizes[-1] == N + 1
+    ids, obs, ahead = sim.observe()
+    assert ids.index("joiner") == 3 and ahead[3][0] == "f2" and ahead[4][0] == "joiner"
+    assert chains_of(ids, ahead) == [list(range(N + 1))]  # the joiner is in the chain
+    assert np.all(obs[:, 2] > 0)
+
+
+def test_merge_links_the_second_platoon_and_closes_the_gap(event):
+    _, controller = scenario_controller("ploeg-tuned:h=0.8")
+    sim = ScenarioSim(NET, "external")
+    sim.start(event, N, Manoeuvre("merge", 3, 6.0, extra_gap_m=30.0))
+    ids, obs, ahead = sim.observe()
+    assert len(chains_of(ids, ahead)) == 2 and ahead[3][0] == "radar:f2"
+    gap0 = sim.ahead["f3"][1]
+    gaps = _drive(sim, controller, lambda s, ls: s.ahead["f3"][1])
+    ids, obs, ahead = sim.observe()
+    assert chains_of(ids, ahead) == [list(range(N))]
+    assert gap0 > 30.0 and gaps[-1] < gap0 - 20.0
+
+
+@pytest.mark.parametrize("kind", ["cut-in", "cut-out", "join", "merge"])
+@pytest.mark.parametrize("name", ["idm", "ploeg-tuned:h=0.8", "policies/ca_td3_ploeg_10.pt"])
+def test_every_manoeuvre_runs_and_scores_finite(event, kind, name):
+    model, controller = scenario_controller(name)
+    sim = ScenarioSim(NET, model)
+    trace = run_scenario_event(sim, event, N, parse_scenario(kind).draw(event, N), controller)
+    row = score_trace(trace)
+    m = row["manoeuvre_metrics"]
+    assert m["done"] == 1 and m["collisions"] == 0 and m["min_gap_m"] > 0
+    for key in ("min_gap_m", "peak_decel_mps2", "peak_jerk_mps3", "settle_s", "overshoot"):
+        assert np.isfinite(m[key]), key
+    assert np.isfinite(row["jerk_mps3"]) and np.isfinite(row["headway_s"])
+
+
+def test_real_plant_cut_in_with_the_product_policy(event):
+    from carl_sumo.control.channel import Impairments
+    from carl_sumo.sim.vehicle import REAL_PLANT
+
+    imp = Impairments(delay_s=0.1, plant=REAL_PLANT)
+    model, controller = scenario_controller("policies/ca_td3_real_10.pt", imp.plant_key)
+    trace = run_scenario_event(ScenarioSim(NET, model), event, N,
+                               Manoeuvre("cut-in", 2, 6.0, 0.5), controller, imp)
+    m = manoeuvre_metrics(trace)
+    assert m["done"] == 1 and m["min_gap_m"] > 0 and np.isfinite(m["peak_decel_mps2"])
+
+
+# ------------------------------------------------------------------------------ metrics
+def test_settle_and_overshoot_by_hand():
+    series = np.concatenate([np.linspace(0.5, 1.2, 8), np.full(40, 1.0)])
+    settle, overshoot = settle_and_overshoot(series, 0.1)
+    # steady state 1.0; the last sample outside ±0.1 is 1.2 - 0.1·... at index 7 (1.2) → 0.8 s
+    assert settle == pytest.approx(0.8) and overshoot == pytest.approx(0.2)
+    closing = np.concatenate([[2.0, 1.5, 0.85], np.full(40, 1.0)])
+    assert settle_and_overshoot(closing, 0.1) == pytest.approx((0.3, 0.15))
+    assert np.isnan(settle_and_overshoot(np.ones(10), 0.1)[0])
+
+
+def _synthetic_trace() -> ScenarioTrace:
+    """Two vehicles for 6 samples: 'a' ahead, 'b' behind it from step 2 on (t_m = 2)."""
+    speed = np.array([[10, 10], [10, 10], [10, 10], [9, 10], [8, 9.5], [8, 9]], float)
+    gap = np.array([[20, 8], [20, 8], [20, 6], [20, 5], [20, 4.5], [20, 4.4]], float)
+    pred = np.array([[10, 10], [10, 10], [10, 10], [10, 9], [10, 8], [10, 8]], float)
+    return ScenarioTrace("syn", "cut-in", np.full(6, 10.0), ["a", "b"], ["a", "b"], speed, gap,
+                         pred, done_step=2, behind=["b"])
+
+
+def test_manoeuvre_metrics_match_a_hand_computation():
+    m = manoeuvre_metrics(_synthetic_trace())
+    assert m["min_gap_m"] == pytest.approx(4.4)
+    # b closes in at steps 3 (10 - 9: TTC 5/1), 4 (9.5 - 8: 4.5/1.5 = 3) and 5 (9 - 8: 4.4)
+    assert m["min_ttc_s"] == pytest.approx(3.0)
+    # b's a from step 2: 0, -5, -5 m/s²; jerk |Δa|/dt from step 2: 50, 0 m/s³
+    assert m["peak_decel_mps2"] == pytest.approx(5.0)
+    assert m["peak_jerk_mps3"] == pytest.approx(50.0)
+    assert m["peak_decel_by_vehicle"] == {"b": pytest.approx(5.0)}
+    assert np.isnan(m["settle_s"])  # 4 samples after t_m: too short for a steady state
+    whole = whole_run_metrics(_synthetic_trace())
+    assert whole["speed_mps"] == pytest.approx(speed_mean := np.mean(
+        _synthetic_trace().speed)) and speed_mean > 0
+    assert whole["ttc_lt_4s_count"] == 1 and whole["collisions"] == 0
+
+
+def test_a_manoeuvre_that_did_not_happen_has_nan_metrics():
+    trace = _synthetic_trace()
+    trace.done_step = None
+    m = manoeuvre_metrics(trace)
+    assert m["done"] == 0 and np.isnan(m["min_gap_m"])
+
+
+# ------------------------------------------------------------------------------ bad input
+@pytest.mark.parametrize("text, message", [
+    ("cut-in:f=0", "gap fraction"), ("cut-in:f=1", "gap fraction"), ("join:f=1.5", "gap fraction"),
+    ("overtake", "unknown manoeuvre"), ("cut-out:f=0.5", "not an option"),
+    ("cut-in:k=1.5", "whole vehicle position"), ("cut-in:t=-1", "multiple"),
+    ("merge:gap=0", "positive")])
+def test_bad_scenario_text_is_refused(text, message):
+    with pytest.raises(InputError, match=message):
+        parse_scenario(text)
+
+
+def test_a_position_beyond_the_platoon_and_a_time_beyond_the_event_are_refused(event):
+    with pytest.raises(InputError, match="beyond the platoon"):
+        check_scenario("idm", parse_scenario("cut-in:k=10"), [event], 10, NET)
+    with pytest.raises(InputError, match="beyond the platoon"):
+        check_scenario("idm", parse_scenario("cut-out:k=0"), [event], 10, NET)
+    with pytest.raises(InputError, match="does not fit event"):
+        check_scenario("idm", parse_scenario("cut-in:t=26"), [event], 10, NET)
+    with pytest.raises(InputError, match="at least 2 followers"):
+        check_scenario("idm", parse_scenario("cut-out"), [event], 1, NET)
+
+
+def test_a_network_without_a_lane_beside_the_platoon_is_refused(tmp_path, event):
+    from carl_sumo.sim.network import netconvert_binary
+
+    (tmp_path / "n.nod.xml").write_text('<nodes><node id="a" x="0" y="0"/>'
+                                        '<node id="b" x="3000" y="0"/></nodes>')
+    (tmp_path / "n.edg.xml").write_text('<edges><edge id="e" from="a" to="b" numLanes="2" '
+                                        'speed="33"/></edges>')
+    net = tmp_path / "two_lanes.net.xml"
+    subprocess.run([netconvert_binary(), "-n", str(tmp_path / "n.nod.xml"), "-e",
+                    str(tmp_path / "n.edg.xml"), "-o", str(net)], check=True, capture_output=True)
+    # NGSIM lane 2 of a two-lane road is its right lane: nothing beside it on the right
+    with pytest.raises(InputError, match="needs a lane beside it"):
+        check_scenario("idm", parse_scenario("cut-in"), [event], 3, net)
+
+
+def test_maddpg_and_the_recorded_follower_are_not_applicable():
+    with pytest.raises(NotApplicable, match="n/a: fixed size"):
+        scenario_controller("policies/maddpg_10.pt")
+    with pytest.raises(NotApplicable, match="n/a"):
+        scenario_controller("human")
+
+
+def test_the_draw_is_seeded_per_event(event):
+    a = parse_scenario("cut-in").draw(event, 10)
+    assert a == parse_scenario("cut-in").draw(event, 10)
+    assert 1 <= a.position <= 9 and 0.4 <= a.gap_fraction <= 0.6
+    first, last = 0.2 * (event.n_samples - 1) * DT_S, 0.4 * (event.n_samples - 1) * DT_S
+    assert first - 1e-9 <= a.time_s <= last + 1e-9
+    draws = {parse_scenario("cut-in", seed=s).draw(event, 10) for s in range(8)}
+    assert len(draws) > 1
