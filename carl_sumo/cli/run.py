@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 from carl_sumo.cli.common import (NET_HELP, net_option, add_common, add_impairments, add_plant, add_ray, add_warmup,
                                    check_ray, fmt, impairments_from, positive, ray_session,
                                    warmup_from, workers_for)
+from carl_sumo.cli.scenario import add_scenario, replay_with_scenario, simulate_with_scenario
 from carl_sumo.errors import InputError
 from carl_sumo.files import check_output_dir, check_output_file, write_text_atomic
 
@@ -47,6 +48,7 @@ def _simulate_parser(sub: argparse._SubParsersAction) -> None:
     add_ray(p)
     add_impairments(p)
     add_warmup(p)
+    add_scenario(p)
 
 
 def cmd_simulate(args: argparse.Namespace) -> None:
@@ -68,13 +70,15 @@ def cmd_simulate(args: argparse.Namespace) -> None:
     for name in names:  # fail on a bad controller or platoon length before any simulation runs
         check_impairable(name, impairments)
         _, controller = resolve_controller(name, plant_of(impairments))
-        if controller is not None:
+        if controller is not None and args.scenario is None:  # --scenario: n/a rows instead
             controller.reset(args.vehicles)
     if args.workers is not None:
         positive(args.workers, "--workers")
     check_ray(args)
     events = [e.with_warmup(warmup_s) for e in load_events(args.data, args.split,
                                                              limit=args.events)]
+    if args.scenario is not None:  # a manoeuvre in every event (carl_sumo.cli.scenario)
+        return simulate_with_scenario(args, names, impairments, events)
     start = time.perf_counter()
     with ray_session(args, args.workers or os.cpu_count()):
         workers = workers_for(args, min(2, os.cpu_count() or 1))
@@ -103,6 +107,7 @@ def _replay_parser(sub: argparse._SubParsersAction) -> None:
     _gui_options(p)
     add_impairments(p)
     add_warmup(p)
+    add_scenario(p)
 
 
 def _gui_options(p: argparse.ArgumentParser) -> None:
@@ -161,6 +166,8 @@ def cmd_replay(args: argparse.Namespace) -> None:
     view = gui_view_from(args, args.vehicles)
     (event,) = load_events(args.data, args.split, event_ids=[args.event])
     event = event.with_warmup(warmup_s)  # the FCD file has the warm-up, the metrics do not
+    if args.scenario is not None:  # one manoeuvre, written as FCD (carl_sumo.cli.scenario)
+        return replay_with_scenario(args, event, impairments)
     shot = view.screenshot if view is not None else None
     if shot is not None and view.screenshot_s > event.duration_s:
         raise InputError(f"--screenshot at {view.screenshot_s:g} s is after the end of event "

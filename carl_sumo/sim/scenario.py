@@ -3,7 +3,7 @@ per event.
 
 Positions count vehicles from the front: 0 is the NGSIM leader, 1 the first follower, n the tail.
 
-- **cut-in** ``k`` (0..n-1): a human driver (SUMO's IDM, type ``human_idm``; it sends no V2V)
+- **cut-in** ``k`` (0..n-1): a human driver (SUMO's Krauss, type ``human_krauss``; no V2V)
   enters the platoon lane from the adjacent lane between vehicle k and follower k+1;
 - **cut-out** ``k`` (1..n-1): follower k changes into the adjacent lane and leaves; k+1 then
   faces k-1 across the old gaps;

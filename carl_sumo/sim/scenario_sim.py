@@ -12,7 +12,8 @@ The **members** are the CACC followers in the platoon lane, front first: carl-su
 (``follower_model="external"``) or SUMO does (a native model). A member leaves when its cut-out
 lane change is done (SUMO then drives it in the adjacent lane) and a joiner becomes one when its
 lane change into the platoon lane is done. A human who cuts in is never a member: it is driven by
-SUMO's IDM (``human_idm``) from the step it is in the platoon lane, and it sends no V2V.
+SUMO's Krauss model (``human_krauss``) from the step it is in the platoon lane, and it sends no
+V2V.
 """
 
 from __future__ import annotations
@@ -32,8 +33,10 @@ from carl_sumo.sim.vehicle import Plant
 
 SENSOR_RANGE_M = 300.0
 """How far a follower sees the vehicle ahead (m): beyond it d = this and Δv = 0."""
-HUMAN_TYPE = "human_idm"
-"""SUMO vType of the human who cuts in (SUMO's IDM with the paper's parameters)."""
+HUMAN_TYPE = "human_krauss"
+"""SUMO vType of the human who cuts in: SUMO's Krauss (its passenger defaults, no driver
+imperfection), which brakes at most at its 4.5 m/s² to open the gap it cut into; SUMO's IDM with
+the paper's T = 1.5 s brakes at its emergency 9 m/s² behind a 12 m gap at 17 m/s."""
 LANE_CHANGE_S = 5.0
 """How long a ``changeLane`` request holds (s)."""
 ENTERING_ID = {"cut-in": "human", "join": "joiner"}
