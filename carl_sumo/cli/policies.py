@@ -15,7 +15,7 @@ from pathlib import Path
 from carl_sumo.cli.common import (add_common, add_impairments, add_ray, add_warmup, check_ray,
                                  fmt, impairments_from, positive, ray_session, warmup_from)
 from carl_sumo.errors import InputError
-from carl_sumo.files import check_output_file
+from carl_sumo.files import check_output_dir, check_output_file
 
 
 def _add_reward_options(p: argparse.ArgumentParser) -> None:
@@ -208,6 +208,12 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--checkpoint-every", type=int, default=5_000)
     p.add_argument("--out", type=Path, default=None, help="policy file (default policies/ALGO.pt)")
     p.add_argument("--resume", type=Path, default=None, help="checkpoint (.ckpt) to continue")
+    p.add_argument("--tensorboard", type=Path, default=None, metavar="DIR",
+                   help="also log validation metrics, reward, actor and critic losses and Q "
+                        "estimates to TensorBoard in DIR (the [tb] extra: tensorboardX)")
+    p.add_argument("--progress-every", type=float, default=30.0, metavar="S",
+                   help="without a terminal: one progress line on stderr every S seconds "
+                        "(default 30)")
     p.add_argument("--select", default=None, choices=("margin", "comfort", "metrics", "reward"),
                    help="how the best validation checkpoint is kept: margin (default: the "
                         "largest smallest z of the improvement over the base on jerk, dampening "
@@ -276,6 +282,14 @@ def cmd_train(args: argparse.Namespace) -> None:
 
     out = check_train_args(args)
     check_ray(args)
+    if not (math.isfinite(args.progress_every) and args.progress_every > 0):
+        raise InputError(f"--progress-every must be a positive number of seconds, got "
+                         f"{args.progress_every:g}")
+    if args.tensorboard is not None:
+        from carl_sumo.learn.report import check_tensorboard
+
+        check_tensorboard()
+        check_output_dir(args.tensorboard, "--tensorboard")
     events = load_events(args.data, args.split)
     cfg = train_config(args, out, "carl-sumo " + " ".join(sys.argv[1:]))
     with ray_session(args, args.envs):
@@ -283,8 +297,10 @@ def cmd_train(args: argparse.Namespace) -> None:
             from carl_sumo.scale.cluster import require_cpus
 
             require_cpus(args.envs, "--envs")
-        result = train(cfg, events, resume=args.resume, progress=sys.stderr.isatty(),
-                       rollouts="processes" if args.ray is None else "ray")
+        result = train(cfg, events, resume=args.resume,
+                       progress=True if sys.stderr.isatty() else args.progress_every,
+                       rollouts="processes" if args.ray is None else "ray",
+                       tensorboard=args.tensorboard)
     val = result["validation"]
     print(f"wrote {out} (best validation score {result['best_score']:.4f}); "
           f"wall time {result['wall_time_s']:.0f} s; last validation: "

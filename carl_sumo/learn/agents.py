@@ -329,7 +329,9 @@ class Agent(nn.Module):
         loss.backward()
         nn.utils.clip_grad_norm_(self.critic_opt.param_groups[0]["params"], cfg.max_grad_norm)
         self.critic_opt.step()
-        stats = {"critic_loss": float(loss.detach())}
+        with torch.no_grad():  # the mean Q estimate of the batch (its real vehicles)
+            q_mean = (q[0] * maskf).sum() / maskf.sum()
+        stats = {"critic_loss": float(loss.detach()), "q_mean": float(q_mean)}
         self.updates += 1
         if train_actor and (not cfg.twin or self.updates % cfg.policy_delay == 0):
             stats["actor_loss"] = self._update_actor(x, next_x, obs, next_obs, mask, maskf,

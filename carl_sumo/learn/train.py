@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import random
 import shutil
-import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -31,7 +30,7 @@ from carl_sumo.errors import InputError
 from carl_sumo.sim.metrics import aggregate
 from carl_sumo.learn.models import CommunicationAware
 from carl_sumo.learn.policy import save_policy
-from carl_sumo.learn.selection import (MARGIN_KEYS, BaseOnly, improvement_z,
+from carl_sumo.learn.selection import (BaseOnly, improvement_z,
                                  selection_score, validate_events)
 from carl_sumo.control.channel import Impairments
 from carl_sumo.learn.randomize import RandomisedChannels
@@ -44,6 +43,7 @@ from carl_sumo.files import atomic_path
 from carl_sumo.sim.sumo import check_fits
 
 from carl_sumo.learn.curve import LOG_COLUMNS, LearningCurve  # noqa: F401
+from carl_sumo.learn.report import Report
 from carl_sumo.learn.curve import upgrade_log as _upgrade_log  # noqa: F401
 
 
@@ -89,13 +89,14 @@ def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: flo
 
 
 def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
-          progress: bool = True, log=print, rollouts: str = "processes",
-          on_checkpoint=None) -> dict[str, Any]:
+          progress: bool | float = True, log=print, rollouts: str = "processes",
+          on_checkpoint=None, tensorboard: Path | None = None) -> dict[str, Any]:
     """Train an agent; writes the best policy to ``cfg.out``, checkpoints and a CSV log beside it.
 
     ``rollouts``: the environments run in spawned processes or, ``"ray"``, in Ray actors (the same
     steps). ``on_checkpoint(step)`` is called after each checkpoint is written (``sweep`` hands it
-    to Ray Tune). Returns the final validation metrics and timing. The loop (act, step, store,
+    to Ray Tune). ``progress``, ``tensorboard``: :class:`carl_sumo.learn.report.Report` (with the
+    curve's figure). Returns the final validation metrics and timing. The loop (act, step, store,
     update, validate, keep, checkpoint) reads top to bottom, as in CleanRL; its steps are below."""
     from carl_sumo.learn.vec_env import RayVecPlatoon, VecPlatoon
 
@@ -126,7 +127,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                     cfg.base, cfg.observe_ahead, adjustment_bounds(cfg.adj_max), cfg.shield_ttc)
     obs = vec.reset(cfg.seed + start_step, channels.current if channels is not None else None)
     links = channels.receive(_boundaries(agent)) if channels is not None else None
-    report = _Report(cfg, out, resume is not None, start_step, progress)
+    report = Report(cfg, out, resume, start_step, progress, tensorboard)
     t0 = time.perf_counter()
     recent = []
     val: dict[str, float] = {}
@@ -146,7 +147,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
             links = _store(buffer, channels, agent, obs, action, reward, final, term, trunc, links)
             recent.append(float(reward.mean()))
             obs = next_obs
-            _update(cfg, agent, buffer, rng, step)
+            report.updated(step, _update(cfg, agent, buffer, rng, step))
             done_steps = step + 1
             if done_steps % cfg.eval_every == 0 or done_steps == cfg.steps:
                 wall = wall_before + time.perf_counter() - t0
@@ -319,17 +320,20 @@ def _choose_action(cfg: TrainConfig, agent: Agent, obs: np.ndarray, links, chann
 
 
 def _update(cfg: TrainConfig, agent: Agent, buffer: ReplayBuffer, rng: np.random.Generator,
-            step: int) -> None:
+            step: int) -> dict[str, float] | None:
     """The gradient updates after vector step ``step``: every ``update_every`` steps from
-    ``learning_starts`` on, the critics alone during ``critic_burn_in``."""
+    ``learning_starts`` on, the critics alone during ``critic_burn_in``; the last update's
+    statistics (None without an update)."""
     if step < cfg.learning_starts or (step - cfg.learning_starts) % cfg.update_every != 0:
-        return
+        return None
     train_actor = step >= cfg.learning_starts + cfg.critic_burn_in
     if cfg.lr_decay:
         agent.scale_learning_rates(1.0 - (step - cfg.learning_starts)
                                    / max(1, cfg.steps - cfg.learning_starts))
+    stats = None
     for _ in range(cfg.updates_per_step):
-        agent.update(buffer.sample(agent.cfg.batch_size, rng), train_actor)
+        stats = agent.update(buffer.sample(agent.cfg.batch_size, rng), train_actor)
+    return stats
 
 
 def _validate(cfg: TrainConfig, agent: Agent, val_env: PlatoonEnv, val_events: Sequence[Event],
@@ -339,54 +343,6 @@ def _validate(cfg: TrainConfig, agent: Agent, val_env: PlatoonEnv, val_events: S
     val_reward, per_event = validate_events(agent, val_env, val_events, validation_conditions(cfg))
     return {"val_reward": val_reward, **aggregate(per_event),
             **improvement_z(per_event, baseline_events)}
-
-
-class _Report:
-    """Where a run reports: the learning-curve CSV beside the policy (continued on resume),
-    TensorBoard when it is installed, and a progress bar."""
-
-    def __init__(self, cfg: TrainConfig, out: Path, resumed: bool, start_step: int,
-                 progress: bool):
-        self.curve = LearningCurve(out.with_suffix(".csv"), start_step if resumed else None)
-        self.board = _tensorboard(out.with_suffix(".tb"))
-        self.num_envs = cfg.num_envs
-        self.bar = None
-        if progress:
-            from tqdm import tqdm
-
-            self.bar = tqdm(total=cfg.steps, initial=start_step, desc=cfg.algo, unit="step",
-                            file=sys.stderr, dynamic_ncols=True)
-
-    def validation(self, done_steps: int, wall_s: float, train_reward: float,
-                   val: dict[str, float]) -> None:
-        """One row of the learning curve, its TensorBoard scalars and the bar's summary."""
-        self.curve.append([done_steps, done_steps * self.num_envs, f"{wall_s:.1f}",
-                           f"{train_reward:.4f}", f"{val['val_reward']:.4f}",
-                           *(f"{val[k]:.4f}" for k in ("headway_s", "jerk_mps3", "speed_mps",
-                                                        "dampening_ratio")),
-                           val["collisions"],
-                           *(f"{val[name]:.3f}" for name, _ in MARGIN_KEYS.values())])
-        if self.board is not None:
-            for key, value in val.items():
-                self.board.add_scalar(f"validation/{key}", value, done_steps)
-            self.board.add_scalar("train/reward", train_reward, done_steps)
-        if self.bar is not None:
-            self.bar.set_postfix(reward=f"{train_reward:.3f}", val=f"{val['val_reward']:.3f}",
-                                 jerk=f"{val['jerk_mps3']:.3f}", coll=val["collisions"],
-                                 min_z=f"{min(val[k] for k, _ in MARGIN_KEYS.values()):.2f}")
-
-    def flush(self) -> None:
-        """The curve is on disk already (written whole with every row)."""
-
-    def advance(self) -> None:
-        if self.bar is not None:
-            self.bar.update(1)
-
-    def close(self) -> None:
-        if self.board is not None:
-            self.board.close()
-        if self.bar is not None:
-            self.bar.close()
 
 
 def _teacher(cfg: TrainConfig):
@@ -444,15 +400,6 @@ def initial_actor(cfg: TrainConfig) -> dict | None:
                          f"({', '.join(differ)}); give one trained with this run's --algo, "
                          "--base, --observe-ahead and --adj-max")
     return payload["actor"]
-
-
-def _tensorboard(logdir: Path):
-    """A TensorBoard writer when the tensorboard package is installed, else None."""
-    try:
-        from torch.utils.tensorboard import SummaryWriter
-    except ImportError:
-        return None
-    return SummaryWriter(str(logdir))
 
 
 def export_policy(checkpoint: Path, out: Path) -> dict[str, Any]:
