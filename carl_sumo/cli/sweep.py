@@ -28,6 +28,25 @@ def _sweep_parser(sub: argparse._SubParsersAction) -> None:
                         "the spec's results)")
     p.add_argument("--no-ship", action="store_true",
                    help="do not copy the best run to the spec's ship path")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace files that are there already (the shipped specs write into "
+                        "policies/: without it the sweep refuses to overwrite them)")
+
+
+def check_overwrite(spec, trials) -> None:
+    """InputError, before anything runs, when the sweep would replace files that exist: the
+    trials' policy files (and their curves and checkpoints) and the ship target."""
+    from carl_sumo.errors import InputError
+
+    targets = [Path(t.argv[t.argv.index("--out") + 1]) for t in trials]
+    targets += [spec.ship] if spec.ship is not None else []
+    there = [str(p) for t in targets for p in (t.with_suffix(s) for s in (".pt", ".csv", ".ckpt"))
+             if p.exists()]
+    if there:
+        more = f" and {len(there) - 2} more" if len(there) > 2 else ""
+        raise InputError(f"the sweep would overwrite {', '.join(there[:2])}{more}: pass "
+                         "--overwrite to replace them, or --out DIR and --no-ship to write "
+                         "elsewhere")
 
 
 def cmd_sweep(args: argparse.Namespace) -> None:
@@ -42,6 +61,8 @@ def cmd_sweep(args: argparse.Namespace) -> None:
     if args.no_ship:
         spec.ship = None
     trials = plan_trials(spec)
+    if not args.overwrite:
+        check_overwrite(spec, trials)
     check_trials(spec, trials)  # every trial's options, the outputs and the data, before Ray
     check_ray(args)
     start = time.perf_counter()

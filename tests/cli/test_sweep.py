@@ -218,3 +218,24 @@ def test_seed_in_a_string_option_is_the_trials_seed(tmp_path):
     for trial in trials:
         i = trial.argv.index("--init")
         assert trial.argv[i + 1] == f"policies/seeds/x_seed{trial.seed}.pt"
+
+
+def test_a_sweep_does_not_overwrite_files_unless_asked(tmp_path, capsys, monkeypatch):
+    spec = write_spec(tmp_path)
+    missing = tmp_path / "missing.csv.gz"  # the data check after the overwrite check fails
+    spec.write_text(spec.read_text().replace('net = "', f'data = "{missing}"\nnet = "'))
+    (tmp_path / "runs").mkdir()
+    (tmp_path / "runs" / "small_seed1.pt").write_bytes(b"a run of an earlier sweep")
+    code = main(["sweep", str(spec)])
+    err = capsys.readouterr().err
+    assert code == 2 and "would overwrite" in err and "small_seed1.pt" in err
+    assert "--overwrite" in err and len(err.strip().splitlines()) == 1
+    assert (tmp_path / "runs" / "small_seed1.pt").read_bytes() == b"a run of an earlier sweep"
+    assert not (tmp_path / "results").exists()
+    code = main(["sweep", str(spec), "--overwrite"])  # asked: on to the next check
+    err = capsys.readouterr().err
+    assert code == 2 and "would overwrite" not in err and "missing.csv.gz" in err
+    monkeypatch.chdir(REPO_ROOT)  # the shipped specs write the tracked policies/seeds/ files
+    code = main(["sweep", "sweeps/ca_td3.toml"])
+    err = capsys.readouterr().err
+    assert code == 2 and "would overwrite policies/seeds/ca_td3_ploeg_10_seed0.pt" in err
