@@ -14,7 +14,8 @@ from typing import TYPE_CHECKING
 from carl_sumo.cli.common import (NET_HELP, net_option, add_common, add_impairments, add_plant, add_ray, add_warmup,
                                    check_ray, fmt, impairments_from, positive, ray_session,
                                    warmup_from, workers_for)
-from carl_sumo.cli.scenario import add_scenario, replay_with_scenario, simulate_with_scenario
+from carl_sumo.cli.scenario import (add_scenario, evaluate_scenarios, replay_with_scenario,
+                                    simulate_with_scenario)
 from carl_sumo.errors import InputError
 from carl_sumo.files import check_output_dir, check_output_file, write_text_atomic
 
@@ -198,12 +199,14 @@ def cmd_replay(args: argparse.Namespace) -> None:
 
 def _evaluate_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("evaluate", help="the paper's tables and figures, written to --out")
-    p.add_argument("--suite", default="paper", choices=("paper", "real", "robustness"),
+    p.add_argument("--suite", default="paper", choices=("paper", "real", "robustness",
+                                                        "scenarios"),
                    help="paper (the paper's tables and figures: ideal plant, recorded start), "
                         "real (the same tables on the real plant from a 60 s settled start, with "
                         "ACC, the gains tuned for the plant and a string-stability table) or "
                         "robustness (controllers under V2V delay and loss and sensor noise, "
-                        "docs/robustness.md)")
+                        "docs/robustness.md) or scenarios (every controller through cut-in, "
+                        "cut-out, join and merge on both plants, docs/scenarios.md)")
     p.add_argument("--out", type=Path, default=Path("results"), help="output directory")
     p.add_argument("--data", default=None,
                    help="NGSIM event table (default: ../shared/data/ngsim/ngsim_cf_events.csv.gz;"
@@ -227,11 +230,17 @@ def _evaluate_parser(sub: argparse._SubParsersAction) -> None:
                         "(and its 10-follower rows of Table 2), and compare them across seeds "
                         "(default: the shipped policy files only)")
     add_warmup(p)
+    add_scenario(p)
 
 
 def cmd_evaluate(args: argparse.Namespace) -> None:
     if args.workers is not None:
         positive(args.workers, "--workers")
+    if args.suite == "scenarios":  # carl_sumo.cli.scenario
+        check_output_dir(args.out, "--out")
+        return evaluate_scenarios(args, args.workers or min(2, os.cpu_count() or 1))
+    if args.scenario is not None:
+        raise InputError("--scenario is for --suite scenarios (or simulate and replay)")
     if args.suite == "real":  # the real plant and a settled start unless told otherwise
         from carl_sumo.experiments.suite import REAL_WARMUP_S
 

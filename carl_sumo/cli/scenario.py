@@ -8,6 +8,7 @@ import json
 import os
 import sys
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from carl_sumo.cli.common import fmt
@@ -22,20 +23,6 @@ SCENARIO_HELP = ("a manoeuvre in every event: cut-in | cut-out | join | merge, o
                  "t: time, s; f: share of the gap behind an entering vehicle, in (0, 1); merge:"
                  "gap=M, m); what is not fixed is drawn per event (docs/scenarios.md)")
 
-TABLE_COLUMNS = (
-    ("done", "done", "{}"), ("min gap (m)", "min_gap_m", "{:.2f}"),
-    ("mean min gap (m)", "mean_min_gap_m", "{:.2f}"), ("min TTC (s)", "min_ttc_s", "{:.2f}"),
-    ("TTC<1.5 s events", "ttc_lt_1_5s_events", "{}"),
-    ("peak decel (m/s²)", "peak_decel_mps2", "{:.2f}"),
-    ("max peak decel (m/s²)", "max_peak_decel_mps2", "{:.2f}"),
-    ("peak jerk (m/s³)", "peak_jerk_mps3", "{:.1f}"), ("settle (s)", "settle_s", "{:.1f}"),
-    ("overshoot (%)", "overshoot", "{:.1%}"), ("collisions", "collisions", "{}"),
-)
-"""Manoeuvre columns of a scenario table: (header, key of aggregate_manoeuvres, format)."""
-RUN_COLUMNS = (("headway (s)", "headway_s", "{:.3f}"), ("jerk (m/s³)", "jerk_mps3", "{:.3f}"),
-               ("dampening", "dampening_ratio", "{:.3f}"))
-"""Whole-run columns beside them."""
-
 
 def add_scenario(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default=None, metavar="KIND[:k=K][:t=T][:f=F]",
@@ -44,76 +31,23 @@ def add_scenario(p: argparse.ArgumentParser) -> None:
                    help="seed of the manoeuvre values drawn per event (default 0)")
 
 
-def _cell(value, form: str) -> str:
-    if value is None:
-        return "-"
-    if isinstance(value, float) and value != value:
-        return "nan"
-    if isinstance(value, float) and value == float("inf"):
-        return "inf"
-    return form.format(value)
-
-
-def scenario_rows(results: list[dict]) -> tuple[list[str], list[list[str]]]:
-    """(header, rows) of a scenario table: one row per controller (``n/a: ...`` where it cannot
-    run the scenario)."""
-    header = ["controller", "events", *(h for h, _, _ in TABLE_COLUMNS),
-              *(h for h, _, _ in RUN_COLUMNS)]
-    rows = []
-    for r in results:
-        if "not_applicable" in r:
-            rows.append([r["controller"], r["not_applicable"]] + [""] * (len(header) - 2))
-            continue
-        m, w = r["manoeuvre"], r["metrics"]
-        rows.append([r["controller"], str(m["events"]),
-                     *(_cell(m[k], f) for _, k, f in TABLE_COLUMNS),
-                     *(_cell(w[k], f) for _, k, f in RUN_COLUMNS)])
-    return header, rows
-
-
-def format_scenario_table(results: list[dict]) -> str:
-    header, rows = scenario_rows(results)
-    widths = [max([len(h), *(len(row[i]) for row in rows)]) for i, h in enumerate(header)]
-    line = lambda cells: "  ".join(c.rjust(w) for c, w in zip(cells, widths))  # noqa: E731
-    return "\n".join([line(header), line(["-" * w for w in widths]), *map(line, rows)])
-
-
-def markdown_scenario_table(results: list[dict]) -> str:
-    header, rows = scenario_rows(results)
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in rows])
-
-
-def run_scenario_controllers(names: list[str], spec, events: list[Event], n_followers: int,
-                             net: str, impairments: Impairments | None, workers: int,
-                             strict: bool) -> list[dict]:
-    """Every controller's scenario result; all checked before any simulation (InputError; a
-    controller that cannot run it is a ``not_applicable`` row, or an error when ``strict``)."""
-    from carl_sumo.study.scenarios import NotApplicable, check_scenario, simulate_scenario
-
-    skipped: dict[str, str] = {}
-    for name in names:
-        try:
-            check_scenario(name, spec, events, n_followers, net, impairments)
-        except NotApplicable as exc:
-            if strict:
-                raise
-            skipped[name] = str(exc).split(" (")[0]
-    return [{"controller": name, "not_applicable": skipped[name]} if name in skipped else
-            simulate_scenario(name, events, n_followers, net, spec, impairments, workers)
-            for name in names]
-
-
 def simulate_with_scenario(args: argparse.Namespace, names: list[str],
                            impairments: Impairments | None, events: list[Event]) -> None:
     """``simulate --scenario``: the table per controller, and ``--json``."""
     from carl_sumo.sim.scenario import parse_scenario
+    from carl_sumo.study.scenario_tables import (check_controllers, format_scenario_table,
+                                                 result_of, run_jobs)
 
     spec = parse_scenario(args.scenario, args.scenario_seed)
+    skipped = check_controllers(names, spec, events, args.vehicles, args.net, impairments,
+                                strict=len(names) == 1)
     start = time.perf_counter()
-    workers = args.workers or min(2, os.cpu_count() or 1)
-    results = run_scenario_controllers(names, spec, events, args.vehicles, args.net, impairments,
-                                       workers, strict=len(names) == 1)
+    workers = max(1, min(args.workers or min(2, os.cpu_count() or 1), len(events) // 5))
+    ran = [name for name in names if name not in skipped]
+    rows = iter(run_jobs([(name, spec, impairments) for name in ran], events, args.vehicles,
+                         args.net, workers, chunks=workers))
+    results = [{"controller": name, "not_applicable": skipped[name]} if name in skipped
+               else result_of(name, spec, next(rows), args.vehicles) for name in names]
     print(format_scenario_table(results))
     print(f"{spec.kind} in {len(events)} events of split {args.split} of {args.data}, "
           f"{args.vehicles} followers, {time.perf_counter() - start:.1f} s")
@@ -138,3 +72,32 @@ def replay_with_scenario(args: argparse.Namespace, event: Event,
           f"{row['manoeuvre']}, controller {args.controller}")
     print(", ".join(f"{k}={fmt(v) if isinstance(v, (int, float)) else v}" for k, v in m.items()
                     if not k.endswith("_by_vehicle")), file=sys.stdout)
+
+
+def evaluate_scenarios(args: argparse.Namespace, workers: int) -> None:
+    """``evaluate --suite scenarios``: a table per manoeuvre (``--scenario KIND``: that one)
+    and plant (ideal and real) with every controller, written to ``--out``."""
+    from carl_sumo.data import load_events
+    from carl_sumo.errors import InputError
+    from carl_sumo.sim.scenario import KINDS, parse_scenario
+    from carl_sumo.study.scenario_tables import run_scenario_tables
+
+    if args.plant != "ideal" or args.fleet or args.vehicle_lag is not None \
+            or args.actuation_delay is not None or args.comm_delay is not None \
+            or args.comm_loss or args.sensor_noise or args.warmup:
+        raise InputError("--suite scenarios runs every table on the ideal and the real plant "
+                         "from the recorded start; leave out --plant, --fleet, --comm-*, "
+                         "--sensor-noise and --warmup")
+    kinds = KINDS if args.scenario is None else (parse_scenario(args.scenario).kind,)
+    if args.scenario is not None and ":" in args.scenario:
+        raise InputError("--suite scenarios draws every manoeuvre per event; give --scenario "
+                         "KIND alone (or run simulate --scenario with fixed values)")
+    limit = args.events if args.events is not None else (4 if args.quick else None)
+    events = load_events(args.data or "default", "test", limit=limit)
+    n = 6 if args.quick else 10
+    result = run_scenario_tables(args.out, events, n, args.net, workers,
+                                 args.policies or Path("policies"), kinds,
+                                 seed=args.scenario_seed,
+                                 command="carl-sumo " + " ".join(sys.argv[1:]))
+    print(f"wrote {args.out / 'scenarios.md'} and scenarios.json ({len(result['tables'])} "
+          f"tables); wall time {result['wall_time_s']:.0f} s")

@@ -89,3 +89,21 @@ def test_replay_cut_out_on_the_real_plant(capsys, tmp_path):
     rows = _fcd(fcd)
     assert rows["f1"][0][1].endswith("_4") and rows["f1"][-1][1].endswith("_3")
     assert rows["f2"][0][2] == "f1" and rows["f2"][-1][2] == "f0"
+
+
+def test_evaluate_scenarios_writes_a_table_per_manoeuvre_and_plant(capsys, tmp_path):
+    code, out, _ = run(capsys, "evaluate", "--suite", "scenarios", "--scenario", "cut-out",
+                       "--events", "2", "--workers", "1",
+                       "--out", str(tmp_path / "s"))
+    assert code == 0
+    text = (tmp_path / "s" / "scenarios.md").read_text()
+    assert "## cut-out ideal plant" in text and "## cut-out real plant" in text
+    assert text.count("n/a: fixed size") == 2  # MADDPG in both tables
+    payload = json.loads((tmp_path / "s" / "scenarios.json").read_text())
+    assert set(payload["tables"]) == {"cut-out ideal", "cut-out real"}
+
+
+def test_scenario_on_another_suite_is_refused(capsys, tmp_path):
+    code, _, err = run(capsys, "evaluate", "--suite", "paper", "--scenario", "cut-in",
+                       "--out", str(tmp_path / "p"))
+    assert code == 2 and "--suite scenarios" in err

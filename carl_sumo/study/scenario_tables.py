@@ -1,0 +1,218 @@
+"""A table per manoeuvre and plant: every controller through cut-in, cut-out, join and merge
+(``carl-sumo evaluate --suite scenarios``, :mod:`carl_sumo.study.scenarios`).
+
+Each (manoeuvre, plant) table has one row per controller of :data:`PLANT_CONTROLLERS`, run on the
+same events with the same drawn manoeuvre (``--scenario-seed``). The ``done`` column counts the
+events in which the manoeuvre happened (an entering vehicle waits for a gap with room: a platoon
+that keeps short gaps at low speed may never offer one); every other manoeuvre column is taken
+over the events in which it happened for every controller of the table (paired), so that the
+rows compare the same manoeuvres. The whole-run columns are over all events.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Sequence
+
+from carl_sumo.control.channel import Impairments
+from carl_sumo.data.events import Event
+from carl_sumo.files import write_text_atomic
+from carl_sumo.scale.workers import run_parallel
+from carl_sumo.sim.manoeuvre_metrics import aggregate_manoeuvres
+from carl_sumo.sim.metrics import aggregate
+from carl_sumo.sim.scenario import KINDS, ScenarioSpec
+from carl_sumo.sim.vehicle import REAL_COMM_DELAY_S, REAL_PLANT
+from carl_sumo.study.scenarios import NotApplicable, check_scenario, scenario_scores
+
+PLANT_CONTROLLERS = {
+    "ideal": ("idm", "sumo-cacc", "acc:h=2.5:kp=0.45:kd=1.5", "ploeg-tuned:h=0.8",
+              "ca_td3_10.pt", "ca_td3_ploeg_10.pt", "ca_td3_real_10.pt", "maddpg_10.pt"),
+    "real": ("idm-external", "acc-tuned:h=2.5", "ploeg-tuned:h=0.8", "ca_td3_10.pt",
+             "ca_td3_ploeg_10.pt", "ca_td3_real_10.pt", "maddpg_10.pt"),
+}
+"""The controllers of each plant's tables (policy files in the policies folder): SUMO's IDM (run
+by carl-sumo on the real plant, whose vehicles SUMO's models cannot drive) and SUMO's CACC (the
+ideal plant only), the ACC at h = 2.5 s with the gains tuned for the fleet, the tuned Ploeg CACC
+at h = 0.8 s (the gains tuned for each plant), the paper's CA-TD3 on IDM, the product CA-TD3 on
+the tuned CACC for the ideal and for the real plant, and MADDPG (n/a: fixed size)."""
+LABELS = {"idm": "IDM (SUMO)", "idm-external": "IDM (carl-sumo, on the plant)",
+          "sumo-cacc": "CACC (SUMO)", "acc:h=2.5:kp=0.45:kd=1.5": "ACC h=2.5 s (fleet gains)",
+          "acc-tuned:h=2.5": "ACC tuned h=2.5 s", "ploeg-tuned:h=0.8": "Ploeg tuned h=0.8 s",
+          "ca_td3_10.pt": "CA-TD3 on IDM (paper)", "ca_td3_ploeg_10.pt": "CA-TD3 product (ideal)",
+          "ca_td3_real_10.pt": "CA-TD3 product (real)", "maddpg_10.pt": "MADDPG"}
+TABLE_COLUMNS = (
+    ("done", "done", "{}"), ("min gap (m)", "min_gap_m", "{:.2f}"),
+    ("mean min gap (m)", "mean_min_gap_m", "{:.2f}"), ("min TTC (s)", "min_ttc_s", "{:.2f}"),
+    ("TTC<1.5 s events", "ttc_lt_1_5s_events", "{}"),
+    ("peak decel (m/s²)", "peak_decel_mps2", "{:.2f}"),
+    ("max peak decel (m/s²)", "max_peak_decel_mps2", "{:.2f}"),
+    ("peak jerk (m/s³)", "peak_jerk_mps3", "{:.1f}"), ("settle (s)", "settle_s", "{:.1f}"),
+    ("overshoot (%)", "overshoot", "{:.1%}"), ("collisions", "collisions", "{}"),
+)
+"""Manoeuvre columns: (header, key of aggregate_manoeuvres, format)."""
+RUN_COLUMNS = (("headway (s)", "headway_s", "{:.3f}"), ("jerk (m/s³)", "jerk_mps3", "{:.3f}"),
+               ("dampening", "dampening_ratio", "{:.3f}"))
+"""Whole-run columns beside them."""
+
+
+def plant_impairments(plant: str) -> Impairments | None:
+    """``--plant real``'s impairments (the default fleet, 0.1 s V2V delay), None for ideal."""
+    return Impairments(delay_s=REAL_COMM_DELAY_S, plant=REAL_PLANT) if plant == "real" else None
+
+
+def check_controllers(names: Sequence[str], spec: ScenarioSpec, events: Sequence[Event],
+                      n_followers: int, net: str, impairments: Impairments | None,
+                      strict: bool) -> dict[str, str]:
+    """{name: why not} of the controllers that cannot run the scenario; every other error (and
+    with ``strict`` that one too) raised now, before any simulation."""
+    skipped: dict[str, str] = {}
+    for name in names:
+        try:
+            check_scenario(name, spec, events, n_followers, net, impairments)
+        except NotApplicable as exc:
+            if strict:
+                raise
+            skipped[name] = str(exc).split(" (")[0]
+    return skipped
+
+
+def run_jobs(jobs: Sequence[tuple[str, ScenarioSpec, Impairments | None]],
+             events: Sequence[Event], n_followers: int, net: str, workers: int,
+             chunks: int) -> list[list[dict]]:
+    """Per-event rows of every (controller, spec, impairments) job, in one pool of ``workers``
+    processes, each job's events in ``chunks`` tasks; rows back in the order of ``events``."""
+    chunks = max(1, min(chunks, len(events)))
+    parts = [list(events[i::chunks]) for i in range(chunks)]
+    items = [(name, part, n_followers, net, spec, imp) for name, spec, imp in jobs
+             for part in parts]
+    if workers <= 1:
+        results = [scenario_scores(*item) for item in items]
+    else:
+        results = list(run_parallel(scenario_scores, items, workers,
+                                    describe=lambda a: f"{a[0]} {a[4].kind} from "
+                                                       f"{a[1][0].event_id}"))
+    order = {e.event_id: i for i, e in enumerate(events)}
+    return [sorted((r for part in results[j * chunks:(j + 1) * chunks] for r in part),
+                   key=lambda r: order[r["event_id"]]) for j in range(len(jobs))]
+
+
+def result_of(name: str, spec: ScenarioSpec, rows: list[dict], n_followers: int) -> dict:
+    return {"controller": name, "followers": n_followers, "scenario": spec.kind,
+            "metrics": aggregate(rows),
+            "manoeuvre": aggregate_manoeuvres([r["manoeuvre_metrics"] for r in rows]),
+            "events": rows}
+
+
+def paired(results: list[dict]) -> list[dict]:
+    """The results with their manoeuvre columns over the events every controller that ran did
+    the manoeuvre in (``done`` stays each controller's own count, ``paired_events`` is added)."""
+    ran = [r for r in results if "not_applicable" not in r]
+    if not ran:
+        return results
+    common = set.intersection(*({e["event_id"] for e in r["events"]
+                                 if e["manoeuvre_metrics"]["done"]} for r in ran))
+    out = []
+    for r in results:
+        if "not_applicable" in r:
+            out.append(r)
+            continue
+        agg = aggregate_manoeuvres([e["manoeuvre_metrics"] for e in r["events"]
+                                    if e["event_id"] in common])
+        agg["done"], agg["events"] = r["manoeuvre"]["done"], r["manoeuvre"]["events"]
+        out.append({**r, "manoeuvre": {**agg, "paired_events": len(common)}})
+    return out
+
+
+def _cell(value, form: str) -> str:
+    if isinstance(value, float) and value != value:
+        return "nan"
+    if isinstance(value, float) and value == float("inf"):
+        return "inf"
+    return form.format(value)
+
+
+def scenario_rows(results: list[dict], labels: dict[str, str] | None = None
+                  ) -> tuple[list[str], list[list[str]]]:
+    """(header, rows) of a scenario table: one row per controller (``n/a: ...`` where it cannot
+    run the scenario)."""
+    labels = labels or {}
+    header = ["controller", "events", *(h for h, _, _ in TABLE_COLUMNS),
+              *(h for h, _, _ in RUN_COLUMNS)]
+    rows = []
+    for r in results:
+        name = labels.get(Path(r["controller"]).name, r["controller"])
+        if "not_applicable" in r:
+            rows.append([name, r["not_applicable"]] + [""] * (len(header) - 2))
+            continue
+        m, w = r["manoeuvre"], r["metrics"]
+        rows.append([name, str(m["events"]), *(_cell(m[k], f) for _, k, f in TABLE_COLUMNS),
+                     *(_cell(w[k], f) for _, k, f in RUN_COLUMNS)])
+    return header, rows
+
+
+def format_scenario_table(results: list[dict]) -> str:
+    """A plain-text table (what ``simulate --scenario`` prints)."""
+    header, rows = scenario_rows(results)
+    widths = [max([len(h), *(len(row[i]) for row in rows)]) for i, h in enumerate(header)]
+    line = lambda cells: "  ".join(c.rjust(w) for c, w in zip(cells, widths))  # noqa: E731
+    return "\n".join([line(header), line(["-" * w for w in widths]), *map(line, rows)])
+
+
+def markdown_scenario_table(results: list[dict]) -> str:
+    header, rows = scenario_rows(results, LABELS)
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in rows])
+
+
+def run_scenario_tables(out: Path, events: Sequence[Event], n_followers: int, net: str,
+                        workers: int, policies: Path, kinds: Sequence[str] = KINDS,
+                        plants: Sequence[str] = ("ideal", "real"), seed: int = 0,
+                        command: str = "") -> dict:
+    """Every table, written to ``out/scenarios.md`` and ``out/scenarios.json``; returns
+    ``{"tables": {"KIND PLANT": results}, "wall_time_s"}``. Everything is checked first."""
+    start = time.perf_counter()
+    plan, jobs = [], []
+    for kind in kinds:
+        spec = ScenarioSpec(kind, seed=seed)
+        for plant in plants:
+            imp = plant_impairments(plant)
+            names = [str(policies / c) if c.endswith(".pt") else c
+                     for c in PLANT_CONTROLLERS[plant]]
+            skipped = check_controllers(names, spec, events, n_followers, net, imp, False)
+            plan.append((kind, plant, spec, names, skipped))
+            jobs += [(name, spec, imp) for name in names if name not in skipped]
+    rows = iter(run_jobs(jobs, events, n_followers, net, workers, chunks=max(1, workers)))
+    tables = {}
+    for kind, plant, spec, names, skipped in plan:
+        tables[f"{kind} {plant}"] = paired([
+            {"controller": n, "not_applicable": skipped[n]} if n in skipped
+            else result_of(n, spec, next(rows), n_followers) for n in names])
+    wall = time.perf_counter() - start
+    _write(out, tables, events, n_followers, seed, command, wall)
+    return {"tables": tables, "wall_time_s": wall}
+
+
+def _write(out: Path, tables: dict, events: Sequence[Event], n_followers: int, seed: int,
+           command: str, wall_s: float) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    lines = ["# Controllers through manoeuvres", "",
+             f"`{command}`: {len(events)} events, {n_followers} followers, scenario seed {seed}, "
+             f"wall time {wall_s:.0f} s. Manoeuvre columns over the events in which every "
+             "controller of the table did the manoeuvre (paired); `done`: each controller's "
+             "own count. What the columns mean: docs/scenarios.md.", ""]
+    for key, results in tables.items():
+        paired_n = next((r["manoeuvre"].get("paired_events") for r in results
+                         if "manoeuvre" in r), 0)
+        lines += [f"## {key} plant ({paired_n} paired events)", "",
+                  markdown_scenario_table(results), ""]
+    write_text_atomic(out / "scenarios.md", "\n".join(lines))
+    slim = {k: [{key: v for key, v in r.items() if key != "events"} for r in results]
+            for k, results in tables.items()}
+    write_text_atomic(out / "scenarios.json", json.dumps(
+        {"command": command, "events": [e.event_id for e in events], "followers": n_followers,
+         "scenario_seed": seed, "tables": slim,
+         "per_event": {k: {r["controller"]: r["events"] for r in results if "events" in r}
+                       for k, results in tables.items()}},
+        indent=1, allow_nan=True, default=float))
