@@ -3,12 +3,14 @@
 - ``fig_ecdf_ngsim_test.png``: empirical distribution functions of time headway, speed and |jerk|
   per model over every follower sample of the Table 1 runs;
 - ``fig_timeseries_ngsim.png`` / ``fig_timeseries_stop_and_go.png``: position, speed and
-  acceleration against time of the leader and every follower, one column per model;
+  acceleration against time of the leader and every follower, three panels per model in a grid
+  of up to four models a row, one legend;
 - ``fig_time_space_ngsim.png`` / ``fig_time_space_stop_and_go.png``: time-space diagrams of the
   platoon (front-bumper position against time, coloured by speed), one panel per model;
 - ``fig_frontier_ngsim_test.png``: mean |jerk| and dampening ratio against mean time headway on
   the Table 1 runs: the textbook and tuned Ploeg CACCs as curves over their time gaps, every other
-  model as a point (who follows closer for the same comfort and string stability);
+  model as a point (who follows closer for the same comfort and string stability); labels are
+  moved apart, and a point far off the rest sits on the axis edge with its value;
 - ``fig_accel_norm_profile.png``: per-vehicle acceleration norm ‖a_i‖₂ / ‖a_0‖₂ along the
   platoon (vehicle 0 = the leader), mean over events, for each platoon length of Table 2 and for
   the stop-and-go leader: a string-stable platoon stays at or below 1 and decreases along it.
@@ -119,33 +121,56 @@ def ecdf_figure(curves: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]], pat
     save_png(fig, path)
 
 
-def timeseries_figure(series: dict[str, dict[str, np.ndarray]], path: Path, title: str) -> None:
-    """Position, speed and acceleration against time: rows = quantity, columns = models."""
+QUANTITIES = (("pos", "position (m)"), ("speed", "speed (m/s)"), ("acc", "acceleration (m/s²)"))
+"""The rows of a model's block in the time-series figure."""
+
+
+def timeseries_figure(series: dict[str, dict[str, np.ndarray]], path: Path, title: str,
+                      max_cols: int = 4) -> None:
+    """Position, speed and acceleration against time: one block of three panels per model, the
+    blocks wrapped into a grid of at most ``max_cols`` columns; one legend for the figure."""
+    save_png(timeseries_canvas(series, title, max_cols), path)
+
+
+def timeseries_canvas(series: dict[str, dict[str, np.ndarray]], title: str, max_cols: int = 4):
+    """The matplotlib figure of :func:`timeseries_figure`."""
     plt = pyplot()
     models = list(series)
-    fig, axes = plt.subplots(3, len(models), figsize=(3.2 * len(models), 8.5), sharex=True,
-                             sharey="row", squeeze=False, layout="constrained")
+    cols = max(1, min(max_cols, len(models)))
+    block_rows = (len(models) + cols - 1) // cols
+    fig, axes = plt.subplots(3 * block_rows, cols, figsize=(3.6 * cols, 6.6 * block_rows + 0.8),
+                             sharex=True, squeeze=False, layout="constrained")
     cmap = plt.get_cmap("viridis")
-    for col, model in enumerate(models):
-        s = series[model]
+    handles: dict[str, Any] = {}
+    for index, model in enumerate(models):
+        s, row0, col = series[model], 3 * (index // cols), index % cols
         n = s["speed"].shape[1]
-        for i in range(n):
-            color = "black" if i == 0 else cmap((i - 1) / max(n - 2, 1))
-            lw = 1.6 if i == 0 else 0.9
-            label = "leader" if i == 0 else (f"follower {i}" if i in (1, n - 1) else None)
-            axes[0, col].plot(s["t"], s["pos"][:, i], color=color, lw=lw, label=label)
-            axes[1, col].plot(s["t"], s["speed"][:, i], color=color, lw=lw)
-            axes[2, col].plot(s["t"][1:], s["acc"][:, i], color=color, lw=lw)
-        axes[0, col].set_title(model, fontsize=10)
-        axes[2, col].set_xlabel("time (s)")
-        for ax in axes[:, col]:
+        for q, (key, label) in enumerate(QUANTITIES):
+            ax = axes[row0 + q, col]
+            if index:  # one scale per quantity across all models
+                ax.sharey(axes[q, 0])
+            t = s["t"][1:] if key == "acc" else s["t"]
+            for i in range(n):
+                name = "leader" if i == 0 else (f"follower {i}" if i in (1, n - 1) else None)
+                line, = ax.plot(t, s[key][:, i], lw=1.6 if i == 0 else 0.9,
+                                color="black" if i == 0 else cmap((i - 1) / max(n - 2, 1)))
+                if name is not None and q == 0:
+                    handles.setdefault(name, line)
             ax.grid(alpha=0.3)
-    axes[0, 0].set_ylabel("position (m)")
-    axes[1, 0].set_ylabel("speed (m/s)")
-    axes[2, 0].set_ylabel("acceleration (m/s²)")
-    axes[0, 0].legend(fontsize=7, loc="upper left")
+            if col == 0:
+                ax.set_ylabel(label)
+        axes[row0, col].set_title(model, fontsize=10)
+        axes[row0 + 2, col].set_xlabel("time (s)")
+        axes[row0 + 2, col].xaxis.set_tick_params(labelbottom=True)
+    for index in range(len(models), block_rows * cols):
+        for q in range(3):
+            axes[3 * (index // cols) + q, index % cols].set_visible(False)
+    order = sorted(handles, key=lambda k: (k != "leader", int(k.split()[-1]) if k != "leader"
+                                            else 0))
+    fig.legend([handles[k] for k in order], order, loc="outside lower center",
+               ncol=len(order), fontsize=8)
     fig.suptitle(title)
-    save_png(fig, path)
+    return fig
 
 
 def time_space_figure(series: dict[str, dict[str, np.ndarray]], path: Path, title: str) -> None:
@@ -214,30 +239,103 @@ def _shown(key: str) -> bool:
     return not key.startswith(tuple(CURVES)) or key in CLASSICAL_SHOWN
 
 
+def outliers(values: list[float], max_out: int = 2) -> set[int]:
+    """Indices of values so far from the rest that drawing them would squash it: the largest
+    (or smallest) value while its gap to the next exceeds the whole spread of the others, at most
+    ``max_out`` at each end."""
+    order = [i for i in np.argsort(values).tolist() if np.isfinite(values[i])]
+    out: set[int] = set()
+    for end in (-1, 0):
+        for _ in range(max_out):
+            rest = [i for i in order if i not in out]
+            if len(rest) < 4:
+                break
+            if end == -1:  # the largest against the spread of the others
+                far, near, spread = rest[-1], rest[-2], values[rest[-2]] - values[rest[0]]
+            else:
+                far, near, spread = rest[0], rest[1], values[rest[-1]] - values[rest[1]]
+            if abs(values[far] - values[near]) <= max(spread, 1e-12):
+                break
+            out.add(far)
+    return out
+
+
+def declutter(ax, texts: list, marker_px: float = 3.5) -> None:
+    """Move annotations (offset in points) up or down until none overlaps an earlier one or a
+    data point of the axes (a box of ``marker_px`` pixels around it)."""
+    from matplotlib.transforms import Bbox
+
+    fig = ax.figure
+    renderer = fig.canvas.get_renderer()
+    placed = [Bbox.from_extents(x - marker_px, y - marker_px, x + marker_px, y + marker_px)
+              for line in ax.lines for x, y in ax.transData.transform(line.get_xydata())]
+    for text in texts:
+        box = text.get_window_extent(renderer)
+        step = box.height * 72.0 / fig.dpi + 1.0
+        for k in range(1, 12):
+            if not any(box.overlaps(other) for other in placed):
+                break
+            dx, dy = text.xyann
+            text.xyann = (dx, dy + (k if k % 2 else -k) * step)  # up, down, further up, ...
+            box = text.get_window_extent(renderer)
+        placed.append(box)
+
+
+def _frontier_panel(ax, points: list[dict[str, Any]], key: str) -> list:
+    """One panel of the frontier figure: the curves (labelled by time gap) and the points, the
+    y axis fitted to all but the outliers, which sit on its edge with their value."""
+    texts = []
+    for (curve, style), (xy, ha) in zip(zip(CURVES.values(), ("o--", "s-")),
+                                        (((4, 4), "left"), ((4, -10), "left"))):
+        pts = sorted((p for p in points if p["curve"] == curve), key=lambda p: p["headway_s"])
+        if pts:
+            ax.plot([p["headway_s"] for p in pts], [p[key] for p in pts], style, label=curve,
+                    color="0.35" if style == "o--" else "black", ms=5)
+            texts += [ax.annotate(p["label"].rsplit(" ", 2)[-2], (p["headway_s"], p[key]),
+                                  textcoords="offset points", xytext=xy, ha=ha, fontsize=7)
+                      for p in pts]
+    singles = [p for p in points if p["curve"] is None]
+    styles = {p["label"]: (c, m) for p, c, m in zip(singles, _colors(len(singles)),
+                                                     "DovP^<>sXh*dp")}
+    for p in singles:
+        color, marker = styles[p["label"]]
+        ax.plot(p["headway_s"], p[key], marker, color=color, ms=7, label=p["label"])
+    values = [float(p[key]) for p in points]
+    far = outliers(values)
+    if far:
+        kept = [v for i, v in enumerate(values) if i not in far and np.isfinite(v)]
+        lo, hi = min(kept), max(kept)
+        pad = 0.08 * (hi - lo or 1.0)
+        ax.set_ylim(lo - pad, hi + pad)
+        for i in sorted(far):
+            p, edge = points[i], hi + pad if values[i] > hi else lo - pad
+            color, marker = styles.get(p["label"], ("black", "o"))
+            ax.plot(p["headway_s"], edge, marker, color=color, ms=7, clip_on=False)
+            texts.append(ax.annotate(f"{p['label']}: {values[i]:.2f} {'↑' if values[i] > hi else '↓'}",
+                                     (p["headway_s"], edge), textcoords="offset points",
+                                     xytext=(6, -10 if values[i] > hi else 4), fontsize=7))
+    return texts
+
+
 def frontier_figure(points: list[dict[str, Any]], path: Path, title: str) -> None:
     """Jerk and dampening against headway: ``points`` with label, curve (or None), headway_s,
-    jerk_mps3, dampening_ratio; points of one curve are joined in order of headway."""
+    jerk_mps3, dampening_ratio; points of one curve are joined in order of headway. Labels do
+    not overlap; a point far off the rest is drawn on the axis edge with its value."""
     plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(13, 5.2), layout="constrained")
+    panels = []
     for ax, key, ylabel in ((axes[0], "jerk_mps3", "mean |jerk| (m/s³)"),
                             (axes[1], "dampening_ratio", "dampening ratio ‖a_i‖/‖a_0‖")):
-        for curve, style in zip(CURVES.values(), ("o--", "s-")):
-            pts = sorted((p for p in points if p["curve"] == curve), key=lambda p: p["headway_s"])
-            if pts:
-                ax.plot([p["headway_s"] for p in pts], [p[key] for p in pts], style, label=curve,
-                        color="0.35" if style == "o--" else "black", ms=5)
-                for p in pts:
-                    ax.annotate(p["label"].rsplit(" ", 2)[-2], (p["headway_s"], p[key]),
-                                textcoords="offset points", xytext=(4, 4), fontsize=7)
-        singles = [p for p in points if p["curve"] is None]
-        for p, color, marker in zip(singles, _colors(len(singles)), "DovP^<>sXh*dp"):
-            ax.plot(p["headway_s"], p[key], marker, color=color, ms=7, label=p["label"])
+        panels.append((ax, _frontier_panel(ax, points, key)))
         ax.set_xlabel("mean time headway (s)")
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, fontsize=8, loc="outside right center")
     fig.suptitle(title)
+    fig.canvas.draw()  # the final layout, so that the labels' boxes are where they will be
+    for ax, texts in panels:
+        declutter(ax, texts)
     save_png(fig, path)
 
 

@@ -254,6 +254,20 @@ def discover_model(stem: str, directory: Path) -> Model:
     return Model(stem, name, tuple(files), tuple(seeds), trained, fixed)
 
 
+def data_titles(data: str, limit: int | None, quick: bool) -> tuple[str, str]:
+    """What the tables ran on, for their titles: (the test split, the cross-site events), e.g.
+    "NGSIM test split" or "test split of the shipped default set, first 2 events (--quick)"."""
+    some = (f", first {limit} events" if limit else "") + (" (--quick)" if quick else "")
+    if data == "default":
+        return (f"test split of the shipped default set (not NGSIM){some}",
+                f"train split of the shipped default set standing in (it has no US-101 "
+                f"events){some}")
+    if Path(data).name.startswith("ngsim"):
+        return f"NGSIM test split{some}", f"US-101 (no model was trained on it){some}"
+    return (f"test split of {Path(data).name}{some}",
+            f"US-101 split of {Path(data).name} (no model was trained on it){some}")
+
+
 def _events(es: EventSet, quick: bool, warmup_s: float = 0.0) -> list[Event]:
     if es.data == "stop-and-go":
         events = [stop_and_go_event(cycles=1, cruise_s=5.0) if quick else stop_and_go_event()]
@@ -308,18 +322,21 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
     seed_models = None if all_seeds else SEED_MODELS if seeds else ()
     table2_models = ("idm", "krauss", *classical, "maddpg_10", "maddpg_20", "ddpg_1", "td3_1",
                      "ca_ddpg_10", "ca_td3_10", "ca_ddpg_20", "ca_td3_20", "ca_td3_ploeg_10")
+    on_test, on_cross = data_titles(data, limit, quick)
     tables = [
-        TableSpec("table1_ngsim_test", "Table 1: NGSIM test split, 10 followers", test, (10,),
+        TableSpec("table1_ngsim_test", f"Table 1: {on_test}, 10 followers", test, (10,),
                   table1_models, figures=True,
                   paired=tuple(p for p in PAIRED_COMPARISONS if set(p) <= set(table1_models)),
                   seed_models=seed_models),
-        TableSpec("table2_generalization", "Table 2: generalization to other platoon lengths",
+        TableSpec("table2_generalization", "Table 2: generalization to other platoon lengths, "
+                  + on_test,
                   test, (10, 20) if quick else (10, 20, 50), table2_models,
                   seed_lengths=None if all_seeds else (10,), seed_models=seed_models),
-        TableSpec("table3_stop_and_go", "Table 3: stop-and-go leader, 10 followers", sg, (10,),
+        TableSpec("table3_stop_and_go", "Table 3: stop-and-go leader"
+                  + (" (one braking, --quick)" if quick else "") + ", 10 followers", sg, (10,),
                   table1_models[1:], figures=True, seed_lengths=None if all_seeds else ()),
-        TableSpec("cross_site_us101", "Cross-site: US-101 (no model was trained on it), "
-                  "10 followers", cross, (10,), table1_models,
+        TableSpec("cross_site_us101", f"Cross-site: {on_cross}, 10 followers", cross, (10,),
+                  table1_models,
                   seed_lengths=None if all_seeds else ()),
     ]
     models: dict[str, Model] = {}
