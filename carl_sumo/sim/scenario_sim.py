@@ -68,6 +68,8 @@ class ScenarioSim(PlatoonSim):
         super().__init__(net_path, follower_model, scenario)
         self.adjacent = adjacent_route(net_path, scenario.ngsim_lane)
         self.base_scenario = scenario
+        self._shifted: set[str] = set()
+        self._extra_m = 0.0
 
     # ----------------------------------------------------------------------------------------
     def start(self, event: Event, n_followers: int, manoeuvre: Manoeuvre,
@@ -78,10 +80,14 @@ class ScenarioSim(PlatoonSim):
         extra = manoeuvre.extra_gap_m
         self.scenario = replace(self.base_scenario,
                                 start_margin_m=self.base_scenario.start_margin_m + extra)
+        self._shifted = {f"f{i}" for i in range(manoeuvre.position, n_followers)} \
+            if manoeuvre.kind == "merge" else set()  # the second platoon, inserted further back
+        self._extra_m = extra
         try:
             self.reset(event, n_followers, fcd_path, seed, plant, plant_seed)
         finally:
             self.scenario = self.base_scenario
+            self._shifted = set()
         ls = _libsumo()
         self.manoeuvre = manoeuvre
         self.members = list(self.ids)
@@ -99,15 +105,16 @@ class ScenarioSim(PlatoonSim):
         self._joiner_plant = None if plant is None else plant.draw(1, event.event_id + "/joiner",
                                                                    plant_seed)
         if manoeuvre.kind == "merge":
-            for vid, x in zip(self.ids[manoeuvre.position:], self._starts[manoeuvre.position:]):
-                lane, pos = self.route.locate(float(x) - extra)
-                ls.vehicle.moveTo(vid, lane, pos)
             head = self.ids[manoeuvre.position]
             self.radar_only.add(head)
             self.offset[head] = extra
             if self.follower_model != "external":  # SUMO's models keep the offset as minGap
                 ls.vehicle.setMinGap(head, ls.vehicle.getMinGap(head) + extra)
         self._sense(ls)
+
+    def _add(self, vid: str, vtype: str, x: float, speed: float) -> None:
+        """Insert as PlatoonSim does; a merge's second platoon ``extra_gap_m`` further back."""
+        super()._add(vid, vtype, x - self._extra_m if vid in self._shifted else x, speed)
 
     # ----------------------------------------------------------------------------------------
     def _route_x(self, ls, vid: str) -> float:

@@ -189,13 +189,42 @@ def run_scenario_tables(out: Path, events: Sequence[Event], n_followers: int, ne
         tables[f"{kind} {plant}"] = paired([
             {"controller": n, "not_applicable": skipped[n]} if n in skipped
             else result_of(n, spec, next(rows), n_followers) for n in names])
+    figures = example_figures(out, tables, events, n_followers, net, policies, kinds, seed)
     wall = time.perf_counter() - start
-    _write(out, tables, events, n_followers, seed, command, wall)
-    return {"tables": tables, "wall_time_s": wall}
+    _write(out, tables, events, n_followers, seed, command, wall, figures)
+    return {"tables": tables, "wall_time_s": wall, "figures": figures}
+
+
+EXAMPLE_CONTROLLER = "ca_td3_ploeg_10.pt"
+"""The controller of each scenario's example replay (the product on the ideal plant)."""
+
+
+def example_figures(out: Path, tables: dict, events: Sequence[Event], n_followers: int,
+                    net: str, policies: Path, kinds: Sequence[str], seed: int
+                    ) -> dict[str, str]:
+    """{kind: event ID} of one replay per manoeuvre (FCD in ``out/fcd``, a time-space figure
+    ``out/<kind>.png``) with :data:`EXAMPLE_CONTROLLER` on the ideal plant, on the first event
+    in which every controller of the ideal table did the manoeuvre."""
+    from carl_sumo.study.scenario_figures import manoeuvre_examples
+
+    chosen = {}
+    for kind in kinds:
+        results = [r for r in tables.get(f"{kind} ideal", []) if "events" in r]
+        if not results:
+            continue
+        done = set.intersection(*({e["event_id"] for e in r["events"]
+                                   if e["manoeuvre_metrics"]["done"]} for r in results))
+        event = next((e for e in events if e.event_id in done), None)
+        if event is None:
+            continue
+        manoeuvre_examples(out, event, n_followers, net, str(policies / EXAMPLE_CONTROLLER),
+                           [kind], seed)
+        chosen[kind] = event.event_id
+    return chosen
 
 
 def _write(out: Path, tables: dict, events: Sequence[Event], n_followers: int, seed: int,
-           command: str, wall_s: float) -> None:
+           command: str, wall_s: float, figures: dict[str, str]) -> None:
     out.mkdir(parents=True, exist_ok=True)
     lines = ["# Controllers through manoeuvres", "",
              f"`{command}`: {len(events)} events, {n_followers} followers, scenario seed {seed}, "
@@ -207,6 +236,11 @@ def _write(out: Path, tables: dict, events: Sequence[Event], n_followers: int, s
                          if "manoeuvre" in r), 0)
         lines += [f"## {key} plant ({paired_n} paired events)", "",
                   markdown_scenario_table(results), ""]
+        kind = key.split()[0]
+        if key.endswith("ideal") and kind in figures:
+            lines += [f"![{kind}]({kind}.png)", "",
+                      f"{kind} in event {figures[kind]} with {EXAMPLE_CONTROLLER} (ideal plant); "
+                      f"its FCD: `fcd/{kind}.xml`.", ""]
     write_text_atomic(out / "scenarios.md", "\n".join(lines))
     slim = {k: [{key: v for key, v in r.items() if key != "events"} for r in results]
             for k, results in tables.items()}

@@ -197,8 +197,10 @@ def scenario_sim(net_path: str | Path, follower_model: str) -> ScenarioSim:
 
 
 def score_trace(trace: ScenarioTrace) -> dict:
-    """One event's row: the whole run's metrics, the manoeuvre and its metrics."""
-    return {**whole_run_metrics(trace), "manoeuvre": trace.manoeuvre,
+    """One event's row: the whole run's metrics, the manoeuvre, when it was complete (s) and
+    its metrics."""
+    done = None if trace.done_step is None else round(trace.done_step * trace.dt, 6)
+    return {**whole_run_metrics(trace), "manoeuvre": trace.manoeuvre, "done_time_s": done,
             "manoeuvre_metrics": manoeuvre_metrics(trace)}
 
 

@@ -101,6 +101,9 @@ def test_evaluate_scenarios_writes_a_table_per_manoeuvre_and_plant(capsys, tmp_p
     assert text.count("n/a: fixed size") == 2  # MADDPG in both tables
     payload = json.loads((tmp_path / "s" / "scenarios.json").read_text())
     assert set(payload["tables"]) == {"cut-out ideal", "cut-out real"}
+    # a cut-out needs no room, so it happened for all: its example replay and figure
+    assert (tmp_path / "s" / "cut-out.png").stat().st_size > 0
+    assert "i80_approach_3" in (tmp_path / "s" / "fcd" / "cut-out.xml").read_text()
 
 
 def test_scenario_on_another_suite_is_refused(capsys, tmp_path):
