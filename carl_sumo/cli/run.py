@@ -168,7 +168,7 @@ def cmd_replay(args: argparse.Namespace) -> None:
     (event,) = load_events(args.data, args.split, event_ids=[args.event])
     event = event.with_warmup(warmup_s)  # the FCD file has the warm-up, the metrics do not
     if args.scenario is not None:  # one manoeuvre, written as FCD (carl_sumo.cli.scenario)
-        return replay_with_scenario(args, event, impairments)
+        return replay_with_scenario(args, event, impairments, view)
     shot = view.screenshot if view is not None else None
     if shot is not None and view.screenshot_s > event.duration_s:
         raise InputError(f"--screenshot at {view.screenshot_s:g} s is after the end of event "

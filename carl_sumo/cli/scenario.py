@@ -59,14 +59,19 @@ def simulate_with_scenario(args: argparse.Namespace, names: list[str],
 
 
 def replay_with_scenario(args: argparse.Namespace, event: Event,
-                         impairments: Impairments | None) -> None:
-    """``replay --scenario``: one event with its manoeuvre, as FCD output."""
+                         impairments: Impairments | None, view=None) -> None:
+    """``replay --scenario``: one event with its manoeuvre, as FCD output; ``view``: the
+    sumo-gui view of ``--gui`` (carl_sumo.sim.gui.GuiView; no ``--screenshot`` here)."""
+    from carl_sumo.errors import InputError
     from carl_sumo.sim.scenario import parse_scenario
     from carl_sumo.study.scenarios import replay_scenario
 
     spec = parse_scenario(args.scenario, args.scenario_seed)
+    if getattr(args, "screenshot", None):
+        raise InputError("--screenshot is for replays without --scenario; watch the manoeuvre "
+                         "with --gui, or plot its FCD file")
     row = replay_scenario(args.controller, event, args.vehicles, args.fcd, args.net, spec,
-                          gui=bool(args.gui), impairments=impairments)
+                          gui=view or bool(args.gui), impairments=impairments)
     m = row["manoeuvre_metrics"]
     print(f"wrote {args.fcd}: event {event.event_id}, {args.vehicles} followers, "
           f"{row['manoeuvre']}, controller {args.controller}")

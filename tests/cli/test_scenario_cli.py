@@ -33,6 +33,8 @@ def run(capsys, *argv):
      "not with --sensor-noise"),
     (["replay", "--scenario", "join:k=11", "--event", EVENT_ID, "--fcd", "x.xml"],
      "beyond the platoon"),
+    (["replay", "--scenario", "cut-in", "--event", EVENT_ID, "--fcd", "x.xml", "--gui",
+      "--screenshot", "v.png"], "--screenshot is for replays without --scenario"),
 ])
 def test_bad_scenarios_end_with_one_line_and_exit_2(capsys, tmp_path, monkeypatch, argv, message):
     monkeypatch.chdir(tmp_path)
