@@ -39,13 +39,10 @@ from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
 from carl_sumo.experiments.simulate import NATIVE_CONTROLLERS, check_impairable, plant_of
 from carl_sumo.files import atomic_output
-from carl_sumo.scale.workers import run_parallel
-from carl_sumo.sim.manoeuvre_metrics import (ScenarioTrace, aggregate_manoeuvres,
-                                             manoeuvre_metrics, whole_run_metrics)
-from carl_sumo.sim.metrics import aggregate
+from carl_sumo.sim.manoeuvre_metrics import ScenarioTrace, manoeuvre_metrics, whole_run_metrics
 from carl_sumo.sim.scenario import Manoeuvre, ScenarioSpec
 from carl_sumo.sim.scenario_sim import ScenarioSim, adjacent_route
-from carl_sumo.sim.sumo import DEFAULT_NET, close_sumo, use_gui
+from carl_sumo.sim.sumo import close_sumo, use_gui
 from carl_sumo.study.controllers import ChainController
 
 
@@ -226,28 +223,6 @@ def check_scenario(name: str, spec: ScenarioSpec, events: Sequence[Event], n_fol
         spec.draw(event, n_followers)
     scenario_controller(name, plant_of(impairments))
     adjacent_route(net_path, SCENARIO.ngsim_lane)
-
-
-def simulate_scenario(name: str, events: Sequence[Event], n_followers: int,
-                      net_path: str | Path, spec: ScenarioSpec,
-                      impairments: Impairments | None = None, workers: int = 1) -> dict:
-    """``{"controller", "followers", "metrics", "manoeuvre", "events"}`` of one controller:
-    the whole-run metrics pooled as :func:`carl_sumo.sim.metrics.aggregate`, the manoeuvre
-    metrics as :func:`carl_sumo.sim.manoeuvre_metrics.aggregate_manoeuvres`."""
-    workers = max(1, min(workers, len(events) // 10))
-    if workers == 1:
-        rows = scenario_scores(name, events, n_followers, str(net_path), spec, impairments)
-    else:
-        parts = [list(events[i::workers]) for i in range(workers)]
-        items = [(name, part, n_followers, str(net_path), spec, impairments) for part in parts]
-        order = {e.event_id: i for i, e in enumerate(events)}
-        rows = sorted((r for part in run_parallel(scenario_scores, items, workers,
-                                                  describe=lambda a: f"{a[0]} {a[4].kind}")
-                       for r in part), key=lambda r: order[r["event_id"]])
-    return {"controller": name, "followers": n_followers, "scenario": spec.kind,
-            "metrics": aggregate(rows),
-            "manoeuvre": aggregate_manoeuvres([r["manoeuvre_metrics"] for r in rows]),
-            "events": rows}
 
 
 def replay_scenario(name: str, event: Event, n_followers: int, fcd_path: Path,
