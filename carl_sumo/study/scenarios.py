@@ -25,6 +25,8 @@ new neighbour is heard from its first message that arrives,
 from __future__ import annotations
 
 import os
+from dataclasses import replace
+from functools import lru_cache
 from pathlib import Path
 from typing import Sequence
 
@@ -42,7 +44,7 @@ from carl_sumo.files import atomic_output
 from carl_sumo.sim.manoeuvre_metrics import ScenarioTrace, manoeuvre_metrics, whole_run_metrics
 from carl_sumo.sim.scenario import Manoeuvre, ScenarioSpec
 from carl_sumo.sim.scenario_sim import ScenarioSim, adjacent_route
-from carl_sumo.sim.sumo import close_sumo, use_gui
+from carl_sumo.sim.sumo import LaneRoute, check_fits, close_sumo, lane_route, use_gui
 from carl_sumo.study.controllers import ChainController
 
 
@@ -210,6 +212,14 @@ def scenario_scores(name: str, events: Sequence[Event], n_followers: int, net_pa
                                            controller, impairments)) for e in events]
 
 
+@lru_cache(maxsize=4)
+def _routes(net_path: str) -> LaneRoute:
+    """The platoon's lane route of a network, after checking it has a lane beside it (parsed
+    once per network)."""
+    adjacent_route(net_path, SCENARIO.ngsim_lane)
+    return lane_route(net_path, SCENARIO.ngsim_lane)
+
+
 def check_scenario(name: str, spec: ScenarioSpec, events: Sequence[Event], n_followers: int,
                    net_path: str | Path, impairments: Impairments | None = None) -> None:
     """Everything that can be wrong before any simulation: InputError (NotApplicable for a
@@ -219,10 +229,12 @@ def check_scenario(name: str, spec: ScenarioSpec, events: Sequence[Event], n_fol
                          "plant, not with --sensor-noise (the trackers hold one row per follower)")
     check_impairable(name, impairments)
     spec.check(n_followers)
-    for event in events:
-        spec.draw(event, n_followers)
+    route = _routes(str(net_path))
+    for event in events:  # a merge's second platoon needs its extra gap of road behind
+        m = spec.draw(event, n_followers)
+        check_fits(route, event, n_followers, replace(
+            SCENARIO, start_margin_m=SCENARIO.start_margin_m + m.extra_gap_m))
     scenario_controller(name, plant_of(impairments))
-    adjacent_route(net_path, SCENARIO.ngsim_lane)
 
 
 def replay_scenario(name: str, event: Event, n_followers: int, fcd_path: Path,
