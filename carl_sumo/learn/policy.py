@@ -21,7 +21,7 @@ from carl_sumo.control.controllers import AheadAcceleration, adjustment_bounds, 
     shield_adjustment
 from carl_sumo.errors import InputError
 from carl_sumo.learn.inference import CompiledActor
-from carl_sumo.files import atomic_path
+from carl_sumo.files import atomic_write
 
 FORMAT = "carl-sumo-policy"
 FORMAT_VERSION = 1
@@ -29,8 +29,32 @@ FORMAT_VERSION = 1
 
 def save_torch_atomic(payload: dict[str, Any], path: Path) -> None:
     """torch.save to a temporary file beside ``path``, then rename: never a half-written file."""
-    with atomic_path(path) as tmp:
-        torch.save(payload, tmp)
+    with atomic_write(path, "wb") as f:
+        sink = _WriteErrors(f)
+        try:
+            torch.save(payload, sink)
+        except RuntimeError:
+            if sink.error is not None:  # torch reports a failed write (a full disk) as this
+                raise sink.error from None
+            raise
+
+
+class _WriteErrors:
+    """A binary file whose writes remember their OSError: torch.save turns it into a
+    RuntimeError, and the writer needs it back (one line, exit status 2)."""
+
+    def __init__(self, f):
+        self.f, self.error = f, None
+
+    def write(self, data) -> int:
+        try:
+            return self.f.write(data)
+        except OSError as exc:
+            self.error = exc
+            raise
+
+    def flush(self) -> None:
+        self.f.flush()
 
 
 def load_torch(path: Path, what: str) -> dict[str, Any]:

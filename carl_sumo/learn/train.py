@@ -122,12 +122,12 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     if resume is None:
         best = _first_candidate(cfg, agent, init_actor, val_env, val_events, baseline,
                                 baseline_events, out, log, best)
+    report = Report(cfg, out, resume, start_step, progress, tensorboard)  # before any worker
     vec_class = RayVecPlatoon if rollouts == "ray" else VecPlatoon
     vec = vec_class(train_events, n, cfg.net, cfg.num_envs, cfg.seed + start_step, cfg.reward,
                     cfg.base, cfg.observe_ahead, adjustment_bounds(cfg.adj_max), cfg.shield_ttc)
     obs = vec.reset(cfg.seed + start_step, channels.current if channels is not None else None)
     links = channels.receive(_boundaries(agent)) if channels is not None else None
-    report = Report(cfg, out, resume, start_step, progress, tensorboard)
     t0 = time.perf_counter()
     recent = []
     val: dict[str, float] = {}

@@ -55,7 +55,10 @@ def _worker(conn, *args) -> None:
     die_with_parent()  # no environment outlives a killed training run
     runner = EnvRunner(*args)
     while True:
-        cmd, data = conn.recv()
+        try:
+            cmd, data = conn.recv()
+        except EOFError:  # the training process has gone: nothing more to do
+            return
         if cmd == "step":
             conn.send(runner.step(data))
         elif cmd == "reset":
