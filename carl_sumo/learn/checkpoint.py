@@ -1,5 +1,8 @@
 """Training checkpoints: everything a run needs to go on where it stopped (agent, optimisers,
-replay buffer, random states, step, best score, wall time), written atomically, and read back."""
+replay buffer, random states, step, best score, wall time, and the rollouts' state: every action
+sent to the environments, the exploration noise, the recent rewards), written atomically, and
+read back. With the actions a resumed run replays its environments to where they were, so it
+continues exactly as the run would have without the stop (:func:`carl_sumo.learn.train.train`)."""
 
 from __future__ import annotations
 
@@ -35,14 +38,16 @@ def _rng_for_save(rng: np.random.Generator) -> dict:
 
 
 def save_checkpoint(path: Path, cfg: TrainConfig, agent: Agent, buffer: ReplayBuffer,
-                     rng: np.random.Generator, step: int, best: float, wall_s: float) -> None:
-    """Write a run's state after ``step`` vector steps to ``path`` (atomically)."""
+                     rng: np.random.Generator, step: int, best: float, wall_s: float,
+                     rollouts: dict[str, torch.Tensor] | None = None) -> None:
+    """Write a run's state after ``step`` vector steps to ``path`` (atomically); ``rollouts``:
+    the environments' state (``actions`` (step, envs, n) m/s², ``noise``, ``recent``)."""
     save_torch_atomic({"format": CHECKPOINT_FORMAT, "train_config": asdict(cfg),
                        "agent": agent.state_dict(), "actor_opt": agent.actor_opt.state_dict(),
                        "critic_opt": agent.critic_opt.state_dict(), "updates": agent.updates,
                        "buffer": buffer.state(), "numpy_rng": _rng_for_save(rng),
                        "torch_rng": torch.get_rng_state(), "step": step, "best": best,
-                       "wall_s": wall_s}, path)
+                       "wall_s": wall_s, **({"rollouts": rollouts} if rollouts else {})}, path)
 
 
 def read_checkpoint(path: Path) -> dict:
@@ -53,10 +58,11 @@ def read_checkpoint(path: Path) -> dict:
     return state
 
 
-def restore_checkpoint(path: Path, cfg: TrainConfig, agent: Agent, rng: np.random.Generator
-                       ) -> tuple[ReplayBuffer, int, float, float]:
+def restore_checkpoint(path: Path, cfg: TrainConfig, agent: Agent, rng: np.random.Generator,
+                       rollouts: dict | None = None) -> tuple[ReplayBuffer, int, float, float]:
     """Load a checkpoint into ``agent`` and ``rng`` (and torch's random state) for a run of the
-    same algorithm and platoon length; returns (replay buffer, step, best score, wall time s)."""
+    same algorithm and platoon length; returns (replay buffer, step, best score, wall time s).
+    ``rollouts`` (a dict) receives the stored state of the environments, where there is one."""
     state = read_checkpoint(path)
     if state["train_config"]["algo"] != cfg.algo or \
             state["train_config"]["n_vehicles"] != cfg.n_vehicles:
@@ -69,5 +75,8 @@ def restore_checkpoint(path: Path, cfg: TrainConfig, agent: Agent, rng: np.rando
     agent.updates = int(state["updates"])
     rng.bit_generator.state = _decode_rng(state["numpy_rng"])
     torch.set_rng_state(state["torch_rng"])
+    if rollouts is not None:  # and the random states as restored, for the rollouts' start
+        rollouts.update(state.get("rollouts") or {}, numpy_rng=rng.bit_generator.state,
+                        torch_rng=torch.get_rng_state())
     return (ReplayBuffer.from_state(state["buffer"]), int(state["step"]), float(state["best"]),
             float(state["wall_s"]))

@@ -98,8 +98,6 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     to Ray Tune). ``progress``, ``tensorboard``: :class:`carl_sumo.learn.report.Report` (with the
     curve's figure). Returns the final validation metrics and timing. The loop (act, step, store,
     update, validate, keep, checkpoint) reads top to bottom, as in CleanRL; its steps are below."""
-    from carl_sumo.learn.vec_env import RayVecPlatoon, VecPlatoon
-
     train_events, val_events = held_out_split(events, cfg)  # InputError before any file
     teacher = _teacher(cfg)  # InputError before any file
     init_actor = initial_actor(cfg)  # InputError before any file
@@ -112,9 +110,9 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     buffer = ReplayBuffer(cfg.buffer_size, n, agent.cfg.obs_dim,
                           channels.message_dim if channels is not None else 0)
     rng = np.random.default_rng(cfg.seed)
-    start_step, best, wall_before = 0, -np.inf, 0.0
+    start_step, best, wall_before, saved = 0, -np.inf, 0.0, {}
     if resume is not None:
-        buffer, start_step, best, wall_before = restore_checkpoint(resume, cfg, agent, rng)
+        buffer, start_step, best, wall_before = restore_checkpoint(resume, cfg, agent, rng, saved)
         if _keep_policy(resume, out, start_step, cfg, log):  # nothing left to train
             return dict(validation={}, validation_base={}, wall_time_s=wall_before, best_score=best)
     val_env = _validation_env(cfg, train_events, val_events)
@@ -123,16 +121,12 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
         best = _first_candidate(cfg, agent, init_actor, val_env, val_events, baseline,
                                 baseline_events, out, log, best)
     report = Report(cfg, out, resume, start_step, progress, tensorboard)  # before any worker
-    vec_class = RayVecPlatoon if rollouts == "ray" else VecPlatoon
-    vec = vec_class(train_events, n, cfg.net, cfg.num_envs, cfg.seed + start_step, cfg.reward,
-                    cfg.base, cfg.observe_ahead, adjustment_bounds(cfg.adj_max), cfg.shield_ttc)
-    obs = vec.reset(cfg.seed + start_step, channels.current if channels is not None else None)
+    vec, obs, history = _start_rollouts(cfg, train_events, rollouts, start_step, channels, saved)
     links = channels.receive(_boundaries(agent)) if channels is not None else None
     t0 = time.perf_counter()
-    recent = []
+    recent = [float(r) for r in saved.get("recent", ())]
     val: dict[str, float] = {}
-    noise = ColoredNoise((cfg.num_envs, n), agent.cfg.exploration_noise * agent.cfg.adj_max,
-                         agent.cfg.noise_correlation, rng)
+    noise = _noise(cfg, agent, rng, saved)
     try:
         for step in range(start_step, cfg.steps):
             if step == cfg.learning_starts and teacher is not None:
@@ -143,6 +137,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
             action = _choose_action(cfg, agent, obs, links, channels, noise, teacher, acting)
             next_obs, reward, term, trunc, final = vec.step(
                 action, channels.upcoming if channels is not None else None)
+            if history is not None:  # what a resumed run replays its environments with
+                history.append(np.asarray(action, dtype=np.float64))
             noise.reset(term | trunc)
             links = _store(buffer, channels, agent, obs, action, reward, final, term, trunc, links)
             recent.append(float(reward.mean()))
@@ -157,7 +153,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                 report.validation(done_steps, wall, train_reward, val)
             if done_steps % cfg.checkpoint_every == 0 or done_steps == cfg.steps:
                 save_checkpoint(out.with_suffix(".ckpt"), cfg, agent, buffer, rng, done_steps,
-                                best, wall_before + time.perf_counter() - t0)
+                                best, wall_before + time.perf_counter() - t0,
+                                _rollout_state(history, noise, recent, cfg.eval_every))
                 if on_checkpoint is not None:
                     report.flush()
                     on_checkpoint(done_steps)
@@ -168,6 +165,56 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     wall = wall_before + time.perf_counter() - t0
     return {"validation": val, "validation_base": baseline, "wall_time_s": wall,
             "best_score": best}
+
+
+def _start_rollouts(cfg: TrainConfig, train_events: Sequence[Event], rollouts: str,
+                    start_step: int, channels: RandomisedChannels | None, saved: dict):
+    """(environments, their observations, the actions sent to them so far or None when not
+    recorded). A resumed run whose checkpoint holds every action sent (a run without randomised
+    channels) replays them from the run's first reset, which puts every environment exactly where
+    the stopped run had it; other resumed runs start new episodes (seeded by the step)."""
+    from carl_sumo.learn.vec_env import RayVecPlatoon, VecPlatoon
+
+    actions = saved.get("actions")
+    replay = channels is None and actions is not None and len(actions) == start_step
+    seed = cfg.seed if replay or start_step == 0 else cfg.seed + start_step
+    vec_class = RayVecPlatoon if rollouts == "ray" else VecPlatoon
+    vec = vec_class(train_events, cfg.n_vehicles, cfg.net, cfg.num_envs, seed, cfg.reward,
+                    cfg.base, cfg.observe_ahead, adjustment_bounds(cfg.adj_max), cfg.shield_ttc)
+    try:
+        obs = vec.reset(seed, channels.current if channels is not None else None)
+        for action in actions.numpy() if replay else ():
+            obs = vec.step(action)[0]
+    except BaseException:
+        vec.close()
+        raise
+    if replay:
+        return vec, obs, list(actions.numpy())
+    return vec, obs, [] if channels is None and start_step == 0 else None
+
+
+def _noise(cfg: TrainConfig, agent: Agent, rng: np.random.Generator, saved: dict
+           ) -> ColoredNoise:
+    """The exploration noise: new, or a resumed run's as it was at its checkpoint, with the
+    random generators as the checkpoint left them (whatever ran since the restore drew)."""
+    noise = ColoredNoise((cfg.num_envs, cfg.n_vehicles),
+                         agent.cfg.exploration_noise * agent.cfg.adj_max,
+                         agent.cfg.noise_correlation, rng)
+    if saved.get("noise") is not None:
+        noise.value = saved["noise"].numpy().copy()
+        rng.bit_generator.state = saved["numpy_rng"]
+        torch.set_rng_state(saved["torch_rng"])
+    return noise
+
+
+def _rollout_state(history: list[np.ndarray] | None, noise: ColoredNoise, recent: list[float],
+                   eval_every: int) -> dict[str, torch.Tensor]:
+    """The rollouts' state a checkpoint stores (see :func:`_start_rollouts`)."""
+    state = {"noise": torch.from_numpy(noise.value.copy()),
+             "recent": torch.tensor(recent[-eval_every:], dtype=torch.float64)}
+    if history:
+        state["actions"] = torch.from_numpy(np.stack(history))
+    return state
 
 
 def _keep_policy(resume: Path, out: Path, start_step: int, cfg: TrainConfig, log) -> bool:
