@@ -308,3 +308,62 @@ def test_non_finite_and_extreme_values_are_refused_or_run_cleanly(tmp_path, caps
         assert code == 0, err
         metrics = json.loads((work / "m.json").read_text())["metrics"]
         assert np.isfinite(metrics["headway_s"]) and np.isfinite(metrics["speed_mps"])
+
+
+# --- sumo-gui closed, or interrupted, during replay --gui -------------------------------------
+
+@pytest.fixture
+def traci_sumo(monkeypatch):
+    """A SUMO over TraCI as replay --gui runs sumo-gui (no display here: the same TraCI
+    connection to the command-line sumo), registered as this process's GUI simulation."""
+    import sumolib
+    import traci
+
+    import carl_sumo.sim.sumo as sumo
+
+    traci.start([sumolib.checkBinary("sumo"), *sumo.sumo_args(NET)],
+                port=sumolib.miscutils.getFreeSocketPort())
+    monkeypatch.setattr(sumo, "_gui", True)
+    monkeypatch.setattr(sumo, "_sumo_running", True)
+    process = traci.getConnection()._process
+    try:
+        yield process
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+        try:
+            traci.close(wait=False)
+        except Exception:
+            pass
+
+
+def test_a_closed_sumo_gui_is_one_clear_error_and_no_process(traci_sumo):
+    import traci
+
+    import carl_sumo.sim.sumo as sumo
+
+    traci.simulationStep()
+    traci_sumo.kill()  # what closing sumo-gui's window does to the connection
+    traci_sumo.wait()
+    with pytest.raises(Exception) as closed:
+        traci.simulationStep()
+    assert sumo.gui_connection_lost(closed.value)
+    sumo.abandon_sumo()  # forgets the lost connection: a next replay --gui can start
+    with pytest.raises(traci.exceptions.TraCIException, match="not known"):
+        traci.getConnection()
+    assert not sumo._sumo_running
+
+
+def test_an_interrupted_replay_gui_takes_sumo_gui_down(traci_sumo):
+    import traci
+
+    import carl_sumo.sim.sumo as sumo
+
+    traci.simulationStep()
+    assert not sumo.gui_connection_lost(KeyboardInterrupt())
+    started = time.time()
+    sumo.abandon_sumo()  # killed, not waited for until someone closes its window
+    assert traci_sumo.poll() is not None and time.time() - started < 5
+    with pytest.raises(traci.exceptions.TraCIException, match="not known"):
+        traci.getConnection()

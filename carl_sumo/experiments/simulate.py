@@ -17,7 +17,7 @@ Controllers by name:
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Callable, Iterator, Sequence, TypeVar
 
 import numpy as np
 
@@ -243,12 +243,23 @@ def replay(controller_name: str, event: Event, n_followers: int, fcd_path: Path,
     fcd_path = Path(fcd_path)
     sim = PlatoonSim(net_path, follower_model)
     use_gui(gui)
-    # SUMO writes a temporary file; it moves into place once SUMO has closed it and it parses
+    traj = fcd_run(fcd_path, gui, lambda tmp: run_event(sim, event, n_followers, controller,
+                                                        fcd_path=tmp, impairments=impairments))
+    return score_event(traj)
+
+
+T = TypeVar("T")
+
+
+def fcd_run(fcd_path: Path, gui: bool, run: Callable[[Path], T]) -> T:
+    """``run(tmp)``: a simulation of this process (sumo-gui with ``gui``) that writes SUMO's FCD
+    output to ``tmp``, a temporary file that moves to ``fcd_path`` once SUMO has closed it and
+    it parses whole (else OutputError: a full disk). An error, an interrupt or a closed sumo-gui
+    window removes it and takes sumo-gui down (a closed window: one InputError line)."""
     with atomic_path(fcd_path, verify=lambda tmp: check_xml(tmp, f"SUMO's FCD output {fcd_path}")
                      ) as tmp:
         try:
-            traj = run_event(sim, event, n_followers, controller, fcd_path=tmp,
-                             impairments=impairments)
+            result = run(tmp)
             close_sumo()  # SUMO finishes the FCD file when the simulation closes (sumo-gui:
             # when its window is closed)
         except BaseException as exc:  # an error, an interrupt, a closed sumo-gui window
@@ -262,4 +273,4 @@ def replay(controller_name: str, event: Event, n_followers: int, fcd_path: Path,
         finally:
             if gui:
                 use_gui(False)
-    return score_event(traj)
+    return result

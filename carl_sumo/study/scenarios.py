@@ -24,7 +24,6 @@ new neighbour is heard from its first message that arrives,
 
 from __future__ import annotations
 
-import os
 from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
@@ -39,12 +38,11 @@ from carl_sumo.control.controllers import applied_acceleration
 from carl_sumo.control.external import is_external_name, load_external
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
-from carl_sumo.experiments.simulate import NATIVE_CONTROLLERS, check_impairable, plant_of
-from carl_sumo.files import atomic_output
+from carl_sumo.experiments.simulate import NATIVE_CONTROLLERS, check_impairable, fcd_run, plant_of
 from carl_sumo.sim.manoeuvre_metrics import ScenarioTrace, manoeuvre_metrics, whole_run_metrics
 from carl_sumo.sim.scenario import Manoeuvre, ScenarioSpec
 from carl_sumo.sim.scenario_sim import ScenarioSim, adjacent_route
-from carl_sumo.sim.sumo import LaneRoute, check_fits, close_sumo, lane_route, use_gui
+from carl_sumo.sim.sumo import LaneRoute, check_fits, lane_route, use_gui
 from carl_sumo.study.controllers import ChainController
 
 
@@ -247,17 +245,6 @@ def replay_scenario(name: str, event: Event, n_followers: int, fcd_path: Path,
     manoeuvre = spec.draw(event, n_followers)
     sim = ScenarioSim(net_path, follower_model)
     use_gui(gui)
-    tmp = atomic_output(Path(fcd_path))
-    try:
-        try:
-            trace = run_scenario_event(sim, event, n_followers, manoeuvre, controller,
-                                       impairments, fcd_path=tmp)
-        finally:
-            close_sumo()
-            if gui:
-                use_gui(False)
-        os.replace(tmp, fcd_path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    trace = fcd_run(Path(fcd_path), gui, lambda tmp: run_scenario_event(
+        sim, event, n_followers, manoeuvre, controller, impairments, fcd_path=tmp))
     return score_trace(trace)
