@@ -44,9 +44,11 @@ def train(iterations: int, out: Path, seed: int = 0, n_followers: int = 3,
     """Run ``iterations`` PPO iterations of ``batch`` environment steps (0.1 s each) and save the
     algorithm's checkpoint to the folder ``out``."""
     import ray
+    import torch
     from ray.rllib.algorithms.ppo import PPOConfig
     from ray.tune.registry import register_env
 
+    torch.set_num_threads(1)  # small networks: more threads only contend with SUMO
     register_env("carl_sumo_platoon", _make_env)
     config = (PPOConfig()
               .environment("carl_sumo_platoon",

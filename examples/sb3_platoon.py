@@ -28,11 +28,13 @@ def train(steps: int, out: Path, seed: int = 0, n_followers: int = 1,
           data: str = "default") -> Path:
     """Train TD3 for ``steps`` environment steps (0.1 s each) and save it to ``out`` (.zip)."""
     import gymnasium
+    import torch
     from stable_baselines3 import TD3
     from stable_baselines3.common.noise import NormalActionNoise
 
     import carl_sumo.learn.gym_env  # noqa: F401  (registers carl_sumo/Platoon-v0)
 
+    torch.set_num_threads(1)  # a 64x64 MLP: more threads only contend with SUMO and each other
     env = gymnasium.make("carl_sumo/Platoon-v0", n_followers=n_followers, data=data,
                          split="train")
     n = env.action_space.shape[0]
