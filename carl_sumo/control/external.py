@@ -1,5 +1,6 @@
 """Controllers from outside carl-sumo: ``--controller module:attribute`` or
-``--controller path/to/file.py:attribute`` on simulate, replay, evaluate and string-stability.
+``--controller path/to/file.py:attribute`` on simulate, replay, evaluate, study and
+string-stability.
 
 The attribute is one of
 
@@ -11,6 +12,10 @@ The attribute is one of
 - a plain callable ``f(observations) -> accelerations``: observations an (n, 4) array
   [v m/s, a m/s², d m, Δv m/s] head first, accelerations an (n,) array in m/s², applied as they are
   (clipped to the followers' bounds) and through the vehicle dynamics of the plant.
+
+A vehicle with nothing ahead within its sensors' range (a free road in ``study``) sees d = that
+range and Δv = 0: a controller that is not added to IDM keeps its own cruise speed. In ``study``
+each CACC chain is a platoon of its own (:class:`carl_sumo.study.controllers.ExternalChains`).
 
 An RLlib checkpoint or an SB3 model is scored by wrapping its ``compute_single_action`` /
 ``predict`` in such a callable (``examples/``).
