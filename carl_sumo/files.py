@@ -44,11 +44,11 @@ TEMP_SUFFIX = ".tmp"
 """How the name of every temporary output file ends (``.NAME.PID.tmp``)."""
 
 
-def atomic_output(path: Path) -> Path:
+def atomic_output(path: Path, suffix: str = "") -> Path:
     """The temporary path beside ``path`` that :func:`atomic_path` writes to (its folder is
-    created)."""
+    created); ``suffix`` after it for writers that read the format from the name."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    return path.with_name(f".{path.name}.{os.getpid()}{TEMP_SUFFIX}")
+    return path.with_name(f".{path.name}.{os.getpid()}{TEMP_SUFFIX}{suffix}")
 
 
 def check_target(path: str | Path, option: str = "") -> None:
@@ -104,15 +104,16 @@ def _remove(tmp: Path) -> None:
 
 
 @contextmanager
-def atomic_path(path: str | Path, verify: Callable[[Path], None] | None = None
-                ) -> Iterator[Path]:
-    """The temporary path to write ``path`` at; when the block ends without an error (and
-    ``verify(tmp)`` raises none) it is synced and moved into place, else removed. OSError while
-    writing: :class:`OutputError`; a target that is not a regular file: InputError."""
+def atomic_path(path: str | Path, verify: Callable[[Path], None] | None = None,
+                suffix: str = "") -> Iterator[Path]:
+    """The temporary path to write ``path`` at (ending in ``suffix`` where the writer reads the
+    format from the name); when the block ends without an error (and ``verify(tmp)`` raises
+    none) it is synced and moved into place, else removed. OSError while writing:
+    :class:`OutputError`; a target that is not a regular file: InputError."""
     path = Path(path)
     check_target(path)
     try:
-        tmp = atomic_output(path)
+        tmp = atomic_output(path, suffix)
     except OSError as exc:
         raise output_error(exc, path) from None
     try:

@@ -102,3 +102,30 @@ def test_the_command_itself_exits_2_on_an_unwritable_json(tmp_path):
                              "/proc/x/y.json"], capture_output=True, text=True, timeout=120)
     assert result.returncode == 2 and result.stdout == ""
     assert result.stderr.count("\n") == 1 and "cannot write --json /proc/x/y.json" in result.stderr
+
+
+def _writes_outside_the_writer(path: Path) -> list[str]:
+    """Calls in ``path`` that write or move a file into place without :mod:`carl_sumo.files`."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if not isinstance(node, ast.Call):
+            continue
+        func = node.func
+        name = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
+        owner = getattr(func.value, "id", "") if isinstance(func, ast.Attribute) else ""
+        mode = next((a.value for a in node.args[1:2] if isinstance(a, ast.Constant)), None)
+        mode = next((k.value.value for k in node.keywords if k.arg == "mode"
+                     and isinstance(k.value, ast.Constant)), mode)
+        if (name in ("write_text", "write_bytes", "atomic_output")
+                or (owner == "os" and name in ("replace", "rename"))
+                or (name == "open" and isinstance(mode, str) and set(mode) & set("wax"))):
+            found.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno} {name}")
+    return found
+
+
+def test_no_module_writes_or_moves_a_file_into_place_by_itself():
+    """Every output goes through carl_sumo.files (temporary file, fsync, special files refused,
+    OS errors one line); only a study run moves its finished folder of SUMO outputs itself."""
+    found = [hit.split(":")[0] for path in sorted(PACKAGE.rglob("*.py"))
+             if path.name != "files.py" for hit in _writes_outside_the_writer(path)]
+    assert found == ["carl_sumo/study/run.py"], found  # its one os.replace: a run's folder

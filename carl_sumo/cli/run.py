@@ -8,6 +8,7 @@ import math
 import os
 import sys
 import time
+from contextlib import nullcontext
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -17,7 +18,7 @@ from carl_sumo.cli.common import (NET_HELP, net_option, add_common, add_impairme
 from carl_sumo.cli.scenario import (add_scenario, evaluate_scenarios, replay_with_scenario,
                                     simulate_with_scenario)
 from carl_sumo.errors import InputError
-from carl_sumo.files import check_output_dir, check_output_file, write_text_atomic
+from carl_sumo.files import atomic_path, check_output_dir, check_output_file, write_text_atomic
 
 if TYPE_CHECKING:
     from carl_sumo.control.channel import Impairments
@@ -175,20 +176,15 @@ def cmd_replay(args: argparse.Namespace) -> None:
                          f"{event.event_id} ({event.duration_s:.1f} s)")
     if args.gui and not has_display():
         use_gui(True)  # raises the one-line "no display" error before anything runs
-    if shot is not None:
-        # sumo-gui writes a temporary file (its suffix names the format), moved into place after
-        view.screenshot = shot.with_name(f".{shot.stem}.{os.getpid()}.tmp{shot.suffix}")
-    try:
+    # sumo-gui writes the screenshot to a temporary file (its suffix names the format)
+    with atomic_path(shot, suffix=shot.suffix) if shot is not None else nullcontext() as tmp:
+        if shot is not None:
+            view.screenshot = tmp
         metrics = replay(args.controller, event, args.vehicles, args.fcd, args.net,
                          gui=view or False, impairments=impairments)
-        if shot is not None:
-            if not view.screenshot.is_file():
-                raise InputError(f"sumo-gui saved no screenshot for {shot}; let the event run "
-                                 "to the screenshot's time")
-            os.replace(view.screenshot, shot)
-    finally:
-        if shot is not None:
-            view.screenshot.unlink(missing_ok=True)
+        if shot is not None and not tmp.is_file():
+            raise InputError(f"sumo-gui saved no screenshot for {shot}; let the event run "
+                             "to the screenshot's time")
     print(f"wrote {args.fcd}: event {event.event_id}, {args.vehicles} followers, "
           f"{event.duration_s:.1f} s" + (f" ({warmup_s:g} s of it warm-up, not scored)"
                                          if warmup_s else "")
