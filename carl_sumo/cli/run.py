@@ -227,6 +227,28 @@ def _evaluate_parser(sub: argparse._SubParsersAction) -> None:
                         "(default: the shipped policy files only)")
     add_warmup(p)
     add_scenario(p)
+    p.add_argument("--controller", default=None, metavar="MODULE:ATTR[,...]",
+                   help="controllers of your own (module:attribute or file.py:attribute, "
+                        "comma-separated): one more row in every table of --suite paper or real")
+
+
+def extra_controllers(args: argparse.Namespace) -> tuple[str, ...]:
+    """``evaluate --controller``'s names, each loaded once here (InputError, one line, for a
+    name that is not module:attribute or does not load)."""
+    from carl_sumo.control.external import is_external_name, load_external
+
+    if args.controller is None:
+        return ()
+    if args.suite not in ("paper", "real"):
+        raise InputError(f"--controller adds rows to --suite paper or real, not {args.suite}")
+    names = tuple(n.strip() for n in args.controller.split(",") if n.strip())
+    for name in names:
+        if not is_external_name(name):
+            raise InputError(f"evaluate --controller {name!r}: give module:attribute or "
+                             "file.py:attribute (the built-in controllers and policies are "
+                             "rows already)")
+        load_external(name)
+    return names
 
 
 def cmd_evaluate(args: argparse.Namespace) -> None:
@@ -252,6 +274,7 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
     if warmup_from(args) and args.suite == "robustness":
         raise InputError("--warmup is for --suite paper; the robustness suite keeps its own "
                          "protocol")
+    args.controller = extra_controllers(args)
     check_output_dir(args.out, "--out")
     check_ray(args)
     with ray_session(args, args.workers or os.cpu_count()):
@@ -277,7 +300,8 @@ def _run_evaluate(args: argparse.Namespace, workers: int, impairments: Impairmen
     result = evaluate(args.suite, args.out, args.data, args.quick, args.events, args.policies,
                       args.net, workers, progress=sys.stderr.isatty(),
                       command="carl-sumo " + " ".join(sys.argv[1:]), all_seeds=args.all_seeds,
-                      seeds=args.seeds, impairments=impairments, warmup_s=args.warmup)
+                      seeds=args.seeds, impairments=impairments, warmup_s=args.warmup,
+                      extra=args.controller)
     for key, rows in result["rows"].items():
         print(f"wrote {args.out / (key + '.md')} and .csv ({len(rows)} rows)")
     print(f"wrote {args.out / 'README.md'}, per_event.csv, timing.csv and "

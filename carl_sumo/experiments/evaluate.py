@@ -215,13 +215,14 @@ def evaluate(suite: str = "paper", out: Path = Path("results"), data: str | None
              net: str | Path = "networks/i80.net.xml", workers: int = 2,
              progress: bool = False, command: str = "", all_seeds: bool = False,
              seeds: bool = False, impairments: Impairments | None = None,
-             warmup_s: float = 0.0) -> dict:
+             warmup_s: float = 0.0, extra: tuple[str, ...] = ()) -> dict:
     """Plan and run a suite (see the module docstring); the table rows and timings. With
     ``impairments`` every controller that runs in carl-sumo (Ploeg, idm-external, the policies)
     has them; SUMO's native models and the recorded human run as they are. ``warmup_s``: every
-    event runs that long first, unscored."""
+    event runs that long first, unscored. ``extra``: controllers of the user's own
+    (``module:attribute``, ``file.py:attribute``), one more row in every table."""
     plant = impairments.plant_key if impairments is not None else "ideal"
     planned = plan_suite(suite, data, quick, events, policies, net, all_seeds, seeds, warmup_s,
-                         plant)
+                         plant, extra)
     planned = replace(planned, impairments=impairments)
     return run_suite(planned, Path(out), workers, net, progress, command)

@@ -286,14 +286,16 @@ def figure_event(events: Sequence[Event]) -> str:
 def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = False,
                events: int | None = None, policies: Path | None = None,
                net: str | Path = "networks/i80.net.xml", all_seeds: bool = False,
-               seeds: bool = False, warmup_s: float = 0.0, plant: str = "ideal") -> Suite:
+               seeds: bool = False, warmup_s: float = 0.0, plant: str = "ideal",
+               extra: tuple[str, ...] = ()) -> Suite:
     """Resolve data, events, policies and tables; InputError on anything missing or wrong.
 
     ``seeds``: the seed files of :data:`SEED_MODELS` run in Table 1 and in Table 2 at 10 followers
     (those are Table 1's runs), not in Table 3 or the cross-site table; ``all_seeds`` runs every model's
     seed files in every row (slower); with neither, no seed file runs (the shipped policies
     alone). ``warmup_s``: every event runs that long first, unscored (``Event.with_warmup``).
-    ``plant``: the plant key of the real suite's tuned gains (:attr:`Impairments.plant_key`)."""
+    ``plant``: the plant key of the real suite's tuned gains (:attr:`Impairments.plant_key`).
+    ``extra``: controllers of the user's own (``module:attribute``), a row in every table."""
     if all_seeds and seeds:
         raise InputError("--all-seeds and --seeds exclude each other; give one")
     if suite not in SUITES:
@@ -318,10 +320,11 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
     if suite == "real":
         classical = {"idm-external": BUILTIN_MODELS["idm-external"], **classical}
     table1_models = ("human", "idm", "krauss", *classical, "maddpg_10", "ddpg_1", "ca_ddpg_10",
-                     "td3_1", "ca_td3_10", "ca_td3_ploeg_10")
+                     "td3_1", "ca_td3_10", "ca_td3_ploeg_10", *extra)
     seed_models = None if all_seeds else SEED_MODELS if seeds else ()
     table2_models = ("idm", "krauss", *classical, "maddpg_10", "maddpg_20", "ddpg_1", "td3_1",
-                     "ca_ddpg_10", "ca_td3_10", "ca_ddpg_20", "ca_td3_20", "ca_td3_ploeg_10")
+                     "ca_ddpg_10", "ca_td3_10", "ca_ddpg_20", "ca_td3_20", "ca_td3_ploeg_10",
+                     *extra)
     on_test, on_cross = data_titles(data, limit, quick)
     tables = [
         TableSpec("table1_ngsim_test", f"Table 1: {on_test}, 10 followers", test, (10,),
@@ -339,12 +342,7 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
                   table1_models,
                   seed_lengths=None if all_seeds else ()),
     ]
-    models: dict[str, Model] = {}
-    for spec in tables:
-        for key in spec.models:
-            if key not in models:
-                models[key] = Model(key, {**BUILTIN_MODELS, **classical}[key]) \
-                    if is_classical(key) else discover_model(key, directory)
+    models = _models(tables, classical, directory)
     event_sets = {spec.events.key: spec.events for spec in tables}
     loaded = {key: _events(es, quick, warmup_s) for key, es in event_sets.items()}
     if not loaded["cross_site"]:
@@ -356,6 +354,32 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
     figures = {spec.events.key: figure_event(loaded[spec.events.key]) for spec in tables
                if spec.figures}
     return Suite(tables, models, loaded, figures, data, quick, warmup_s=warmup_s, name=suite)
+
+
+def external_label(name: str) -> str:
+    """The row name of a controller from outside carl-sumo: ``ATTR (FILE or MODULE)``."""
+    target, _, attr = name.rpartition(":")
+    return f"{attr} ({Path(target).name if target.endswith('.py') else target})"
+
+
+def _models(tables: list[TableSpec], classical: dict[str, str], directory: Path
+            ) -> dict[str, Model]:
+    """The Model of every row key of the tables: built-in, classical, a controller of the user's
+    own (module:attribute, file.py:attribute) or a policy stem with its seed files."""
+    from carl_sumo.control.external import is_external_name
+
+    models: dict[str, Model] = {}
+    for spec in tables:
+        for key in spec.models:
+            if key in models:
+                continue
+            if is_classical(key):
+                models[key] = Model(key, {**BUILTIN_MODELS, **classical}[key])
+            elif is_external_name(key):
+                models[key] = Model(key, external_label(key))
+            else:
+                models[key] = discover_model(key, directory)
+    return models
 
 
 def table_cells(spec: TableSpec, suite: Suite):

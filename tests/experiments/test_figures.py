@@ -1,5 +1,6 @@
-"""The suite's figures stay readable: time series wrap into a grid with one legend, the frontier's
-labels do not overlap and an outlier does not squash its axis."""
+"""The suite's figures stay readable (time series wrap into a grid with one legend, the frontier's
+labels do not overlap and an outlier does not squash its axis), its tables say which data they ran
+on, and `evaluate --controller` adds a controller of the user's own to every table."""
 
 from __future__ import annotations
 
@@ -87,3 +88,35 @@ def test_tables_say_which_data_they_ran_on():
     assert test == "test split of the shipped default set (not NGSIM), first 2 events (--quick)"
     assert cross.startswith("train split of the shipped default set standing in")
     assert data_titles("mine.csv", 5, False)[0] == "test split of mine.csv, first 5 events"
+
+
+EXAMPLE = "examples/my_controller.py"
+
+
+def test_evaluate_controller_adds_a_row_to_every_table():
+    from conftest import NET, REPO_ROOT
+    from carl_sumo.experiments.suite import plan_suite
+
+    name = f"{REPO_ROOT / EXAMPLE}:constant_gap"
+    suite = plan_suite("paper", quick=True, events=1, net=NET, extra=(name,))
+    assert all(spec.models[-1] == name for spec in suite.tables)
+    assert suite.models[name].name == "constant_gap (my_controller.py)"
+    assert suite.models[name].controllers == (name,)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--controller", "idm"], "give module:attribute"),
+    (["--controller", f"{EXAMPLE}:nothing"], "no attribute 'nothing'"),
+    (["--suite", "robustness", "--controller", f"{EXAMPLE}:constant_gap"],
+     "--suite paper or real"),
+])
+def test_evaluate_controller_bad_input_is_one_line_exit_2(tmp_path, capsys, monkeypatch, argv,
+                                                          message):
+    from conftest import REPO_ROOT
+    from carl_sumo.cli import main
+
+    monkeypatch.chdir(REPO_ROOT)
+    code = main(["evaluate", "--quick", "--out", str(tmp_path / "out"), *argv])
+    err = capsys.readouterr().err
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "out").exists()
