@@ -128,33 +128,6 @@ def _gui_options(p: argparse.ArgumentParser) -> None:
                    help="save the view to PNG at simulated time TIME s (default 0: the start)")
 
 
-def gui_view_from(args: argparse.Namespace, n_followers: int):
-    """The GuiView of ``replay``'s options (None without --gui); InputError for gui options
-    without --gui, a delay or zoom that is not positive, an unknown --track, a bad
-    --screenshot."""
-    from carl_sumo.sim.gui import GuiView, check_track, parse_screenshot
-
-    given = [name for name, value in (("--track", args.track), ("--delay", args.delay),
-                                      ("--zoom", args.zoom), ("--quit-on-end", args.quit_on_end),
-                                      ("--screenshot", args.screenshot)) if value]
-    if not args.gui:
-        if given:
-            raise InputError(f"{given[0]} is an option of sumo-gui: add --gui")
-        return None
-    if args.delay is not None and not 0 <= args.delay < math.inf:
-        raise InputError(f"--delay must be a number of milliseconds >= 0, got {args.delay:g}")
-    if args.zoom is not None and not 0 < args.zoom < math.inf:
-        raise InputError(f"--zoom must be a positive percentage, got {args.zoom:g}")
-    view = GuiView(track=args.track, zoom=args.zoom, quit_on_end=args.quit_on_end)
-    if args.delay is not None:
-        view.delay_ms = args.delay
-    if args.screenshot is not None:
-        view.screenshot, view.screenshot_s = parse_screenshot(args.screenshot)
-        check_output_file(view.screenshot, "--screenshot")
-    check_track(view, n_followers)
-    return view
-
-
 def cmd_replay(args: argparse.Namespace) -> None:
     from carl_sumo.data import load_events
     from carl_sumo.experiments.simulate import replay
@@ -191,6 +164,33 @@ def cmd_replay(args: argparse.Namespace) -> None:
           + f", controller {args.controller}" + (f"; view saved to {shot}" if shot else ""))
     print(", ".join(f"{k}={fmt(v)}" for k, v in metrics.items() if not k.startswith("n_")
                     and k != "event_id"))
+
+
+def gui_view_from(args: argparse.Namespace, n_followers: int):
+    """The GuiView of ``replay``'s options (None without --gui); InputError for gui options
+    without --gui, a delay or zoom that is not positive, an unknown --track, a bad
+    --screenshot."""
+    from carl_sumo.sim.gui import GuiView, check_track, parse_screenshot
+
+    given = [name for name, value in (("--track", args.track), ("--delay", args.delay),
+                                      ("--zoom", args.zoom), ("--quit-on-end", args.quit_on_end),
+                                      ("--screenshot", args.screenshot)) if value]
+    if not args.gui:
+        if given:
+            raise InputError(f"{given[0]} is an option of sumo-gui: add --gui")
+        return None
+    if args.delay is not None and not 0 <= args.delay < math.inf:
+        raise InputError(f"--delay must be a number of milliseconds >= 0, got {args.delay:g}")
+    if args.zoom is not None and not 0 < args.zoom < math.inf:
+        raise InputError(f"--zoom must be a positive percentage, got {args.zoom:g}")
+    view = GuiView(track=args.track, zoom=args.zoom, quit_on_end=args.quit_on_end)
+    if args.delay is not None:
+        view.delay_ms = args.delay
+    if args.screenshot is not None:
+        view.screenshot, view.screenshot_s = parse_screenshot(args.screenshot)
+        check_output_file(view.screenshot, "--screenshot")
+    check_track(view, n_followers)
+    return view
 
 
 def _evaluate_parser(sub: argparse._SubParsersAction) -> None:

@@ -283,7 +283,7 @@ def declutter(ax, texts: list, marker_px: float = 3.5) -> None:
 
 def _frontier_panel(ax, points: list[dict[str, Any]], key: str) -> list:
     """One panel of the frontier figure: the curves (labelled by time gap) and the points, the
-    y axis fitted to all but the outliers, which sit on its edge with their value."""
+    axes fitted to all but the outliers, which sit on their edge with their values."""
     texts = []
     for (curve, style), (xy, ha) in zip(zip(CURVES.values(), ("o--", "s-")),
                                         (((4, 4), "left"), ((4, -10), "left"))):
@@ -300,20 +300,36 @@ def _frontier_panel(ax, points: list[dict[str, Any]], key: str) -> list:
     for p in singles:
         color, marker = styles[p["label"]]
         ax.plot(p["headway_s"], p[key], marker, color=color, ms=7, label=p["label"])
-    values = [float(p[key]) for p in points]
-    far = outliers(values)
-    if far:
-        kept = [v for i, v in enumerate(values) if i not in far and np.isfinite(v)]
-        lo, hi = min(kept), max(kept)
-        pad = 0.08 * (hi - lo or 1.0)
-        ax.set_ylim(lo - pad, hi + pad)
-        for i in sorted(far):
-            p, edge = points[i], hi + pad if values[i] > hi else lo - pad
-            color, marker = styles.get(p["label"], ("black", "o"))
-            ax.plot(p["headway_s"], edge, marker, color=color, ms=7, clip_on=False)
-            texts.append(ax.annotate(f"{p['label']}: {values[i]:.2f} {'↑' if values[i] > hi else '↓'}",
-                                     (p["headway_s"], edge), textcoords="offset points",
-                                     xytext=(6, -10 if values[i] > hi else 4), fontsize=7))
+    return texts + _edge_outliers(ax, points, key, styles)
+
+
+def _edge_outliers(ax, points: list[dict[str, Any]], key: str, styles: dict) -> list:
+    """Fit each axis to the points but its :func:`outliers`; draw those on the edge they lie
+    beyond, labelled with their values; the labels."""
+    xs = [float(p["headway_s"]) for p in points]
+    ys = [float(p[key]) for p in points]
+    box, far = [], set()
+    for values, set_limits in ((xs, ax.set_xlim), (ys, ax.set_ylim)):
+        out = outliers(values)
+        kept = [v for i, v in enumerate(values) if i not in out and np.isfinite(v)] or [0.0]
+        pad = 0.08 * (max(kept) - min(kept) or 1.0)
+        box.append((min(kept) - pad, max(kept) + pad))
+        if out:
+            set_limits(*box[-1])
+        far |= out
+    texts = []
+    for i in sorted(far):
+        (x_lo, x_hi), (y_lo, y_hi) = box
+        x, y = min(max(xs[i], x_lo), x_hi), min(max(ys[i], y_lo), y_hi)
+        color, marker = styles.get(points[i]["label"], ("black", "o"))
+        ax.plot(x, y, marker, color=color, ms=7, clip_on=False)
+        arrows = ("→" if xs[i] > x_hi else "←" if xs[i] < x_lo else "") + \
+            ("↑" if ys[i] > y_hi else "↓" if ys[i] < y_lo else "")
+        shown = f"{ys[i]:.2f}" if x == xs[i] else f"{xs[i]:.2f} s, {ys[i]:.2f}"
+        texts.append(ax.annotate(f"{points[i]['label']}: {shown} {arrows}", (x, y),
+                                 textcoords="offset points", fontsize=7,
+                                 xytext=(-6 if x < xs[i] else 6, -10 if y < ys[i] else 4),
+                                 ha="right" if x < xs[i] else "left"))
     return texts
 
 

@@ -81,6 +81,19 @@ def test_frontier_labels_do_not_overlap_and_an_outlier_sits_on_the_edge():
         plt.close(fig)
 
 
+def test_a_point_far_along_the_headway_axis_sits_on_its_right_edge():
+    plt = pyplot()
+    fig, ax = plt.subplots()
+    try:
+        points = _frontier_points() + [{"label": "slow ACC", "curve": None, "headway_s": 9.0,
+                                        "jerk_mps3": 0.05}]
+        texts = _frontier_panel(ax, points, "jerk_mps3")
+        assert ax.get_xlim()[1] < 3.0
+        assert any(t.get_text() == "slow ACC: 9.00 s, 0.05 →" for t in texts)
+    finally:
+        plt.close(fig)
+
+
 def test_tables_say_which_data_they_ran_on():
     assert data_titles("../shared/data/ngsim/ngsim_cf_events.csv.gz", None, False) == (
         "NGSIM test split", "US-101 (no model was trained on it)")
