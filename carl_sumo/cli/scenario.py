@@ -44,7 +44,7 @@ def simulate_with_scenario(args: argparse.Namespace, names: list[str],
     start = time.perf_counter()
     workers = max(1, min(args.workers or min(2, os.cpu_count() or 1), len(events) // 5))
     ran = [name for name in names if name not in skipped]
-    rows = iter(run_jobs([(name, spec, impairments) for name in ran], events, args.vehicles,
+    rows = iter(run_jobs([(name, spec, impairments, events) for name in ran], args.vehicles,
                          args.net, workers, chunks=workers))
     results = [{"controller": name, "not_applicable": skipped[name]} if name in skipped
                else result_of(name, spec, next(rows), args.vehicles) for name in names]

@@ -17,14 +17,15 @@ Per manoeuvre (:func:`manoeuvre_metrics`), over the samples from t_m on:
 - ``peak_decel_mps2`` / ``peak_jerk_mps3``: the largest deceleration max(-a) and |jerk| of the
   vehicles behind it (per vehicle in ``peak_decel_by_vehicle`` / ``peak_jerk_by_vehicle``), with
   a_k = (v_{k+1} - v_k)/dt and j_k = (a_{k+1} - a_k)/dt as :mod:`carl_sumo.sim.metrics`;
-- ``settle_s``: how long after t_m the first vehicle's gap, as a time gap h = d/v (so that a
-  change of the leader's speed is not counted as unsettled; samples with v <= 0.5 m/s left out),
-  stays within 10 % of its steady state h_ss, the mean over the run's last 2 s (s; NaN when less
-  than 4 s follow t_m);
-- ``overshoot``: how far that time gap passes h_ss on the other side from where it started, as a
-  share of h_ss (a gap that opens after a cut-in: (max h - h_ss)/h_ss; one that closes after a
-  cut-out or a merge: (h_ss - min h)/h_ss; 0 if it does not pass);
-- ``collisions``: vehicles whose gap reached 0 or less (the run ends there).
+- ``settle_s``: how long after t_m the first vehicle's bumper gap d stays within 10 % of its
+  steady state d_ss, the mean gap over the run's last 2 s (s; NaN when less than 4 s follow t_m).
+  The gap, not the time gap d/v: a follower that brakes to a near stop behind a cut-in has a time
+  gap without meaning; a change of the leader's speed in those last seconds moves d_ss with it;
+- ``overshoot``: how far that gap passes d_ss on the other side from where it started, as a share
+  of d_ss (a gap that opens after a cut-in: (max d - d_ss)/d_ss; one that closes after a cut-out
+  or a merge: (d_ss - min d)/d_ss; 0 if it does not pass);
+- ``collisions``: vehicles whose gap reached 0 or less from t_m on (the run ends there; a
+  collision before the manoeuvre counts in the whole run's, not here).
 
 Over the whole run (:func:`whole_run_metrics`): the keys of :mod:`carl_sumo.sim.metrics` over the
 platoon's CACC vehicles (followers and a joiner) while they are in the platoon lane, from the
@@ -96,16 +97,11 @@ def settle_and_overshoot(series: np.ndarray, dt: float = DT_S) -> tuple[float, f
     return settle, overshoot
 
 
-def time_gap(gap: np.ndarray, speed: np.ndarray) -> np.ndarray:
-    """d/v (s) where v > 0.5 m/s, NaN elsewhere (the time gap is undefined near standstill)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(speed > HEADWAY_MIN_SPEED_MPS, gap / speed, np.nan)
-
-
 def manoeuvre_metrics(trace: ScenarioTrace) -> dict:
     """The manoeuvre's metrics (module docstring); NaN values when it did not happen."""
     nan = float("nan")
-    out: dict = {"done": int(trace.done_step is not None), "collisions": int(trace.collisions)}
+    done = trace.done_step is not None
+    out: dict = {"done": int(done), "collisions": int(trace.collisions) if done else 0}
     behind = [trace.column(v) for v in trace.behind if v in trace.vehicles]
     if trace.done_step is None or not behind:
         out.update(min_gap_m=nan, min_ttc_s=nan, peak_decel_mps2=nan, peak_jerk_mps3=nan,
@@ -121,8 +117,7 @@ def manoeuvre_metrics(trace: ScenarioTrace) -> dict:
     jerk = np.abs(np.diff(_acc(trace.speed[:, behind], trace.dt), axis=0))[t:] / trace.dt
     decel = {trace.vehicles[c]: _finite_max(-acc[:, j], floor=0.0) for j, c in enumerate(behind)}
     jerks = {trace.vehicles[c]: _finite_max(jerk[:, j]) for j, c in enumerate(behind)}
-    settle, overshoot = settle_and_overshoot(
-        time_gap(trace.gap[t:, behind[0]], trace.speed[t:, behind[0]]), trace.dt)
+    settle, overshoot = settle_and_overshoot(trace.gap[t:, behind[0]], trace.dt)
     out.update(min_gap_m=_finite_min(gap), min_ttc_s=_finite_min(ttc[ttc > 0], empty=np.inf),
                peak_decel_mps2=max(decel.values()), peak_jerk_mps3=_finite_max(
                    np.array(list(jerks.values()))),
