@@ -81,11 +81,12 @@ def replay_with_scenario(args: argparse.Namespace, event: Event,
 
 def evaluate_scenarios(args: argparse.Namespace, workers: int) -> None:
     """``evaluate --suite scenarios``: a table per manoeuvre (``--scenario KIND``: that one)
-    and plant (ideal and real) with every controller, written to ``--out``."""
+    and plant (ideal and real) with every controller, written to ``--out``; ``--quick``: 4
+    events, 6 followers, a 10 s settled start on the real plant instead of 60 s."""
     from carl_sumo.data import load_events
     from carl_sumo.errors import InputError
     from carl_sumo.sim.scenario import KINDS, parse_scenario
-    from carl_sumo.study.scenario_tables import run_scenario_tables
+    from carl_sumo.study.scenario_tables import REAL_WARMUP_S, run_scenario_tables
 
     if args.plant != "ideal" or args.fleet or args.vehicle_lag is not None \
             or args.actuation_delay is not None or args.comm_delay is not None \
@@ -103,6 +104,7 @@ def evaluate_scenarios(args: argparse.Namespace, workers: int) -> None:
     result = run_scenario_tables(args.out, events, n, args.net, workers,
                                  args.policies or Path("policies"), kinds,
                                  seed=args.scenario_seed,
-                                 command="carl-sumo " + " ".join(sys.argv[1:]))
+                                 command="carl-sumo " + " ".join(sys.argv[1:]),
+                                 real_warmup_s=10.0 if args.quick else REAL_WARMUP_S)
     print(f"wrote {args.out / 'scenarios.md'} and scenarios.json ({len(result['tables'])} "
           f"tables); wall time {result['wall_time_s']:.0f} s")

@@ -180,17 +180,17 @@ in the 53 default test events, on the ideal plant none."""
 def run_scenario_tables(out: Path, events: Sequence[Event], n_followers: int, net: str,
                         workers: int, policies: Path, kinds: Sequence[str] = KINDS,
                         plants: Sequence[str] = ("ideal", "real"), seed: int = 0,
-                        command: str = "") -> dict:
+                        command: str = "", real_warmup_s: float = REAL_WARMUP_S) -> dict:
     """Every table, written to ``out/scenarios.md`` and ``out/scenarios.json``; returns
     ``{"tables": {"KIND PLANT": results}, "wall_time_s"}``. Everything is checked first. The
-    ideal plant starts at the recorded gap, the real one settled (:data:`REAL_WARMUP_S`)."""
+    ideal plant starts at the recorded gap, the real one settled (``real_warmup_s``)."""
     start = time.perf_counter()
     plan, jobs = [], []
     for kind in kinds:
         spec = ScenarioSpec(kind, seed=seed)
         for plant in plants:
             imp = plant_impairments(plant)
-            plant_events = [e.with_warmup(REAL_WARMUP_S) for e in events] if plant == "real" \
+            plant_events = [e.with_warmup(real_warmup_s) for e in events] if plant == "real" \
                 else list(events)
             names = [str(policies / c) if c.endswith(".pt") else c
                      for c in PLANT_CONTROLLERS[plant]]
@@ -207,7 +207,7 @@ def run_scenario_tables(out: Path, events: Sequence[Event], n_followers: int, ne
             for n in names])
     figures = example_figures(out, tables, events, n_followers, net, policies, kinds, seed)
     wall = time.perf_counter() - start
-    _write(out, tables, events, n_followers, seed, command, wall, figures)
+    _write(out, tables, events, n_followers, seed, command, wall, figures, real_warmup_s)
     return {"tables": tables, "wall_time_s": wall, "figures": figures}
 
 
@@ -216,7 +216,7 @@ def plain_runs(jobs: Sequence[Job], n_followers: int, net: str, workers: int
     """{(controller, plant): whole-run metrics without a manoeuvre} on the same events and
     plant (:func:`carl_sumo.experiments.simulate.simulate_jobs`): what the controller does there
     anyway, beside what it does with the manoeuvre."""
-    from carl_sumo.experiments.simulate import simulate_jobs
+    from carl_sumo.experiments.simulate import score_events, simulate_jobs
 
     out: dict[tuple[str, str], dict] = {}
     for plant in ("ideal", "real"):
@@ -226,9 +226,14 @@ def plain_runs(jobs: Sequence[Job], n_followers: int, net: str, workers: int
             continue
         names = sorted({name for name, _ in todo})
         imp, events = next(iter(todo.values()))[1:]
-        results = simulate_jobs([(name, imp) for name in names], events, n_followers, net,
-                                workers, chunks=max(1, workers))
-        out.update({(name, plant): r["metrics"] for name, r in zip(names, results)})
+        if workers <= 1:  # in this process: a pool of one costs a process start
+            metrics = [aggregate(score_events(name, events, n_followers, net, False, imp))
+                       for name in names]
+        else:
+            metrics = [r["metrics"] for r in simulate_jobs(
+                [(name, imp) for name in names], events, n_followers, net, workers,
+                chunks=max(1, workers))]
+        out.update({(name, plant): m for name, m in zip(names, metrics)})
     return out
 
 
@@ -261,12 +266,12 @@ def example_figures(out: Path, tables: dict, events: Sequence[Event], n_follower
 
 
 def _write(out: Path, tables: dict, events: Sequence[Event], n_followers: int, seed: int,
-           command: str, wall_s: float, figures: dict[str, str]) -> None:
+           command: str, wall_s: float, figures: dict[str, str], real_warmup_s: float) -> None:
     out.mkdir(parents=True, exist_ok=True)
     lines = ["# Controllers through manoeuvres", "",
              f"`{command}`: {len(events)} events, {n_followers} followers, scenario seed {seed}, "
              f"the ideal plant from the recorded start, the real plant from a "
-             f"{REAL_WARMUP_S:g} s settled start, "
+             f"{real_warmup_s:g} s settled start, "
              f"wall time {wall_s:.0f} s. Manoeuvre columns over the events in which every "
              "controller of the table did the manoeuvre (paired); `done`: each controller's "
              "own count. What the columns mean: docs/scenarios.md.", ""]

@@ -95,7 +95,7 @@ def test_replay_cut_out_on_the_real_plant(capsys, tmp_path):
 
 def test_evaluate_scenarios_writes_a_table_per_manoeuvre_and_plant(capsys, tmp_path):
     code, out, _ = run(capsys, "evaluate", "--suite", "scenarios", "--scenario", "cut-out",
-                       "--events", "2", "--workers", "1",
+                       "--quick", "--events", "2", "--workers", "1",
                        "--out", str(tmp_path / "s"))
     assert code == 0
     text = (tmp_path / "s" / "scenarios.md").read_text()
