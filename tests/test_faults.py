@@ -436,3 +436,20 @@ def test_sigterm_to_replay_gui_takes_sumo_gui_down(tmp_path):
     time.sleep(0.2)
     assert not alive(gui), "sumo-gui outlived its command"
     assert list(tmp_path.iterdir()) == []
+
+
+# --- training options out of range ----------------------------------------------------------
+
+BAD_TRAINING = ["--noise -1", "--hidden 0", "--message-dim -1", "--noise-correlation 1",
+                "--eval-events 0", "--adj-max 0", "--w-gap nan", "--jerk-scale 0",
+                "--critic-burn-in -3", "--braking-events -1", "--smooth-jerk inf", "--seed -1",
+                "--adj-l2 -1", "--w-safe inf", "--actor-lr -1", "--gamma 1.5", "--tau 2",
+                "--vehicles 100000"]
+
+
+@pytest.mark.parametrize("option", BAD_TRAINING)
+def test_a_training_option_out_of_range_is_one_line_before_any_work(tmp_path, capsys, option):
+    code = main(["train", "--out", str(tmp_path / "p.pt"), "--steps", "50",
+                 "--learning-starts", "10", *option.split()])
+    one_line_exit_2(code, capsys.readouterr().err, option.split()[0])
+    assert list(tmp_path.iterdir()) == []

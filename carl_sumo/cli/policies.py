@@ -45,6 +45,36 @@ def _check_learning_values(args: argparse.Namespace) -> None:
                              f"got {value}")
     if args.gamma is not None and not (math.isfinite(args.gamma) and 0 < args.gamma <= 1):
         raise InputError(f"--gamma is a discount per step in (0, 1], got {args.gamma}")
+    _check_ranges(args)
+
+
+_RANGES = {  # option: (lowest, highest, whether the bounds are allowed), finite in any case
+    "noise": (0.0, math.inf, True), "w_gap": (0.0, math.inf, True),
+    "w_safe": (0.0, math.inf, True), "w_comfort": (0.0, math.inf, True),
+    "w_accel": (0.0, math.inf, True), "smooth_jerk": (0.0, math.inf, True),
+    "smooth_accel": (0.0, math.inf, True), "adj_l2": (0.0, math.inf, True),
+    "adj_max": (0.0, math.inf, False), "jerk_scale": (0.0, math.inf, False),
+    "noise_correlation": (0.0, 1.0, None), "critic_burn_in": (0, math.inf, True),
+    "braking_events": (0, math.inf, True), "seed": (0, math.inf, True),
+    "val_seed": (0, math.inf, True), "impairment_seed": (0, math.inf, True),
+    "hidden": (1, math.inf, True), "message_dim": (1, math.inf, True),
+    "eval_events": (1, math.inf, True)}
+"""The ranges of train's numeric options (None: the lowest bound is allowed, not the highest)."""
+
+
+def _check_ranges(args: argparse.Namespace) -> None:
+    """InputError, one line, for a training option outside :data:`_RANGES` (before any run)."""
+    for name, (low, high, closed) in _RANGES.items():
+        value = getattr(args, name, None)
+        if value is None:
+            continue
+        inside = math.isfinite(value) and (low <= value if closed is not False else low < value) \
+            and (value <= high if closed else value < high)
+        if not inside:
+            bounds = ("[" if closed is not False else "(") + f"{low:g}, " + (
+                f"{high:g}]" if closed and high < math.inf else f"{high:g})")
+            raise InputError(f"--{name.replace('_', '-')} must be a finite number in {bounds}, "
+                             f"got {value}")
 
 
 def check_train_args(args: argparse.Namespace) -> Path:
