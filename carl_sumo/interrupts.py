@@ -37,29 +37,34 @@ class Interrupted(KeyboardInterrupt):
 
 
 def exit_status(exc: KeyboardInterrupt) -> int:
-    """The exit status of a command stopped by ``exc`` (130 for a plain Ctrl-C)."""
-    return exc.exit_status if isinstance(exc, Interrupted) else 128 + signal.SIGINT
+    """The exit status of a command stopped by ``exc``: 128 + the signal's number, also where a
+    library turned the Interrupted into a plain KeyboardInterrupt (Ray's waits do); 130 for a
+    KeyboardInterrupt without a signal seen."""
+    if isinstance(exc, Interrupted):
+        return exc.exit_status
+    return 128 + (_received or signal.SIGINT)
 
 
 _stopping = False
+_received = 0  # the stop signal seen last (0: none)
 
 
 def _raise(signum: int, frame: Any) -> None:
     """Raise Interrupted once; later signals arrive while the command cleans up: ignored."""
-    global _stopping
+    global _stopping, _received
     if _stopping:
         return
-    _stopping = True
+    _stopping, _received = True, signum
     raise Interrupted(signum)
 
 
 def stop_on_signals() -> Callable[[], None]:
     """Make SIGINT, SIGTERM and SIGHUP raise :class:`Interrupted` (main thread only; elsewhere
     nothing changes); returns the function that puts the previous handlers back."""
-    global _stopping
+    global _stopping, _received
     if threading.current_thread() is not threading.main_thread():
         return lambda: None
-    _stopping = False
+    _stopping, _received = False, 0
     previous = {s: signal.signal(s, _raise) for s in STOP_SIGNALS}
 
     def restore() -> None:

@@ -125,3 +125,31 @@ def test_train_with_ray_actors_takes_the_same_steps(tmp_path, capsys):
     assert main([*args, "--out", str(tmp_path / "ray" / "p.pt"), "--ray", "local"]) == 0
     local = curve(tmp_path / "local" / "p.csv")
     assert len(local) == 3 and curve(tmp_path / "ray" / "p.csv") == local
+
+
+def test_sigterm_stops_a_ray_run_with_its_workers(tmp_path):
+    """SIGTERM to `evaluate --quick --ray local` once Ray's workers run: exit status 143 (Ray's
+    waits turn the signal's exception into a plain KeyboardInterrupt; the status still says
+    SIGTERM), one line, and no process of the Ray runtime left (issue 37)."""
+    import signal
+    import time
+
+    sys.path.insert(0, str(REPO_ROOT / "tests"))
+    from test_faults import alive, command_of, descendants
+
+    proc = subprocess.Popen([sys.executable, "-m", "carl_sumo", "evaluate", "--quick", "--ray",
+                             "local", "--workers", "2", "--out", str(tmp_path / "ev")],
+                            cwd=REPO_ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True)
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None and not any(
+            "ray::" in command_of(p) for p in descendants(proc.pid)):  # a Ray worker runs
+        time.sleep(0.2)
+    time.sleep(2.0)
+    below = descendants(proc.pid)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert err.strip().splitlines()[-1] == "carl-sumo: interrupted"
+    time.sleep(2.0)
+    assert below and not [p for p in below if alive(p)], "a Ray process outlived its command"
