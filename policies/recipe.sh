@@ -15,11 +15,12 @@ PAPER="--adj-max 1 --w-gap 0.3 --w-comfort 300 --smooth-jerk 0.05 --smooth-accel
 # reward (--w-gap 0: the base holds its time gap; with the paper's 0.3 the learned term opened the gap, docs/training.md).
 REAL="--base ploeg:h=0.8:kp=0.0445:kd=1 --plant-randomize --warmup 10 --shield-ttc 4 --adj-max 1 --w-gap 0 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort --update-every 3 --scale-rates"
 # real_acc_recipe: the communication test on the real plant. The base is radar-only (an ACC at h = 0.8 s,
-# kp = 0.3, kd = 1.5: collision-free on 120 training events of the real plant, not string stable), so
-# the predecessor's acceleration reaches a vehicle only through the learned CA messages: a_adj enters
-# the law where a CACC feeds the predecessor's command forward, hence |a_adj| up to 2 m/s^2. CA-off
-# and plain TD3 on the same base can only use the vehicle's own radar (docs/training.md).
-REAL_ACC="${REAL/--base ploeg:h=0.8:kp=0.0445:kd=1/--base acc:h=0.8:kp=0.3:kd=1.5}"
+# kp = 0.1, kd = 1), and a_adj enters its law where a CACC feeds the predecessor's command forward, so
+# the CACC with the same gains is the ACC plus a_adj = the predecessor's acceleration: the actor first
+# copies that CACC (--imitate), then RL improves on it. Only the CA messages carry the predecessor's
+# acceleration: CA-off and plain TD3 on the same recipe can only use the vehicle's own radar.
+# |a_adj| up to 2 m/s^2 (it carries a feed-forward); docs/training.md.
+REAL_ACC="${REAL/--base ploeg:h=0.8:kp=0.0445:kd=1/--base acc:h=0.8:kp=0.1:kd=1 --imitate ploeg:h=0.8:kp=0.1:kd=1}"
 REAL_ACC="${REAL_ACC/--adj-max 1/--adj-max 2}"
 PRODUCT="--base ploeg-tuned:h=0.8 --shield-ttc 4 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
 

@@ -129,12 +129,10 @@ def check_train_args(args: argparse.Namespace) -> Path:
 
         read_policy_payload(args.init)
     if args.imitate is not None:
-        from carl_sumo.learn.imitation import teacher
+        from carl_sumo.learn.imitation import check_teacher_base, teacher
 
         teacher(args.imitate)
-        if args.base not in (None, "idm"):
-            raise InputError("--imitate warm-starts the paper's IDM-based adjustment; a run on "
-                             "a classical --base starts on that base already: leave one out")
+        check_teacher_base(args.imitate, args.base or "idm")
     starts = args.learning_starts
     if starts is not None and (starts < 0 or starts >= args.steps):
         raise InputError(f"--learning-starts {starts} leaves no training step in --steps "
@@ -268,9 +266,11 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
     _add_robust_training_options(p)
     add_warmup(p)
     p.add_argument("--imitate", default=None, metavar="PLOEG",
-                   help="warm start (IDM base only): the platoons drive with this Ploeg CACC plus "
-                        "exploration noise for --learning-starts steps, then the actor is fitted "
-                        "to it before RL, e.g. ploeg:h=1.1:kp=2.278:kd=10.6313")
+                   help="warm start: the platoons drive with this Ploeg CACC plus exploration noise "
+                        "for --learning-starts steps, then the actor is fitted to it before RL, "
+                        "e.g. ploeg:h=1.1:kp=2.278:kd=10.6313 on the IDM base, or on an ACC base "
+                        "the CACC with its gains (--base acc:h=0.8:kp=0.3:kd=1.5 --imitate "
+                        "ploeg:h=0.8:kp=0.3:kd=1.5)")
     p.add_argument("--imitate-updates", type=int, default=None,
                    help="behaviour-cloning gradient steps of --imitate (default 4000)")
     p.add_argument("--init", default=None, metavar="POLICY.pt",

@@ -1,6 +1,8 @@
 """Warm start by imitation: the actor first copies a classical CACC, then RL improves on it.
 
-``carl-sumo train --imitate ploeg:h=1.1:kp=2.278:kd=10.6313`` (the paper's IDM base only).
+``carl-sumo train --imitate ploeg:h=1.1:kp=2.278:kd=10.6313`` on the paper's IDM base, or
+``--imitate ploeg:h=0.8:kp=0.3:kd=1.5 --base acc:h=0.8:kp=0.3:kd=1.5`` on a radar-only ACC base
+with the same gains (see "On an ACC base" below).
 
 **Teacher.** Ploeg's law (:mod:`carl_sumo.control.cacc`) read from the platoon's observations, so that
 every state can be labelled, including states the teacher itself would not reach: the
@@ -21,6 +23,13 @@ target plus the run's exploration noise (DART, Laskey et al. 2017: noise while t
 drives, so the data covers the states a slightly-off student reaches); the labels are the
 teacher's clean targets on the stored states, recomputed from the replay buffer (so a resumed run
 needs nothing else).
+
+**On an ACC base.** The ACC is Ploeg's law without the predecessor's message, and a_adj enters
+that law where the CACC feeds the message forward (:meth:`carl_sumo.control.cacc.PloegController.step`).
+With the same h, kp and kd the CACC is therefore the ACC with a_adj,i = a_{i-1}, the
+predecessor's acceleration (0 for the first follower, behind the human leader), and that is the
+target. Only the V2V messages carry a_{i-1} to vehicle i: a communication-aware actor can copy the
+teacher, an actor that hears nothing (CA-off, TD3) only its mean given o_i.
 
 **Fit.** At ``--learning-starts`` the actor is fitted to the targets by mean squared error
 (:meth:`carl_sumo.learn.agents.Agent.imitate`); its target network is set to it; the cloned actor is
@@ -48,6 +57,31 @@ def teacher(name: str) -> PloegController:
         raise InputError(f"--imitate {name!r}: name a Ploeg CACC to imitate, e.g. "
                          "ploeg:h=1.1:kp=2.278:kd=10.6313 or ploeg-tuned:h=1")
     return ploeg_controller(name)
+
+
+def check_teacher_base(name: str, base: str) -> None:
+    """InputError unless ``name`` can be imitated on ``base``: any Ploeg CACC on the IDM base, or
+    on an ACC base the Ploeg CACC with the ACC's own gains (the module docstring)."""
+    if base == "idm":
+        return
+    from carl_sumo.control.cacc import parse_ploeg
+
+    law, acc = parse_ploeg(name), parse_ploeg(base) if is_ploeg_name(base) else None
+    if acc is None or acc.feed_forward or not law.feed_forward or \
+            (law.time_gap_s, law.kp, law.kd) != (acc.time_gap_s, acc.kp, acc.kd):
+        raise InputError(f"--imitate {name} on --base {base}: imitate on the IDM base, or on an "
+                         "ACC base (acc:h=H:kp=KP:kd=KD) the CACC with its gains "
+                         "(ploeg:h=H:kp=KP:kd=KD), whose adjustment is the predecessor's message")
+
+
+def predecessor_adjustment(obs: np.ndarray, adj_max: float) -> np.ndarray:
+    """The target a_adj (m/s², shape (..., n)) on an ACC base: a_{i-1}, the predecessor's
+    acceleration (o's second column; 0 for the head), clipped to ``TARGET_FRACTION``·``adj_max``."""
+    obs = np.asarray(obs, dtype=np.float64)
+    target = np.zeros(obs.shape[:-1])
+    target[..., 1:] = obs[..., :-1, 1]
+    bound = TARGET_FRACTION * min(adj_max, BOUNDS.adj_max_mps2)
+    return np.clip(target, -bound, bound)
 
 
 def teacher_acceleration(controller: PloegController, obs: np.ndarray,
@@ -80,8 +114,16 @@ def teacher_adjustment(controller: PloegController, obs: np.ndarray, adj_max: fl
     return np.clip(teacher_acceleration(controller, obs, with_ahead) - a_idm, -bound, bound)
 
 
+def target_adjustment(controller: PloegController, obs: np.ndarray, adj_max: float,
+                      with_ahead: bool = False, base: str = "idm") -> np.ndarray:
+    """The teacher's target a_adj (m/s², shape (..., n)) on ``base``: IDM or an ACC."""
+    if base != "idm":
+        return predecessor_adjustment(obs, adj_max)
+    return teacher_adjustment(controller, obs, adj_max, with_ahead)
+
+
 def dataset(controller: PloegController, obs: torch.Tensor, adj_max: float,
-            with_ahead: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+            with_ahead: bool = False, base: str = "idm") -> tuple[torch.Tensor, torch.Tensor]:
     """(observations, target a_adj) of stored platoon observations (batch, n, 4 or 5)."""
-    target = teacher_adjustment(controller, obs.numpy(), adj_max, with_ahead)
+    target = target_adjustment(controller, obs.numpy(), adj_max, with_ahead, base)
     return obs, torch.as_tensor(target, dtype=torch.float32)

@@ -25,7 +25,7 @@ from carl_sumo.learn.ca_scan import keep_heap_memory
 from carl_sumo.data.events import Event
 from carl_sumo.control.controllers import adjustment_bounds
 from carl_sumo.learn.env import PlatoonEnv
-from carl_sumo.learn.imitation import teacher_adjustment
+from carl_sumo.learn.imitation import target_adjustment
 from carl_sumo.errors import InputError
 from carl_sumo.sim.metrics import aggregate
 from carl_sumo.learn.models import CommunicationAware
@@ -358,8 +358,8 @@ def _choose_action(cfg: TrainConfig, agent: Agent, obs: np.ndarray, links, chann
     if not acting:  # the base (or the teacher) plus exploration noise
         action = noise.sample()
         if teacher is not None:
-            action = action + teacher_adjustment(teacher, obs, agent.cfg.adj_max,
-                                                 cfg.observe_ahead)
+            action = action + target_adjustment(teacher, obs, agent.cfg.adj_max,
+                                                cfg.observe_ahead, cfg.base)
         action = np.clip(action, -agent.cfg.adj_max, agent.cfg.adj_max)
     elif links is None:
         action = agent.act(obs, noise.sample())
@@ -396,9 +396,7 @@ def _teacher(cfg: TrainConfig):
     """The controller a run imitates (None without ``--imitate``); InputError when it cannot."""
     if cfg.imitate is None:
         return None
-    if cfg.base != "idm":
-        raise InputError("--imitate warm-starts the paper's IDM-based adjustment; a run on a "
-                         "classical --base starts on that base already: leave one of them out")
+    imitation.check_teacher_base(cfg.imitate, cfg.base)
     if cfg.learning_starts < 1:
         raise InputError("--imitate needs --learning-starts steps of teacher driving to copy")
     return imitation.teacher(cfg.imitate)
@@ -411,7 +409,7 @@ def _clone_teacher(cfg: TrainConfig, agent: Agent, teacher, buffer: ReplayBuffer
     """Fit the actor to the teacher on every stored state, validate it and keep it as the first
     candidate; returns its selection score (see :mod:`carl_sumo.learn.imitation`)."""
     obs, target = imitation.dataset(teacher, buffer.obs[:buffer.size], agent.cfg.adj_max,
-                                    cfg.observe_ahead)
+                                    cfg.observe_ahead, cfg.base)
     mse = agent.imitate(obs, target, cfg.imitate_updates, cfg.imitate_lr, 256, rng)
     score, val = _validate_and_keep(cfg, agent, val_env, val_events, baseline, baseline_events,
                                     out)

@@ -13,7 +13,8 @@ from carl_sumo.control.controllers import AheadAcceleration, adjustment_bounds, 
     idm_acceleration
 from carl_sumo.learn.env import PlatoonEnv
 from carl_sumo.errors import InputError
-from carl_sumo.learn.imitation import teacher, teacher_acceleration, teacher_adjustment
+from carl_sumo.learn.imitation import check_teacher_base, predecessor_adjustment, teacher, \
+    teacher_acceleration, teacher_adjustment
 from carl_sumo.learn.policy import load_controller, load_policy
 from carl_sumo.learn.train import TrainConfig, train
 
@@ -110,9 +111,37 @@ def test_an_imitating_run_keeps_the_cloned_actor_and_simulates_as_it_validated(t
         np.testing.assert_allclose(accel, expected, atol=1e-5)
 
 
-def test_imitate_is_refused_on_a_classical_base(tmp_path):
-    cfg = TrainConfig(algo="ca-td3", base="ploeg:h=0.8", imitate=TEACHER, net=str(NET),
+@pytest.mark.parametrize("base, imitate", [
+    ("ploeg:h=0.8", TEACHER),                               # a CACC base: nothing to add
+    ("acc:h=0.8:kp=0.1:kd=1", "ploeg:h=0.8:kp=0.2:kd=1"),   # other gains than the ACC's
+    ("acc:h=0.8:kp=0.1:kd=1", "acc:h=0.8:kp=0.1:kd=1"),     # the ACC itself
+])
+def test_imitate_is_refused_where_the_teacher_is_not_base_plus_adjustment(tmp_path, base, imitate):
+    cfg = TrainConfig(algo="ca-td3", base=base, imitate=imitate, net=str(NET),
                       out=str(tmp_path / "x.pt"))
     with pytest.raises(InputError, match="--imitate"):
         train(cfg, [cruise_event(100)], progress=False)
     assert not (tmp_path / "x.pt").exists()
+
+
+def test_on_an_acc_base_the_predecessors_acceleration_makes_it_the_cacc_with_its_gains():
+    """The ACC (radar only) driven with a_adj,i = a_{i-1} (the target of --imitate on an ACC base)
+    applies what the CACC with the same gains applies, where the CACC hears its predecessor's
+    applied acceleration: the two runs stay identical step by step."""
+    acc, cacc = "acc:h=0.8:kp=0.1:kd=1", "ploeg:h=0.8:kp=0.1:kd=1"
+    check_teacher_base(cacc, acc)  # accepted
+    env = PlatoonEnv([braking_event(v0=12.0)], 4, NET, base=acc)
+    law = ploeg_controller(cacc)
+    law.reset(4)
+    obs = env.reset_array()
+    done, k = False, 0
+    while not done:
+        target = predecessor_adjustment(obs, adj_max=3.0)
+        held = np.concatenate([[0.0], np.clip(obs[:-1, 1], -2.85, 2.85)])
+        assert np.array_equal(target, held)
+        expected = law.step(np.ascontiguousarray(obs[:, :4]), law.u, 0.0, None,
+                            np.ones(4, dtype=np.int64), held)  # hears a_{i-1} as its message
+        obs, _, term, trunc, accel = env.step_array(target)
+        np.testing.assert_allclose(accel, expected, atol=1e-9)
+        done, k = term or trunc, k + 1
+    assert k > 50
