@@ -98,3 +98,31 @@ def test_training_envs_report_a_dead_worker_in_one_line():
         assert "\n" not in str(info.value)
     finally:
         vec.close()
+
+
+def test_workers_die_with_a_command_killed_by_sigkill():
+    """SIGKILL cannot be handled: the workers see their parent go (PR_SET_PDEATHSIG on Linux)
+    and end too, instead of waiting for tasks for ever (issue 37)."""
+    import subprocess
+    import sys
+    import time
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the parent-death signal is Linux's")
+    from conftest import REPO_ROOT
+    from test_faults import alive, children_of
+
+    proc = subprocess.Popen([sys.executable, "-m", "carl_sumo", "simulate", "--workers", "2",
+                             "--split", "all", "--vehicles", "5"], cwd=REPO_ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 60
+    while len(children_of(proc.pid)) < 2 and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.1)
+    time.sleep(1.0)
+    workers = children_of(proc.pid)
+    proc.kill()
+    proc.wait()
+    deadline = time.time() + 30  # a worker still importing ends when it starts
+    while any(alive(w) for w in workers) and time.time() < deadline:
+        time.sleep(0.2)
+    assert len(workers) >= 2 and not [w for w in workers if alive(w)]
