@@ -453,3 +453,14 @@ def test_a_training_option_out_of_range_is_one_line_before_any_work(tmp_path, ca
                  "--learning-starts", "10", *option.split()])
     one_line_exit_2(code, capsys.readouterr().err, option.split()[0])
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv", [["simulate", "--controller", "ploeg", "--comm-loss", "0.1"],
+                                  ["replay", "--controller", "ploeg", "--plant", "real",
+                                   "--event", EVENT, "--split", "all", "--fcd", "f.xml"]],
+                         ids=["simulate", "replay"])
+def test_a_negative_impairment_seed_is_one_line(tmp_path, monkeypatch, capsys, argv):
+    monkeypatch.chdir(tmp_path)
+    code = main(argv + ["--events", "1"] * (argv[0] == "simulate") + ["--impairment-seed", "-1"])
+    one_line_exit_2(code, capsys.readouterr().err, "--impairment-seed must be 0 or more")
+    assert list(tmp_path.iterdir()) == []

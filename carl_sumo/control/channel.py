@@ -103,6 +103,8 @@ class Impairments:
                              f"got {self.timeout_s}")
         if not (math.isfinite(self.fade_s) and self.fade_s >= 0):
             raise InputError(f"--comm-fade must be 0 s or more, got {self.fade_s}")
+        if self.seed < 0:
+            raise InputError(f"--impairment-seed must be 0 or more, got {self.seed}")
 
     @property
     def delay_steps(self) -> int:
