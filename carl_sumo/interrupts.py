@@ -7,8 +7,9 @@ main thread, so every ``finally`` runs: temporary output files are removed
 exits with status 128 + the signal's number, writing nothing. A second signal while that clean-up
 runs is ignored (SIGKILL still stops the process at once).
 
-Worker processes call :func:`die_with_parent`: on Linux they are killed when the process that
-started them ends, even by SIGKILL, so no worker outlives its command.
+Worker processes call :func:`die_with_parent`: they leave Ctrl-C to their command (no traceback
+of theirs on the terminal), and on Linux they are killed when the process that started them
+ends, even by SIGKILL, so no worker outlives its command.
 """
 
 from __future__ import annotations
@@ -85,8 +86,13 @@ def reinstall() -> None:
 
 
 def die_with_parent() -> None:
-    """In a worker process (Linux): be killed when the process that started it ends, however it
-    ends; a worker whose parent has already gone exits at once. Elsewhere: nothing."""
+    """In a worker process: leave Ctrl-C and a hang-up (which a terminal sends to every process
+    of the command) to the command, which stops its workers itself; and (Linux) be killed when
+    the process that started it ends, however it ends: a worker whose parent has already gone
+    exits at once."""
+    for s in (getattr(signal, "SIGINT", None), getattr(signal, "SIGHUP", None)):
+        if s is not None and threading.current_thread() is threading.main_thread():
+            signal.signal(s, signal.SIG_IGN)
     if not sys.platform.startswith("linux"):
         return
     import ctypes

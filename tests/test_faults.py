@@ -237,18 +237,24 @@ def alive(pid: int) -> bool:
         return False
 
 
-def run_and_signal(argv: list[str], signum: int, delay_s: float, ready) -> tuple[int, str, list]:
+def run_and_signal(argv: list[str], signum: int, delay_s: float, ready, group: bool = False
+                   ) -> tuple[int, str, list]:
     """Start ``carl-sumo argv``, wait until ``ready(pid)`` holds, then ``delay_s``, send
-    ``signum``; (exit status, stderr, the child processes it had before the signal)."""
+    ``signum`` (``group``: to all its processes, as a terminal's Ctrl-C does); (exit status,
+    stderr, the child processes it had before the signal)."""
     proc = subprocess.Popen([sys.executable, "-m", "carl_sumo", *argv], cwd=REPO_ROOT,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            start_new_session=group)
     try:
         deadline = time.time() + 60
         while not ready(proc.pid) and time.time() < deadline and proc.poll() is None:
             time.sleep(0.05)
         time.sleep(delay_s)
         children = children_of(proc.pid)
-        proc.send_signal(signum)
+        if group:
+            os.killpg(proc.pid, signum)
+        else:
+            proc.send_signal(signum)
         _, err = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
@@ -257,17 +263,19 @@ def run_and_signal(argv: list[str], signum: int, delay_s: float, ready) -> tuple
     return proc.returncode, err, children
 
 
-@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP],
-                         ids=["SIGTERM", "SIGINT", "SIGHUP"])
-def test_a_signal_stops_simulate_with_its_workers(tmp_path, signum):
+@pytest.mark.parametrize("signum, group", [(signal.SIGTERM, False), (signal.SIGINT, False),
+                                           (signal.SIGHUP, False), (signal.SIGINT, True)],
+                         ids=["SIGTERM", "SIGINT", "SIGHUP", "Ctrl-C"])
+def test_a_signal_stops_simulate_with_its_workers(tmp_path, signum, group):
     """simulate --workers 2 on the shipped leader set, stopped at a (seeded) random moment once
-    its two workers run: exit 128 + n, no output, no temporary file, no process left."""
-    delay = random.Random(signum).uniform(0.2, 2.0)
+    its two workers run: exit 128 + n, one line (none from the workers, also when a terminal's
+    Ctrl-C reaches them too), no output, no temporary file, no process left."""
+    delay = random.Random(signum + group).uniform(0.2, 2.0)
     out = tmp_path / "s.json"
     code, err, children = run_and_signal(
         ["simulate", "--workers", "2", "--split", "all", "--data", "default", "--net",
          "networks/i80.net.xml", "--vehicles", "5", "--json", str(out)], signum, delay,
-        lambda pid: len(children_of(pid)) >= 2)
+        lambda pid: len(children_of(pid)) >= 2, group)
     assert len(children) >= 2, "the workers had not started"
     assert code == 128 + signum, err
     assert err.strip() == "carl-sumo: interrupted", err
