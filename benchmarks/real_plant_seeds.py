@@ -7,7 +7,11 @@ settled start); ‖Γ‖∞ of the CA seeds per class at 0.5 and 2 m/s (5 follow
 Writes ``docs/results_real/learned_test.json`` (CA, with ‖Γ‖∞) and ``learned_test_nocomm.json``
 and prints the comparison. About 15 minutes on 2 free cores.
 
-Usage: python benchmarks/real_plant_seeds.py [DATA]
+Usage: python benchmarks/real_plant_seeds.py [DATA] [CA_STEM CA_OFF_STEM [--no-hinf]]
+
+With stems (e.g. ``ca_td3_real_acc_10 ca_td3_real_acc_nocomm_10``, the communication test on the
+radar-only base) the same for those models, written to ``learned_test_<CA_STEM>.json`` and
+``learned_test_<CA_OFF_STEM>.json``.
 """
 import glob
 import json
@@ -24,6 +28,7 @@ from carl_sumo.errors import InputError
 from carl_sumo.experiments.simulate import simulate
 from carl_sumo.experiments.string_stability import SineTest, string_stability
 from carl_sumo.files import write_text_atomic
+from carl_sumo.files import write_text_atomic
 from carl_sumo.sim.vehicle import REAL_COMM_DELAY_S, REAL_PLANT
 
 OUT = Path("docs/results_real")
@@ -35,7 +40,7 @@ REAL = Impairments(delay_s=REAL_COMM_DELAY_S, plant=REAL_PLANT)
 def test_split(model: str, events) -> dict:
     """Every seed file of ``model`` on the events: {path: metrics}."""
     rows = {}
-    for path in sorted(glob.glob(f"policies/seeds/{model}_seed*.pt")):
+    for path in sorted(glob.glob(f"policies/seeds/{model}_seed[0-9]*.pt")):
         metrics = simulate(path, events, 10, workers=2, impairments=REAL)["metrics"]
         rows[path] = {k: metrics[k] for k in KEYS}
         print(path, rows[path], flush=True)
@@ -59,16 +64,23 @@ def add_hinf(rows: dict) -> None:
 
 
 def main() -> None:
-    data = sys.argv[1] if len(sys.argv) > 1 else "../shared/data/ngsim/ngsim_cf_events.csv.gz"
+    args = [a for a in sys.argv[1:] if a != "--no-hinf"]
+    data = args[0] if args else "../shared/data/ngsim/ngsim_cf_events.csv.gz"
+    ca_stem, off_stem = args[1:3] if len(args) >= 3 else ("ca_td3_real_10",
+                                                          "ca_td3_real_nocomm_10")
+    default = ca_stem == "ca_td3_real_10"
     events = [e.with_warmup(60.0) for e in load_events(data, "test")]
     OUT.mkdir(parents=True, exist_ok=True)
-    ca = test_split("ca_td3_real_10", events)
-    add_hinf(ca)
-    write_text_atomic(OUT / "learned_test.json", json.dumps(ca, indent=1))
-    off = test_split("ca_td3_real_nocomm_10", events)
-    write_text_atomic(OUT / "learned_test_nocomm.json", json.dumps(off, indent=1))
-    pairs = [(ca[p], off[p.replace("ca_td3_real_10", "ca_td3_real_nocomm_10")]) for p in ca
-             if p.replace("ca_td3_real_10", "ca_td3_real_nocomm_10") in off]
+    ca = test_split(ca_stem, events)
+    if "--no-hinf" not in sys.argv:
+        add_hinf(ca)
+    write_text_atomic(OUT / ("learned_test.json" if default else f"learned_test_{ca_stem}.json"),
+                      json.dumps(ca, indent=1))
+    off = test_split(off_stem, events)
+    write_text_atomic(OUT / ("learned_test_nocomm.json" if default
+                             else f"learned_test_{off_stem}.json"), json.dumps(off, indent=1))
+    pairs = [(ca[p], off[p.replace(ca_stem, off_stem)]) for p in ca
+             if p.replace(ca_stem, off_stem) in off]
     for key in KEYS:
         a = np.array([x[key] for x, _ in pairs], float)
         b = np.array([y[key] for _, y in pairs], float)

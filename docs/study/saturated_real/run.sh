@@ -1,0 +1,12 @@
+#!/usr/bin/env bash
+# The saturating-demand study of docs/study.md with the CACC vehicles on the real plant (--plant real:
+# 80 % cars, 20 % trucks with their lags and dead times, 0.1 s V2V delay): demand x1.5, 300 s warm-up
+# + 600 s measured, seeds 0 and 1, p = 1 for each controller (p = 0, humans only, has no CACC vehicle:
+# the plant does not enter it, see docs/study/saturated/). Outputs: results/study_saturated_real/<controller>/.
+set -euo pipefail
+cd "$(dirname "$0")/../../.."
+common="--net networks/i80.net.xml --demand-scale 1.5 --duration 600 --warmup 300 --seeds 2 --plant real --penetration 1"
+out=results/study_saturated_real
+carl-sumo study $common --controller policies/ca_td3_real_10.pt --out $out/ca_td3_real_10
+carl-sumo study $common --controller ploeg:h=0.8:kp=0.0445:kd=1 --out $out/ploeg_robust_h08
+carl-sumo study $common --controller acc:h=2.5:kp=0.45:kd=1.5 --out $out/acc_robust_h25
