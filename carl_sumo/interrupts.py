@@ -85,6 +85,30 @@ def reinstall() -> None:
             signal.signal(s, _raise)
 
 
+_in_task = False  # whether this worker process runs a task now
+
+
+def _stop_worker(signum: int, frame: Any) -> None:
+    """In a worker: a task stops as a command does (its ``finally`` blocks remove its temporary
+    files, :func:`run_task` then ends the process); an idle worker ends at once."""
+    if _in_task:
+        _raise(signum, frame)
+    os._exit(128 + signum)
+
+
+def run_task(fn: Callable[..., Any], *args: Any) -> Any:
+    """``fn(*args)`` in a worker process; SIGTERM (its command stopping it) interrupts it, and
+    once its clean-up has run the worker exits without a traceback or a result."""
+    global _in_task
+    _in_task = True
+    try:
+        return fn(*args)
+    except Interrupted as exc:
+        os._exit(exc.exit_status)
+    finally:
+        _in_task = False
+
+
 def die_with_parent() -> None:
     """In a worker process: leave Ctrl-C and a hang-up (which a terminal sends to every process
     of the command) to the command, which stops its workers itself; and (Linux) be killed when
@@ -93,6 +117,8 @@ def die_with_parent() -> None:
     for s in (getattr(signal, "SIGINT", None), getattr(signal, "SIGHUP", None)):
         if s is not None and threading.current_thread() is threading.main_thread():
             signal.signal(s, signal.SIG_IGN)
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _stop_worker)  # a task cleans up (see run_task)
     if not sys.platform.startswith("linux"):
         return
     import ctypes

@@ -284,6 +284,21 @@ def test_a_signal_stops_simulate_with_its_workers(tmp_path, signum, group):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_sigterm_to_study_leaves_no_temporary_run_folder(tmp_path):
+    """A study's runs write SUMO's outputs into a temporary folder in their worker processes:
+    stopped, each worker removes its own before it ends."""
+    code, err, children = run_and_signal(
+        ["study", "--penetration", "0,1", "--seeds", "1", "--duration", "300", "--warmup", "60",
+         "--workers", "2", "--out", str(tmp_path / "st")], signal.SIGTERM,
+        random.Random(11).uniform(1.0, 3.0),
+        lambda pid: len(list((tmp_path / "st" / "runs").glob(".*.tmp"))) >= 1)
+    assert code == 128 + signal.SIGTERM, err
+    assert err.strip() == "carl-sumo: interrupted", err
+    time.sleep(0.2)
+    assert not [c for c in children if alive(c)]
+    assert not [p for p in tmp_path.rglob("*") if p.is_file() or p.name.endswith(".tmp")]
+
+
 def test_sigterm_to_replay_leaves_no_fcd_and_no_temporary_file(tmp_path):
     fcd = tmp_path / "f.xml"
     code, err, _ = run_and_signal(

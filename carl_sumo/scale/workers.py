@@ -21,7 +21,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Iterator, Sequence
 
-from carl_sumo.interrupts import die_with_parent
+from carl_sumo.interrupts import die_with_parent, run_task
 
 
 class WorkerError(RuntimeError):
@@ -70,7 +70,7 @@ def _run_pool(fn: Callable[..., Any], items: Sequence[tuple], indices: Sequence[
     """(index, result) of ``fn(*items[i])`` for ``indices`` in one fresh pool, as they finish;
     the indices of tasks lost with a dead worker are appended to ``lost``."""
     executor = _pool(workers)
-    futures = {executor.submit(fn, *items[i]): i for i in indices}
+    futures = {executor.submit(run_task, fn, *items[i]): i for i in indices}
     finished_all = False
     try:
         while futures:
