@@ -284,12 +284,13 @@ def test_a_signal_stops_simulate_with_its_workers(tmp_path, signum, group):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_sigterm_to_study_leaves_no_temporary_run_folder(tmp_path):
-    """A study's runs write SUMO's outputs into a temporary folder in their worker processes:
-    stopped, each worker removes its own before it ends."""
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_sigterm_to_study_leaves_no_temporary_run_folder(tmp_path, workers):
+    """A study's runs write SUMO's outputs into a temporary folder (in their worker processes,
+    or in the command itself with one worker): stopped, each removes its own."""
     code, err, children = run_and_signal(
         ["study", "--penetration", "0,1", "--seeds", "1", "--duration", "300", "--warmup", "60",
-         "--workers", "2", "--out", str(tmp_path / "st")], signal.SIGTERM,
+         "--workers", workers, "--out", str(tmp_path / "st")], signal.SIGTERM,
         random.Random(11).uniform(1.0, 3.0),
         lambda pid: len(list((tmp_path / "st" / "runs").glob(".*.tmp"))) >= 1)
     assert code == 128 + signal.SIGTERM, err

@@ -110,11 +110,14 @@ class GridPoint:
 _EVENTS: list = []
 
 
-def _worker_init(data: str, split: str, limit: int | None, warmup_s: float = 0.0) -> None:
+def _worker_init(data: str, split: str, limit: int | None, warmup_s: float = 0.0,
+                 pool: bool = False) -> None:
+    """The events of a tuning worker (``pool``: a pool's process, which dies with its command)
+    or of this process."""
     from carl_sumo.data import load_events
-    from carl_sumo.scale.workers import worker_init as torch_threads
+    from carl_sumo.scale.workers import pool_worker_init, worker_init
 
-    torch_threads()
+    pool_worker_init() if pool else worker_init()
     global _EVENTS
     _EVENTS = [e.with_warmup(warmup_s) for e in load_events(data, split, limit=limit)]
 
@@ -148,7 +151,7 @@ class _Runner:
 
             self.pool = mp.get_context("spawn").Pool(
                 workers, initializer=_worker_init,
-                initargs=(cfg.data, cfg.split, limit, cfg.warmup_s))
+                initargs=(cfg.data, cfg.split, limit, cfg.warmup_s, True))
         else:
             self.pool = None
             _worker_init(cfg.data, cfg.split, limit, cfg.warmup_s)

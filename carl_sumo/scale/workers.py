@@ -39,12 +39,18 @@ def set_backend(runner: Callable[..., Iterator[Any]] | None) -> None:
 
 
 def worker_init() -> None:
-    """Each worker: one torch thread (the networks are small; threads only contend), and it
-    dies with the command that started it (:func:`carl_sumo.interrupts.die_with_parent`)."""
+    """Each worker (and a command that runs its tasks itself): one torch thread (the networks are
+    small; threads only contend)."""
     import torch
 
-    die_with_parent()
     torch.set_num_threads(1)
+
+
+def pool_worker_init() -> None:
+    """A pool's worker process: :func:`worker_init`, and it dies with the command that started
+    it, leaving Ctrl-C to it (:func:`carl_sumo.interrupts.die_with_parent`)."""
+    die_with_parent()
+    worker_init()
 
 
 def stop_children(timeout_s: float = 5.0) -> None:
@@ -62,7 +68,7 @@ def stop_children(timeout_s: float = 5.0) -> None:
 
 def _pool(workers: int) -> ProcessPoolExecutor:
     return ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"),
-                               initializer=worker_init)
+                               initializer=pool_worker_init)
 
 
 def _run_pool(fn: Callable[..., Any], items: Sequence[tuple], indices: Sequence[int],
