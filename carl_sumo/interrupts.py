@@ -9,7 +9,9 @@ runs is ignored (SIGKILL still stops the process at once).
 
 Worker processes call :func:`die_with_parent`: they leave Ctrl-C to their command (no traceback
 of theirs on the terminal), and on Linux they are killed when the process that started them
-ends, even by SIGKILL, so no worker outlives its command.
+ends, even by SIGKILL, so no worker outlives its command. When the command stops its workers
+(SIGTERM), a task run through :func:`run_task` is interrupted as a command is, so its own
+clean-up runs (a study run's temporary folder), and the worker then ends.
 """
 
 from __future__ import annotations
