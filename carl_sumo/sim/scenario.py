@@ -4,7 +4,9 @@ per event.
 Positions count vehicles from the front: 0 is the NGSIM leader, 1 the first follower, n the tail.
 
 - **cut-in** ``k`` (0..n-1): a human driver (SUMO's Krauss, type ``human_krauss``; no V2V)
-  enters the platoon lane from the adjacent lane between vehicle k and follower k+1;
+  enters the platoon lane from the adjacent lane between vehicle k and follower k+1; with
+  ``leave`` (``cut-in:leave=5``) he changes back out that many seconds later and the chain of
+  k and k+1 links again;
 - **cut-out** ``k`` (1..n-1): follower k changes into the adjacent lane and leaves; k+1 then
   faces k-1 across the old gaps;
 - **join** ``k`` (0..n): a CACC vehicle enters from the adjacent lane between vehicle k and
@@ -61,6 +63,7 @@ class Manoeuvre:
     time_s: float
     gap_fraction: float = 0.5
     extra_gap_m: float = 0.0
+    leave_s: float | None = None  # cut-in: the human leaves again this long after (s)
 
     @property
     def step(self) -> int:
@@ -73,6 +76,8 @@ class Manoeuvre:
             text += f" f={self.gap_fraction:.2f}"
         if self.kind == "merge":
             text += f" extra={self.extra_gap_m:.1f}m"
+        if self.leave_s is not None:
+            text += f" leave={self.leave_s:g}s"
         return text
 
 
@@ -98,6 +103,7 @@ class ScenarioSpec:
     time_s: float | None = None
     gap_fraction: float | None = None
     extra_gap_m: float | None = None
+    leave_s: float | None = None
     seed: int = 0
 
     def check(self, n_followers: int) -> None:
@@ -138,7 +144,7 @@ class ScenarioSpec:
             self.time_s if self.time_s is not None else float(time_s),
             self.gap_fraction if self.gap_fraction is not None else fraction,
             (self.extra_gap_m if self.extra_gap_m is not None else extra)
-            if self.kind == "merge" else 0.0)
+            if self.kind == "merge" else 0.0, self.leave_s)
 
 
 def _number(spec: str, key: str, text: str) -> float:
@@ -162,6 +168,8 @@ def parse_scenario(text: str, seed: int = 0) -> ScenarioSpec:
     allowed = {"k": "position", "t": "time_s"}
     if kind in ("cut-in", "join"):
         allowed["f"] = "gap_fraction"
+    if kind == "cut-in":
+        allowed["leave"] = "leave_s"
     if kind == "merge":
         allowed["gap"] = "extra_gap_m"
     for part in parts:
@@ -179,6 +187,9 @@ def parse_scenario(text: str, seed: int = 0) -> ScenarioSpec:
         if key == "f" and not 0 < value < 1:
             raise InputError(f"--scenario {text!r}: the gap fraction f must lie in (0, 1), "
                              f"got {value_text}")
+        if key == "leave" and (value <= 0 or abs(value / DT_S - round(value / DT_S)) > 1e-6):
+            raise InputError(f"--scenario {text!r}: leave is a positive time in s, a multiple "
+                             f"of {DT_S} s, got {value_text}")
         if key == "gap" and value <= 0:
             raise InputError(f"--scenario {text!r}: the merge gap must be positive (m), got "
                              f"{value_text}")

@@ -98,6 +98,7 @@ class ScenarioSim(PlatoonSim):
         self.entering: str | None = ENTERING_ID.get(manoeuvre.kind)
         self.phase = "waiting"
         self.done_step: int | None = None
+        self.left_step: int | None = None  # cut-in with leave: the step the human was out
         self.behind: list[str] = []
         self.radar_only: set[str] = set()
         self.offset: dict[str, float] = {}
@@ -212,6 +213,11 @@ class ScenarioSim(PlatoonSim):
             ls.vehicle.changeLane(self.entering, ls.vehicle.getLaneIndex(self.entering) + 1,
                                   LANE_CHANGE_S)
             self.phase = "changing"
+        if self.phase == "done" and m.leave_s is not None and m.kind == "cut-in" \
+                and self.k >= self.done_step + int(round(m.leave_s / DT_S)):
+            ls.vehicle.changeLane(self.entering, ls.vehicle.getLaneIndex(self.entering) - 1,
+                                  LANE_CHANGE_S)  # the human leaves again
+            self.phase = "leaving"
         if self.phase != "waiting" or self.k < m.step:
             return
         if m.kind == "cut-out":
@@ -274,9 +280,12 @@ class ScenarioSim(PlatoonSim):
 
     def _complete(self, ls) -> None:
         """Whether this step's lane change finished the manoeuvre; hand vehicles over."""
+        lanes = set(self.route.lanes)
+        if self.phase == "leaving" and ls.vehicle.getLaneID(self.entering) not in lanes:
+            self.tracked.remove(self.entering)
+            self.left_step, self.phase = self.k, "left"
         if self.phase != "changing":
             return
-        lanes = set(self.route.lanes)
         m = self.manoeuvre
         if m.kind == "cut-out":
             leaver = self.ids[m.position - 1]

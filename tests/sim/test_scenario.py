@@ -74,6 +74,24 @@ def test_cut_in_changes_lane_into_the_gap_and_splits_the_chain(event):
     assert sim.behind == ["f3", "f4", "f5"]
 
 
+def test_a_human_who_leaves_again_lets_the_chain_link_again(event):
+    _, controller = scenario_controller("policies/ca_td3_ploeg_10.pt")
+    sim = ScenarioSim(NET, "external")
+    sim.start(event, N, parse_scenario("cut-in:k=3:t=6:f=0.5:leave=4").draw(event, N))
+
+    def watch(s, ls):
+        ids, _, ahead = s.observe()
+        return len(chains_of(ids, ahead)), ls.vehicle.getLeader("f3", 300)[0]
+
+    seen = _drive(sim, controller, watch)
+    assert (2, "human") in seen  # split while the human is in the lane ...
+    assert seen[-1] == (1, "f2")  # ... one chain again once he is out
+    assert sim.left_step - sim.done_step >= 40 and "human" not in sim.order
+    import libsumo
+
+    assert libsumo.vehicle.getLaneIndex("human") == PLATOON_INDEX - 1
+
+
 def test_the_follower_behind_a_cut_in_acts_on_radar_alone(event):
     """The Ploeg CACC of the follower behind the human gets no feed-forward: its acceleration
     is the radar-only ACC law's on its own measurements, where the follower ahead of the human
@@ -218,7 +236,8 @@ def test_a_manoeuvre_that_did_not_happen_has_nan_metrics():
     ("cut-in:f=0", "gap fraction"), ("cut-in:f=1", "gap fraction"), ("join:f=1.5", "gap fraction"),
     ("overtake", "unknown manoeuvre"), ("cut-out:f=0.5", "not an option"),
     ("cut-in:k=1.5", "whole vehicle position"), ("cut-in:t=-1", "multiple"),
-    ("merge:gap=0", "positive")])
+    ("merge:gap=0", "positive"), ("cut-in:leave=0", "positive time"),
+    ("join:leave=3", "not an option")])
 def test_bad_scenario_text_is_refused(text, message):
     with pytest.raises(InputError, match=message):
         parse_scenario(text)
