@@ -284,3 +284,23 @@ def test_the_draw_is_seeded_per_event(event):
     assert first - 1e-9 <= a.time_s <= last + 1e-9
     draws = {parse_scenario("cut-in", seed=s).draw(event, 10) for s in range(8)}
     assert len(draws) > 1
+
+
+@pytest.mark.parametrize("name", ["ploeg-tuned:h=0.8", "policies/ca_td3_ploeg_10.pt", "idm"])
+def test_before_the_manoeuvre_a_scenario_run_is_the_plain_run(event, name):
+    """Up to the manoeuvre the scenario layer (getLeader gaps, chains, per-vehicle states)
+    drives the platoon as the plain run does (PlatoonSim, the platoon controllers)."""
+    from carl_sumo.experiments.simulate import resolve_controller, run_event
+    from carl_sumo.sim.sumo import PlatoonSim
+
+    model, plain_controller = resolve_controller(name)
+    plain = run_event(PlatoonSim(NET, model), event, N, plain_controller)
+    _, controller = scenario_controller(name)
+    trace = run_scenario_event(ScenarioSim(NET, model), event, N,
+                               Manoeuvre("cut-out", 3, 6.0), controller)
+    cols = [trace.column(f"f{i}") for i in range(N)]
+    before = trace.done_step
+    assert before is not None and before >= 60
+    diff = np.abs(trace.speed[:before, cols] - plain.speed[:before]).max()
+    assert diff < 1e-6, diff
+    assert np.abs(trace.gap[:before, cols] - plain.gap[:before]).max() < 1e-6
