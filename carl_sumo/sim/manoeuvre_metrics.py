@@ -6,8 +6,8 @@ leader (columns; NaN while it is elsewhere): speed (m/s), bumper gap to its pred
 and the predecessor's speed (m/s). t_m = ``done_step``: the step the manoeuvre was complete (the
 entering vehicle in the platoon lane, the leaving one out of it, the merge's link made). The
 vehicles **behind it** are those in the platoon lane behind the entering vehicle, behind the gap
-the leaving one left, or the merge's second platoon; the **first** of them is the one directly
-behind.
+the leaving one left, or the merge's second platoon (a joiner at the tail: the joiner itself);
+the **first** of them is the one directly behind.
 
 Per manoeuvre (:func:`manoeuvre_metrics`), over the samples from t_m on:
 

@@ -310,4 +310,6 @@ class ScenarioSim(PlatoonSim):
                 self.members.append(self.entering)  # _sense puts it in its place
             x = self._route_x(ls, self.entering)
             self.behind = [v for v in self.order if self._route_x(ls, v) < x]
+            if m.kind == "join" and not self.behind:  # at the tail: the joiner's own gap
+                self.behind = [self.entering]
         self.done_step, self.phase = self.k, "done"

@@ -149,6 +149,15 @@ def test_join_grows_the_platoon_by_one(event):
     assert np.all(obs[:, 2] > 0)
 
 
+def test_a_join_at_the_tail_is_measured_on_the_joiner(event):
+    _, controller = scenario_controller("ploeg-tuned:h=0.8")
+    trace = run_scenario_event(ScenarioSim(NET, "external"), event, N,
+                               Manoeuvre("join", N, 6.0), controller)
+    assert trace.behind == ["joiner"]
+    m = manoeuvre_metrics(trace)
+    assert m["done"] == 1 and m["min_gap_m"] > 0 and np.isfinite(m["settle_s"])
+
+
 def test_merge_links_the_second_platoon_and_closes_the_gap(event):
     _, controller = scenario_controller("ploeg-tuned:h=0.8")
     sim = ScenarioSim(NET, "external")
