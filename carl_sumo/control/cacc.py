@@ -65,11 +65,14 @@ class PloegParams:
     kd: float = 0.7             # spacing-error-rate gain (1/s)
     standstill_gap_m: float = 2.0  # s0 (m)
     feed_forward: bool = True   # the predecessor's V2V state (CACC), or none (ACC, radar only)
+    anti_windup: bool = False   # aw=1: each state stays within its own vehicle's limits
+                                # (PloegController.know_vehicles), so messages are realisable
 
     def name(self) -> str:
         """The controller name that runs these gains."""
         kind = "ploeg" if self.feed_forward else "acc"
-        return f"{kind}:h={self.time_gap_s:g}:kp={self.kp:g}:kd={self.kd:g}"
+        return f"{kind}:h={self.time_gap_s:g}:kp={self.kp:g}:kd={self.kd:g}" + \
+            (":aw=1" if self.anti_windup else "")
 
 
 TEXTBOOK = PloegParams()
@@ -79,11 +82,13 @@ CRUISE_GAIN_PER_S = 0.4
 
 @njit(cache=True)
 def _ploeg_step(obs, u, u_lead, adj, h, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc,
-                pred_mode, pred_held):
+                pred_mode, pred_held, u_min, u_max):
     """One step of every follower (head first): updates ``u`` in place, returns a (m/s²);
     ``adj`` (m/s², shape (n,)) is the learned feed-forward term (zeros for the plain law).
     ``pred_mode`` / ``pred_held`` (shape (n,)): how follower i > 0 hears its predecessor's
-    message (carl_sumo.control.channel: 0 this step's, 1 the held value, 2 none: no feed-forward)."""
+    message (carl_sumo.control.channel: 0 this step's, 1 the held value, 2 none: no feed-forward).
+    ``u_min`` / ``u_max`` (m/s², shape (n,)): each vehicle's own limits, which its state does not
+    pass (anti-windup; ±inf: none), so the message it sends is a command it can follow."""
     n = obs.shape[0]
     out = np.empty(n)
     u_pred = u_lead
@@ -98,6 +103,7 @@ def _ploeg_step(obs, u, u_lead, adj, h, kp, kd, s0, dt, acc_min, acc_max, v0, k_
         u_old = u[i]
         u[i] = min(u_old + (dt / h) * (-u_old + kp * e + kd * e_dot + u_in + adj[i]),
                    k_cc * (v0 - obs[i, 0]))
+        u[i] = min(max(u[i], u_min[i]), u_max[i])
         u_pred = u_old  # the message of vehicle i is its state at step k
         out[i] = min(max(u[i], acc_min), acc_max)
     return out
@@ -115,14 +121,26 @@ class PloegController:
         self.name = name or params.name()
         self.bounds = bounds
         self.u = np.zeros(0)
+        self.u_min, self.u_max = np.zeros(0), np.zeros(0)
         self._leader_speed: float | None = None
         self.channel: Channel | None = None
         self._k = 0
 
     def reset(self, n_followers: int) -> None:
         self.u = np.zeros(n_followers)
+        self.u_min, self.u_max = np.full(n_followers, -np.inf), np.full(n_followers, np.inf)
         self._leader_speed = None
         self.channel, self._k = None, 0
+
+    def know_vehicles(self, a_max_mps2: np.ndarray, b_max_mps2: np.ndarray) -> None:
+        """Every follower knows what its own vehicle can do (its class's largest acceleration
+        and deceleration, m/s², positive): its state stays within them, so the command it sends
+        its follower is one it can follow (without it a truck that cannot accelerate at 2 m/s²
+        tells the car behind it to; docs/vehicles.md). Only a law named with ``aw=1`` uses them.
+        Call after :meth:`reset`."""
+        if self.params.anti_windup:
+            self.u_min = -np.asarray(b_max_mps2, dtype=np.float64)
+            self.u_max = np.asarray(a_max_mps2, dtype=np.float64).copy()
 
     def connect(self, impairments: Impairments, event_id: str) -> None:
         """Carry this episode's predecessor messages over an impaired channel (one link per
@@ -170,7 +188,13 @@ class PloegController:
         return _ploeg_step(obs, u, u_lead, adj, p.time_gap_s, p.kp, p.kd, p.standstill_gap_m,
                            DT_S, b.acc_min_mps2, b.acc_max_mps2, IDM.desired_speed_mps,
                            CRUISE_GAIN_PER_S, np.ascontiguousarray(pred_mode, dtype=np.int64),
-                           np.ascontiguousarray(pred_held, dtype=np.float64))
+                           np.ascontiguousarray(pred_held, dtype=np.float64), *self._limits(n))
+
+    def _limits(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """(u_min, u_max) of a chain of ``n`` (m/s²): the known vehicles' limits, else none."""
+        if self.u_min.shape[0] == n:
+            return self.u_min, self.u_max
+        return np.full(n, -np.inf), np.full(n, np.inf)
 
 
 # ------------------------------------------------------------------------------------ names
@@ -243,6 +267,14 @@ def read_tuned(path: Path | None = TUNED_FILE, law: str = "ploeg", plant: str = 
             if e.get("law", "ploeg") == law and e.get("plant", "ideal") == plant}
 
 
+def _anti_windup(name: str, opts: dict[str, float]) -> bool:
+    """Whether a name asks for anti-windup (``aw=1``); InputError for another value."""
+    if opts.get("aw", 1.0) != 1.0:
+        raise InputError(f"controller {name!r}: aw takes 1 (each vehicle's state within its own "
+                         "limits) or is left out")
+    return "aw" in opts
+
+
 def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal") -> PloegParams:
     """The gains a constant-time-gap law's name stands for (``ploeg*``: CACC, ``acc*``: ACC);
     a ``-tuned`` name reads the gains tuned for ``plant`` (:func:`plant_key`). InputError on a
@@ -250,11 +282,12 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
     kind = name.split(":")[0]
     law = "acc" if kind.startswith("acc") else "ploeg"
     if kind in ("ploeg", "acc"):
-        opts = _parse_options(name, ("h", "kp", "kd"))
+        opts = _parse_options(name, ("h", "kp", "kd", "aw"))
         return PloegParams(opts.get("h", TEXTBOOK.time_gap_s), opts.get("kp", TEXTBOOK.kp),
-                           opts.get("kd", TEXTBOOK.kd), feed_forward=law == "ploeg")
+                           opts.get("kd", TEXTBOOK.kd), feed_forward=law == "ploeg",
+                           anti_windup=_anti_windup(name, opts))
     if kind in ("ploeg-tuned", "acc-tuned"):
-        opts = _parse_options(name, ("h",))
+        opts = _parse_options(name, ("h", "aw"))
         if "h" not in opts:
             raise InputError(f"controller {name!r}: name the time gap, e.g. {kind}:h=1")
         entries = [e for e in read_tuned_entries(tuned_file) if e.get("law", "ploeg") == law]
@@ -274,7 +307,7 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
             raise InputError(f"controller {name!r}: the tuning found no safe gains for h = "
                              f"{opts['h']:g} s (see {tuned_file or TUNED_FILE.parent})")
         return PloegParams(float(entry["h"]), float(entry["kp"]), float(entry["kd"]),
-                           feed_forward=law == "ploeg")
+                           feed_forward=law == "ploeg", anti_windup=_anti_windup(name, opts))
     raise InputError(f"{name!r} is not a Ploeg CACC or ACC controller name")
 
 

@@ -91,6 +91,9 @@ def run_event(sim: PlatoonSim, event: Event, n_followers: int,
     plant = impairments.plant if impairments is not None else None
     sim.reset(event, n_followers, fcd_path, plant=plant,
               plant_seed=impairments.seed if impairments is not None else 0)
+    if controller is not None and sim.powertrains is not None and \
+            hasattr(controller, "know_vehicles"):
+        controller.know_vehicles(sim.powertrains.a_max, sim.powertrains.b_max)
     obs = sim.observation()
     leader, speeds, gaps = [sim.leader_speed], [obs[:, 0]], [obs[:, 2]]
     collisions = 0

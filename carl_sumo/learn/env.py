@@ -99,6 +99,8 @@ class PlatoonEnv(ParallelEnv):
         self._sensors = Sensors.of(impairments, self.event.event_id)
         if self._base is not None:
             self._base.reset(self.n_followers)
+            if self.sim.powertrains is not None:
+                self._base.know_vehicles(self.sim.powertrains.a_max, self.sim.powertrains.b_max)
             if impairments is not None and not impairments.perfect_channel:
                 self._base.connect(impairments, self.event.event_id)
         if self._ahead is not None:

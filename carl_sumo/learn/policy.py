@@ -192,6 +192,10 @@ class ResidualPolicyController(PolicyController):
         super().reset(n_followers)
         self.base.reset(n_followers)
 
+    def know_vehicles(self, a_max_mps2: np.ndarray, b_max_mps2: np.ndarray) -> None:
+        """The base knows each vehicle's limits (:meth:`carl_sumo.control.cacc.PloegController.know_vehicles`)."""
+        self.base.know_vehicles(a_max_mps2, b_max_mps2)
+
     def connect(self, impairments: Impairments, event_id: str) -> None:
         """The CA messages and the base's predecessor messages both cross impaired links."""
         super().connect(impairments, event_id)

@@ -217,3 +217,31 @@ def test_cli_runs_classical_controllers_and_refuses_bad_names(capsys, tmp_path, 
     err = capsys.readouterr().err
     assert "kp='zero' is not a number" in err and err.count("\n") == 1
     assert not json_out.exists()
+
+
+def test_aw_names_a_law_whose_states_stay_within_each_vehicles_own_limits():
+    """``aw=1``: the state (the command, and the message the follower hears) of a truck that
+    cannot accelerate beyond 1 m/s² stays at 1 m/s², while the car ahead of it may command 3;
+    without ``aw`` the limits are ignored and the law is what it was, bit for bit."""
+    from carl_sumo.control.cacc import PloegController, parse_ploeg
+
+    params = parse_ploeg("ploeg:h=0.8:kp=0.2:kd=0.7:aw=1")
+    assert params.anti_windup and params.name() == "ploeg:h=0.8:kp=0.2:kd=0.7:aw=1"
+    assert not parse_ploeg("ploeg:h=0.8").anti_windup
+    with pytest.raises(InputError, match="aw takes 1"):
+        parse_ploeg("ploeg:h=0.8:aw=2")
+    # both followers far behind: the law asks for a large acceleration
+    obs = np.array([[10.0, 0.0, 80.0, 3.0], [10.0, 0.0, 80.0, 3.0]])
+    plain, aware = PloegController(parse_ploeg("ploeg:h=0.8")), PloegController(params)
+    for law in (plain, aware):
+        law.reset(2)
+        law.know_vehicles(np.array([3.0, 1.0]), np.array([9.0, 6.0]))
+        for _ in range(30):
+            law.step(obs, law.u, 0.0)
+    assert aware.u[1] == 1.0 and aware.u[0] <= 3.0
+    assert plain.u[1] > 1.5  # the plain law winds up beyond what a truck can do
+    reference = PloegController(parse_ploeg("ploeg:h=0.8"))
+    reference.reset(2)
+    for _ in range(30):
+        reference.step(obs, reference.u, 0.0)
+    np.testing.assert_array_equal(reference.u, plain.u)
