@@ -14,6 +14,9 @@ PAPER="--adj-max 1 --w-gap 0.3 --w-comfort 300 --smooth-jerk 0.05 --smooth-accel
 # (policies/ploeg_tuned_car_0.8_truck_0.2_v2v_0.1s.json), a 10 s settled start, the fast schedule, and no headway
 # reward (--w-gap 0: the base holds its time gap; with the paper's 0.3 the learned term opened the gap, docs/training.md).
 REAL="--base ploeg:h=0.8:kp=0.0445:kd=1 --plant-randomize --warmup 10 --shield-ttc 4 --adj-max 1 --w-gap 0 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort --update-every 3 --scale-rates"
+# real_aw_recipe: REAL on the same robust CACC with anti-windup (aw=1): each vehicle's state, and so the
+# message it sends, stays within its own class's limits (docs/vehicles.md).
+REAL_AW="${REAL/--base ploeg:h=0.8:kp=0.0445:kd=1/--base ploeg:h=0.8:kp=0.0445:kd=1:aw=1}"
 # real_acc_recipe: the communication test on the real plant. The base is radar-only (an ACC at h = 0.8 s,
 # kp = 0.1, kd = 1), and a_adj enters its law where a CACC feeds the predecessor's command forward, so
 # the CACC with the same gains is the ACC plus a_adj = the predecessor's acceleration: the actor first
