@@ -12,7 +12,7 @@ and selection did not use:
 Writes ``docs/results_real/generalise_<label>.json`` ({condition: {controller: metrics}}) and
 prints one table per condition.
 
-Usage: python benchmarks/real_plant_generalise.py LABEL CONTROLLER[,CONTROLLER...] [DATA]
+Usage: python benchmarks/real_plant_generalise.py LABEL CONTROLLER[,CONTROLLER...] [DATA [CONDITION,...]]
 """
 import json
 import sys
@@ -49,7 +49,10 @@ def main() -> None:
     data = sys.argv[3] if len(sys.argv) > 3 else "../shared/data/ngsim/ngsim_cf_events.csv.gz"
     path = OUT / f"generalise_{label}.json"
     rows = json.loads(path.read_text()) if path.exists() else {}
+    only = sys.argv[4].split(",") if len(sys.argv) > 4 else None
     for cond, (events, n, imp) in conditions(data).items():
+        if only is not None and cond not in only:
+            continue
         for name in names:
             if name in rows.get(cond, {}):
                 continue
