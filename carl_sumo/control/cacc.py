@@ -332,12 +332,26 @@ class PloegChains:
         self.controller = PloegController(params, name, bounds)
         self.name = self.controller.name
         self.u: dict[str, float] = {}
+        self.limits: dict[str, tuple[float, float]] = {}  # ID: (a_max, b_max) (m/s²)
         self.links: KeyedChannel | None = None
         self._k = 0
 
     def reset(self) -> None:
-        """Forget every state and link: a new run starts (every vehicle's u at 0)."""
-        self.u, self.links, self._k = {}, None, 0
+        """Forget every state, limit and link: a new run starts (every vehicle's u at 0)."""
+        self.u, self.limits, self.links, self._k = {}, {}, None, 0
+
+    def know_vehicle(self, vehicle_id: str, a_max_mps2: float, b_max_mps2: float) -> None:
+        """What one vehicle's powertrain can do (:meth:`PloegController.know_vehicles`; only a
+        law named with ``aw=1`` uses it)."""
+        self.limits[vehicle_id] = (a_max_mps2, b_max_mps2)
+
+    def _set_limits(self, chain_ids: list[str]) -> None:
+        """The chain's limits into the law (none for a vehicle whose limits are unknown)."""
+        if not self.controller.params.anti_windup:
+            return
+        a_b = [self.limits.get(v, (np.inf, np.inf)) for v in chain_ids]
+        self.controller.u_max = np.array([a for a, _ in a_b])
+        self.controller.u_min = -np.array([b for _, b in a_b])
 
     def connect(self, impairments: Impairments, run_id: str) -> None:
         """Carry the predecessor states over impaired vehicle-keyed links
@@ -370,6 +384,7 @@ class PloegChains:
                 mode[1:], held[1:] = got_mode, got_held[:, 0]
                 if commit:
                     self.links.send(self._k, pairs, sent[:-1, None])
+            self._set_limits([ids[i] for i in chain])
             out[chain] = self.controller.step(np.ascontiguousarray(obs[chain]), u, a_pred, adj,
                                               mode, held)
             u_new.update(zip((ids[i] for i in chain), u.tolist()))

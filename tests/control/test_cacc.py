@@ -245,3 +245,23 @@ def test_aw_names_a_law_whose_states_stay_within_each_vehicles_own_limits():
     for _ in range(30):
         reference.step(obs, reference.u, 0.0)
     np.testing.assert_array_equal(reference.u, plain.u)
+
+
+def test_chains_keep_each_known_vehicles_state_within_its_limits_with_aw():
+    """The study's chains: with ``aw=1`` a truck's state (its message) stays within its own
+    limits by vehicle ID; without ``aw`` or for an unknown vehicle nothing is clipped."""
+    from carl_sumo.control.cacc import PloegChains
+
+    obs = np.array([[10.0, 0.0, 80.0, 3.0], [10.0, 0.0, 80.0, 3.0]])
+    chains, ids, ahead = [[0, 1]], ["car", "truck"], [("leader", 80.0), ("car", 80.0)]
+    runs = {}
+    for name in ("ploeg:h=0.8:aw=1", "ploeg:h=0.8"):
+        law = PloegChains(parse_ploeg(name), name)
+        law.reset()
+        law.know_vehicle("truck", 1.0, 6.0)
+        for _ in range(30):
+            law.acceleration(obs, chains, ids, ahead, {})
+        runs[name] = law.u
+    assert runs["ploeg:h=0.8:aw=1"]["truck"] == 1.0
+    assert runs["ploeg:h=0.8"]["truck"] > 1.5
+    assert runs["ploeg:h=0.8:aw=1"]["car"] == runs["ploeg:h=0.8"]["car"]
