@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import json
 import math
+from functools import lru_cache
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -107,6 +108,14 @@ def _ploeg_step(obs, u, u_lead, adj, h, kp, kd, s0, dt, acc_min, acc_max, v0, k_
         u_pred = u_old  # the message of vehicle i is its state at step k
         out[i] = min(max(u[i], acc_min), acc_max)
     return out
+
+
+@lru_cache(maxsize=64)
+def _no_limits(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(-inf, +inf) limits of ``n`` vehicles, read-only (shared by every call)."""
+    low, high = np.full(n, -np.inf), np.full(n, np.inf)
+    low.flags.writeable = high.flags.writeable = False
+    return low, high
 
 
 class PloegController:
@@ -191,10 +200,11 @@ class PloegController:
                            np.ascontiguousarray(pred_held, dtype=np.float64), *self._limits(n))
 
     def _limits(self, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """(u_min, u_max) of a chain of ``n`` (m/s²): the known vehicles' limits, else none."""
+        """(u_min, u_max) of a chain of ``n`` (m/s²): the known vehicles' limits, else none
+        (made once per length: this runs every step)."""
         if self.u_min.shape[0] == n:
             return self.u_min, self.u_max
-        return np.full(n, -np.inf), np.full(n, np.inf)
+        return _no_limits(n)
 
 
 # ------------------------------------------------------------------------------------ names

@@ -114,14 +114,16 @@ def run_event(sim: PlatoonSim, event: Event, n_followers: int,
                              collisions).scored(event.scored_from)
 
 
-_SIMS: dict[tuple[str, str], PlatoonSim] = {}
+_SIMS: dict[tuple[type, str, str], PlatoonSim] = {}
 
 
-def cached_sim(net_path: str | Path, follower_model: str) -> PlatoonSim:
-    """This process's :class:`PlatoonSim` for a network and follower model (parsed once)."""
-    key = (str(net_path), follower_model)
+def cached_sim(net_path: str | Path, follower_model: str,
+               kind: type[PlatoonSim] = PlatoonSim) -> PlatoonSim:
+    """This process's ``kind`` of simulation (a :class:`PlatoonSim` or a subclass) for a network
+    and follower model (parsed once)."""
+    key = (kind, str(net_path), follower_model)
     if key not in _SIMS:
-        _SIMS[key] = PlatoonSim(net_path, follower_model)
+        _SIMS[key] = kind(net_path, follower_model)
     return _SIMS[key]
 
 

@@ -18,9 +18,9 @@ from carl_sumo.learn.selection import MARGIN_KEYS
 TB_HELP = "pip install -e \".[tb]\" (tensorboardX) or pip install tensorboard"
 
 
-def tensorboard_writer(logdir: Path):
-    """A TensorBoard SummaryWriter on ``logdir`` (tensorboardX, else torch's with the
-    tensorboard package); InputError naming the extra when neither is installed."""
+def _summary_writer_class():
+    """TensorBoard's SummaryWriter (tensorboardX, else torch's with the tensorboard package);
+    InputError naming the extra when neither is installed."""
     try:
         from tensorboardX import SummaryWriter
     except ImportError:
@@ -29,19 +29,17 @@ def tensorboard_writer(logdir: Path):
         except ImportError:
             raise InputError(f"--tensorboard needs tensorboardX or tensorboard: {TB_HELP}"
                              ) from None
-    return SummaryWriter(str(logdir))
+    return SummaryWriter
+
+
+def tensorboard_writer(logdir: Path):
+    """A TensorBoard SummaryWriter on ``logdir`` (see :func:`_summary_writer_class`)."""
+    return _summary_writer_class()(str(logdir))
 
 
 def check_tensorboard() -> None:
     """InputError now, before any training, when no TensorBoard writer can be made."""
-    try:
-        import tensorboardX  # noqa: F401
-    except ImportError:
-        try:
-            import torch.utils.tensorboard  # noqa: F401
-        except ImportError:
-            raise InputError(f"--tensorboard needs tensorboardX or tensorboard: {TB_HELP}"
-                             ) from None
+    _summary_writer_class()
 
 
 def _duration(seconds: float) -> str:

@@ -38,7 +38,8 @@ from carl_sumo.control.controllers import applied_acceleration
 from carl_sumo.control.external import is_external_name, load_external
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
-from carl_sumo.experiments.simulate import NATIVE_CONTROLLERS, check_impairable, fcd_run, plant_of
+from carl_sumo.experiments.simulate import NATIVE_CONTROLLERS, cached_sim, check_impairable, fcd_run, \
+    plant_of
 from carl_sumo.sim.manoeuvre_metrics import ScenarioTrace, manoeuvre_metrics, whole_run_metrics
 from carl_sumo.sim.scenario import Manoeuvre, ScenarioSpec
 from carl_sumo.sim.scenario_sim import ScenarioSim, adjacent_route
@@ -182,15 +183,9 @@ def run_scenario_event(sim: ScenarioSim, event: Event, n_followers: int, manoeuv
     return record.trace(sim, event, collisions)
 
 
-_SIMS: dict[tuple[str, str], ScenarioSim] = {}
-
-
 def scenario_sim(net_path: str | Path, follower_model: str) -> ScenarioSim:
     """This process's :class:`ScenarioSim` for a network and follower model (parsed once)."""
-    key = (str(net_path), follower_model)
-    if key not in _SIMS:
-        _SIMS[key] = ScenarioSim(net_path, follower_model)
-    return _SIMS[key]
+    return cached_sim(net_path, follower_model, ScenarioSim)
 
 
 def score_trace(trace: ScenarioTrace) -> dict:
