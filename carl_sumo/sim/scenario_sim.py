@@ -59,8 +59,11 @@ class ScenarioSim(PlatoonSim):
     After :meth:`start` and every :meth:`advance`: ``members`` (CACC followers in the platoon
     lane, front first), ``order`` (every tracked vehicle in the platoon lane, front first),
     ``ahead[vid]`` = (predecessor ID or None, bumper gap m), ``speeds`` / ``accels`` (m/s, m/s²),
-    ``done_step`` (the step the manoeuvre was complete, None before) and ``behind`` (the vehicles
-    behind the manoeuvre, from then on).
+    ``done_step`` (the step the manoeuvre was complete, None before), ``behind`` (the vehicles
+    behind the manoeuvre, from then on) and, on the real plant, ``limits[vid]`` = (a_max, b_max)
+    (m/s², positive) of every CACC vehicle carl-sumo drives that exists so far: the followers from
+    the start, a joiner from the step it is on the road, each with its own powertrain's class
+    limits (empty on the ideal plant).
     """
 
     def __init__(self, net_path: str | Path = DEFAULT_NET, follower_model: str = "external",
@@ -105,6 +108,9 @@ class ScenarioSim(PlatoonSim):
         self._enter_speed = 0.0
         self._joiner_plant = None if plant is None else plant.draw(1, event.event_id + "/joiner",
                                                                    plant_seed)
+        self.limits: dict[str, tuple[float, float]] = {} if self.powertrains is None else {
+            vid: (float(a), float(b)) for vid, a, b in
+            zip(self.ids, self.powertrains.a_max, self.powertrains.b_max)}
         if manoeuvre.kind == "merge":
             head = self.ids[manoeuvre.position]
             self.radar_only.add(head)
@@ -181,6 +187,9 @@ class ScenarioSim(PlatoonSim):
         if self.phase == "inserted" and self.entering not in self.tracked:
             self.tracked.append(self.entering)
             self.speeds[self.entering] = self._enter_speed
+            if self._joiner_plant is not None and self.entering == "joiner":
+                self.limits["joiner"] = (float(self._joiner_plant.a_max[0]),
+                                         float(self._joiner_plant.b_max[0]))
         for vid in self.tracked:
             v = ls.vehicle.getSpeed(vid)
             self.accels[vid] = (v - self.speeds[vid]) / DT_S

@@ -132,6 +132,15 @@ class ChainController:
         return shield_adjustment(obs, out, self.agent.cfg.shield_ttc_s)
 
 
+def know_vehicle(controller, vehicle_id: str, a_max_mps2: float, b_max_mps2: float) -> None:
+    """Tell a classical law (:meth:`carl_sumo.control.cacc.PloegChains.know_vehicle`) or a
+    policy's classical base what one vehicle's powertrain can do (m/s², positive; only a law named
+    with ``aw=1`` uses it); any other controller ignores it."""
+    law = getattr(controller, "base", controller)
+    if hasattr(law, "know_vehicle"):
+        law.know_vehicle(vehicle_id, a_max_mps2, b_max_mps2)
+
+
 def resolve_study_controller(name: str) -> tuple[str, ChainController | PloegChains
                                                  | ExternalChains | None]:
     """(CACC kind of :data:`carl_sumo.sim.traffic.CACC_TYPES`, controller); InputError if unknown."""

@@ -58,7 +58,7 @@ from carl_sumo.control.channel import Impairments
 from carl_sumo.errors import InputError
 from carl_sumo.control.sensors import Sensors
 from carl_sumo.files import check_xml, output_error, write_text_atomic
-from carl_sumo.study.controllers import ChainController, resolve_study_controller
+from carl_sumo.study.controllers import ChainController, know_vehicle, resolve_study_controller
 from carl_sumo.study.chains import cacc_observations, form_chains, merging_lanes, zipper_ahead
 from carl_sumo.study.results import RunResult, markdown_table, run_name, summarise, write_csv
 from carl_sumo.sim.sumo import DEFAULT_NET, VTYPES_FILE, close_sumo, lane_route, start_sumo
@@ -267,7 +267,8 @@ def _simulate(ls, cfg: StudyConfig, kind: str,
                     vehicle.setSpeedMode(vid, SPEED_MODE_CACC)
                     if plant is not None:  # its class (vType) and powertrain, drawn by its ID
                         powertrains[vid] = plant.draw(1, vid, seed)
-                        _know_vehicle(controller, vid, powertrains[vid])
+                        know_vehicle(controller, vid, float(powertrains[vid].a_max[0]),
+                                     float(powertrains[vid].b_max[0]))
                         if powertrains[vid].vtypes[0] != CACC_TYPES["external"]:
                             vehicle.setType(vid, powertrains[vid].vtypes[0])
         measuring = k >= first_measured
@@ -310,13 +311,6 @@ def _add_to_heatmap(vehicle, lane_ids, lane_chain, speed_of: dict[str, float],
             col = min(int((x0 + vehicle.getLanePosition(vid)) // HEATMAP_BIN_M), n_x - 1)
             heat_sum[int(row), col] += speed_of[vid]
             heat_n[int(row), col] += 1
-
-
-def _know_vehicle(controller, vehicle_id: str, powertrain) -> None:
-    """Tell a classical law (or a policy's classical base) what one vehicle can do (``aw=1``)."""
-    law = getattr(controller, "base", controller)
-    if hasattr(law, "know_vehicle"):
-        law.know_vehicle(vehicle_id, float(powertrain.a_max[0]), float(powertrain.b_max[0]))
 
 
 def _drive_cacc(ls, cfg: StudyConfig, controller: ChainController | PloegChains,

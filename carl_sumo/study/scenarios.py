@@ -9,7 +9,11 @@ from ahead (the degraded mode: Ploeg's CACC drops its feed-forward and acts as a
 module takes its boundary message); a cut-out or a merge links the chain again; a joiner joins
 it. Controllers keep their state per vehicle ID (a joiner's starts at 0; with V2V delay or loss a
 new neighbour is heard from its first message that arrives,
-:class:`carl_sumo.control.channel.KeyedChannel`). Every controller name of ``simulate`` runs:
+:class:`carl_sumo.control.channel.KeyedChannel`). On the real plant each controller is told every
+vehicle's powertrain limits by ID from the step the vehicle is on the road (a joiner's, of its own
+powertrain, when it enters): a law named with ``aw=1``, or a policy on such a base, keeps each
+vehicle's state, the message it sends, within its own class's limits. Every controller name of
+``simulate`` runs:
 
 - ``idm``, ``krauss``, ``sumo-cacc``: SUMO's own models drive the members, as in a plain run;
 - ``ploeg*``, ``acc*``: :class:`carl_sumo.control.cacc.PloegChains` (a ``-tuned`` name: the
@@ -44,7 +48,7 @@ from carl_sumo.sim.manoeuvre_metrics import ScenarioTrace, manoeuvre_metrics, wh
 from carl_sumo.sim.scenario import Manoeuvre, ScenarioSpec
 from carl_sumo.sim.scenario_sim import ScenarioSim, adjacent_route
 from carl_sumo.sim.sumo import LaneRoute, check_fits, lane_route, use_gui
-from carl_sumo.study.controllers import ChainController
+from carl_sumo.study.controllers import ChainController, know_vehicle
 
 
 class NotApplicable(InputError):
@@ -149,6 +153,18 @@ class _Recorder:
                              collisions=collisions, scored_from=event.scored_from)
 
 
+def tell_limits(controller, sim: ScenarioSim, known: set[str]) -> None:
+    """Tell ``controller`` (:func:`carl_sumo.study.controllers.know_vehicle`) the powertrain
+    limits of the vehicles of ``sim.limits`` not in ``known`` yet (the real plant's vehicles new
+    on the road), and add them to ``known``."""
+    if controller is None or len(known) == len(sim.limits):
+        return
+    for vid, (a_max, b_max) in sim.limits.items():
+        if vid not in known:
+            know_vehicle(controller, vid, a_max, b_max)
+            known.add(vid)
+
+
 def run_scenario_event(sim: ScenarioSim, event: Event, n_followers: int, manoeuvre: Manoeuvre,
                        controller, impairments: Impairments | None = None,
                        fcd_path: Path | None = None) -> ScenarioTrace:
@@ -161,6 +177,8 @@ def run_scenario_event(sim: ScenarioSim, event: Event, n_followers: int, manoeuv
     sim.start(event, n_followers, manoeuvre, fcd_path,
               plant=impairments.plant if impairments is not None else None,
               plant_seed=impairments.seed if impairments is not None else 0)
+    known: set[str] = set()
+    tell_limits(controller, sim, known)
     record = _Recorder(event.n_samples)
     record.add(sim)
     collisions, leader_acc = 0, 0.0
@@ -172,6 +190,7 @@ def run_scenario_event(sim: ScenarioSim, event: Event, n_followers: int, manoeuv
             accel = controller.acceleration(obs, chains_of(ids, ahead), ids, ahead, last_acc) \
                 if ids else np.zeros(0)
             sim.advance(dict(zip(ids, np.asarray(accel, float).tolist())))
+            tell_limits(controller, sim, known)
         else:
             sim.advance()
         leader_acc = (sim.leader_speed - leader_before) / DT_S

@@ -10,12 +10,14 @@ import numpy as np
 import pytest
 
 from carl_sumo.config import DT_S
+from carl_sumo.control.channel import Impairments
 from carl_sumo.data import load_events
 from carl_sumo.errors import InputError
 from carl_sumo.sim.manoeuvre_metrics import (ScenarioTrace, manoeuvre_metrics,
                                              settle_and_overshoot, whole_run_metrics)
 from carl_sumo.sim.scenario import Manoeuvre, parse_scenario
 from carl_sumo.sim.scenario_sim import ScenarioSim
+from carl_sumo.sim.vehicle import Plant
 from carl_sumo.study.scenarios import (NotApplicable, chains_of, check_scenario,
                                        heard_accelerations, run_scenario_event,
                                        scenario_controller, score_trace)
@@ -195,6 +197,74 @@ def test_real_plant_cut_in_with_the_product_policy(event):
                                Manoeuvre("cut-in", 2, 6.0, 0.5), controller, imp)
     m = manoeuvre_metrics(trace)
     assert m["done"] == 1 and m["min_gap_m"] > 0 and np.isfinite(m["peak_decel_mps2"])
+
+
+# ------------------------------------------------------------------------------ anti-windup
+ROBUST = "ploeg:h=0.8:kp=0.0445:kd=1"  # the robust real-plant CACC (ploeg-tuned:h=0.8 there)
+
+
+def _trucks() -> Impairments:
+    """The real plant with a fleet of trucks only (a_max 1 m/s², b_max 6 m/s²), 0.1 s V2V delay:
+    the joiner is a truck too."""
+    return Impairments(delay_s=0.1, plant=Plant((("truck", 1.0),)))
+
+
+def _recorded_run(event, name: str, imp, manoeuvre: Manoeuvre):
+    """Run one scenario event; (trace, sim, every step's states u of the classical law (the
+    policy's base) by vehicle ID, and the IDs whose limits it knew then)."""
+    model, controller = scenario_controller(name, imp.plant_key if imp is not None else "ideal")
+    law = getattr(controller, "base", controller)
+    steps = []
+    inner = controller.acceleration
+
+    def acceleration(*args, **kwargs):
+        out = inner(*args, **kwargs)
+        steps.append((dict(law.u), set(law.limits), set(sim.tracked)))
+        return out
+
+    controller.acceleration = acceleration
+    sim = ScenarioSim(NET, model)
+    trace = run_scenario_event(sim, event, N, manoeuvre, controller, imp)
+    return trace, sim, steps
+
+
+@pytest.mark.parametrize("name", [ROBUST + ":aw=1", "policies/ca_td3_real_aw_10.pt"])
+def test_with_aw_every_truck_state_stays_within_its_limits_through_a_join(event, name):
+    """aw=1 on the real plant: every vehicle's state (the message it sends) stays within its own
+    class's limits, a truck's 1 m/s² and -6 m/s², the joiner's from the step it is on the road
+    (the same run without aw=1 passes 1 m/s²:
+    test_without_aw_a_scenario_run_is_unchanged_by_the_limits)."""
+    trace, sim, steps = _recorded_run(event, name, _trucks(), Manoeuvre("join", N, 6.0))
+    assert sim.done_step is not None and trace.collisions == 0
+    assert sim.limits == {**{f"f{i}": (1.0, 6.0) for i in range(N)}, "joiner": (1.0, 6.0)}
+    states = [u for u, _, _ in steps]
+    assert max(max(u.values()) for u in states) == pytest.approx(1.0, abs=1e-12)  # it binds
+    assert all(-6.0 <= x <= 1.0 for u in states for x in u.values())
+    for _, known, on_road in steps:  # the joiner's limits are known once it is on the road
+        assert ("joiner" in known) == ("joiner" in on_road)
+    assert any("joiner" in u for u in states)
+
+
+def test_without_aw_a_scenario_run_is_unchanged_by_the_limits(event, monkeypatch):
+    """aw=0: the controller is told the limits but does not use them; the run is the one of a
+    controller never told (and a truck's state passes its 1 m/s² in it)."""
+    import carl_sumo.study.scenarios as scenarios
+
+    manoeuvre = Manoeuvre("join", N, 6.0)
+    told, _, steps = _recorded_run(event, ROBUST, _trucks(), manoeuvre)
+    assert max(max(u.values()) for u, _, _ in steps) > 1.1
+    monkeypatch.setattr(scenarios, "know_vehicle", lambda *args: None)
+    untold, _, _ = _recorded_run(event, ROBUST, _trucks(), manoeuvre)
+    assert np.array_equal(told.speed, untold.speed, equal_nan=True)
+    assert np.array_equal(told.gap, untold.gap, equal_nan=True)
+
+
+def test_on_the_ideal_plant_aw_changes_nothing(event):
+    manoeuvre = Manoeuvre("cut-in", 2, 6.0, 0.5)
+    with_aw, sim, steps = _recorded_run(event, ROBUST + ":aw=1", None, manoeuvre)
+    assert sim.limits == {} and all(not known for _, known, _ in steps)
+    plain, _, _ = _recorded_run(event, ROBUST, None, manoeuvre)
+    assert np.array_equal(with_aw.speed, plain.speed, equal_nan=True)
 
 
 # ------------------------------------------------------------------------------ metrics
