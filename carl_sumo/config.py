@@ -41,6 +41,8 @@ class RewardConfig:
     r_safe: log(TTC/4) when 0 < TTC ≤ ttc_threshold_s, else 0;
     r_comfort: -min((jerk / jerk_scale)², 1), jerk = Δa/Δt;
     optionally -w_accel·a² (control effort; 0 = off, the paper's reward);
+    optionally -w_spacing·min((e/v)², 1), e = d - s0 - h_s·v (m), the spacing error of a
+    constant-time-gap policy with time gap h_s = spacing_gap_s (0 = off, the paper's reward);
     a collision (bumper gap ≤ 0) ends the episode and adds collision_penalty.
     """
 
@@ -48,6 +50,9 @@ class RewardConfig:
     w_safe: float = 1.0
     w_comfort: float = 1.0
     w_accel: float = 0.0           # optional control effort -w_accel·a² (a in m/s²); not the paper's
+    w_spacing: float = 0.0         # optional spacing term -w_spacing·min((e/v)², 1); not the paper's
+    spacing_gap_s: float = 0.8     # its time gap h_s (s)
+    spacing_standstill_m: float = 2.0  # its standstill gap s0 (m; Ploeg's, control/cacc.py)
     headway_mu: float = 0.4226     # μ of ln(h), h in s
     headway_sigma: float = 0.4366  # σ of ln(h)
     ttc_threshold_s: float = 4.0   # TTC below which r_safe is negative (s)

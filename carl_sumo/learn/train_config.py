@@ -51,6 +51,8 @@ class TrainConfig:
     w_safe: float = REWARD.w_safe
     w_comfort: float = REWARD.w_comfort
     w_accel: float = REWARD.w_accel
+    w_spacing: float = REWARD.w_spacing    # spacing term (reward.py) and its time gap h_s (s)
+    spacing_gap: float = REWARD.spacing_gap_s
     jerk_scale: float = REWARD.jerk_scale_mps3
     message_dim: int = AgentConfig.message_dim            # V2V message width (CA models)
     hidden: int = AgentConfig.hidden                      # hidden layer width
@@ -118,7 +120,8 @@ class TrainConfig:
     @property
     def reward(self) -> RewardConfig:
         return replace(REWARD, w_gap=self.w_gap, w_safe=self.w_safe, w_comfort=self.w_comfort,
-                       w_accel=self.w_accel,
+                       w_accel=self.w_accel, w_spacing=self.w_spacing,
+                       spacing_gap_s=self.spacing_gap,
                        jerk_scale_mps3=self.jerk_scale)
 
 

@@ -38,3 +38,16 @@ def test_optional_control_effort_term():
     plain, _ = platoon_reward(obs, obs[:, 1].copy())  # no jerk: only the headway term
     with_effort, _ = platoon_reward(obs, obs[:, 1].copy(), replace(REWARD, w_accel=0.5))
     assert np.allclose(plain - with_effort, [0.5 * 4.0, 0.5 * 1.0])
+
+
+def test_optional_spacing_term_penalises_the_time_gap_error():
+    from dataclasses import replace
+
+    cfg = replace(REWARD, w_spacing=2.0, spacing_gap_s=0.7)
+    # v = 10 m/s: the reference is 2 + 0.7·10 = 9 m; 9 m, 12 m (0.3 s long), 7 m (0.2 s short),
+    # 60 m (error capped at 1 s²); v = 0.5 m/s: the error is divided by 1 m/s, not 0.5
+    obs = np.array([[10.0, 0.0, 9.0, 0.0], [10.0, 0.0, 12.0, 0.0], [10.0, 0.0, 7.0, 0.0],
+                    [10.0, 0.0, 60.0, 0.0], [0.5, 0.0, 3.35, 0.0]])
+    plain, _ = platoon_reward(obs, obs[:, 1].copy())
+    spaced, _ = platoon_reward(obs, obs[:, 1].copy(), cfg)
+    assert np.allclose(plain - spaced, [0.0, 2.0 * 0.09, 2.0 * 0.04, 2.0, 2.0 * 1.0])

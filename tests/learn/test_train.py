@@ -71,6 +71,14 @@ def test_selection_prefers_safe_smooth_policies():
         selection_score(unsafe, "metrics")
     assert selection_score(base, "metrics") > selection_score(too_close, "metrics")
     assert selection_score(dict(base, val_reward=0.6), "reward") > selection_score(base, "reward")
+    # reward: safety first, measured against the base's TTC < 1.5 s samples; no headway bound
+    assert selection_score(base, "reward") > selection_score(dict(unsafe, val_reward=0.9), "reward")
+    assert selection_score(dict(too_close, val_reward=0.6), "reward") > \
+        selection_score(base, "reward")
+    risky = dict(base, val_reward=0.9, ttc_lt_1_5s_count=3)
+    assert selection_score(risky, "reward") < selection_score(base, "reward")
+    assert selection_score(risky, "reward", dict(base, ttc_lt_1_5s_count=3)) > \
+        selection_score(base, "reward", dict(base, ttc_lt_1_5s_count=3))
     idm = dict(base, speed_mps=8.0, dampening_ratio=0.8, jerk_mps3=0.2)
     fast = dict(base, speed_mps=9.0)
     slow = dict(fast, speed_mps=7.5)
