@@ -7,11 +7,12 @@ settled start); ‖Γ‖∞ of the CA seeds per class at 0.5 and 2 m/s (5 follow
 Writes ``docs/results_real/learned_test.json`` (CA, with ‖Γ‖∞) and ``learned_test_nocomm.json``
 and prints the comparison. About 15 minutes on 2 free cores.
 
-Usage: python benchmarks/real_plant_seeds.py [DATA] [CA_STEM CA_OFF_STEM [--no-hinf]]
+Usage: python benchmarks/real_plant_seeds.py [DATA] [CA_STEM CA_OFF_STEM [TD3_STEM] [--no-hinf]]
 
 With stems (e.g. ``ca_td3_real_acc_10 ca_td3_real_acc_nocomm_10``, the communication test on the
 radar-only base) the same for those models, written to ``learned_test_<CA_STEM>.json`` and
-``learned_test_<CA_OFF_STEM>.json``.
+``learned_test_<CA_OFF_STEM>.json``; with TD3_STEM (plain TD3 on the same recipe, e.g.
+``td3_real_spacing_1``) also ``learned_test_<TD3_STEM>.json`` and CA against it, paired by seed.
 """
 import glob
 import json
@@ -27,7 +28,6 @@ from carl_sumo.data import load_events
 from carl_sumo.errors import InputError
 from carl_sumo.experiments.simulate import simulate
 from carl_sumo.experiments.string_stability import SineTest, string_stability
-from carl_sumo.files import write_text_atomic
 from carl_sumo.files import write_text_atomic
 from carl_sumo.sim.vehicle import REAL_COMM_DELAY_S, REAL_PLANT
 
@@ -79,15 +79,24 @@ def main() -> None:
     off = test_split(off_stem, events)
     write_text_atomic(OUT / ("learned_test_nocomm.json" if default
                              else f"learned_test_{off_stem}.json"), json.dumps(off, indent=1))
-    pairs = [(ca[p], off[p.replace(ca_stem, off_stem)]) for p in ca
-             if p.replace(ca_stem, off_stem) in off]
+    compare(ca, off, ca_stem, off_stem)
+    if len(args) >= 4:
+        td3 = test_split(args[3], events)
+        write_text_atomic(OUT / f"learned_test_{args[3]}.json", json.dumps(td3, indent=1))
+        compare(ca, td3, ca_stem, args[3])
+
+
+def compare(ca: dict, other: dict, ca_stem: str, other_stem: str) -> None:
+    """Print CA against the other model per metric: seed means ± std, paired t-test by seed."""
+    print(f"{ca_stem} against {other_stem}:")
+    pairs = [(ca[p], other[p.replace(ca_stem, other_stem)]) for p in ca
+             if p.replace(ca_stem, other_stem) in other]
     for key in KEYS:
         a = np.array([x[key] for x, _ in pairs], float)
         b = np.array([y[key] for _, y in pairs], float)
         p = stats.ttest_rel(a, b).pvalue
-        print(f"{key}: CA {a.mean():.4f} ± {a.std(ddof=1):.4f}, CA-off {b.mean():.4f} ± "
+        print(f"{key}: CA {a.mean():.4f} ± {a.std(ddof=1):.4f}, other {b.mean():.4f} ± "
               f"{b.std(ddof=1):.4f}, {(a.mean() / b.mean() - 1) * 100:+.1f} %, paired p = {p:.3f}")
-
 
 if __name__ == "__main__":
     main()
