@@ -52,6 +52,7 @@ class RewardConfig:
     w_accel: float = 0.0           # optional control effort -w_accel·a² (a in m/s²); not the paper's
     w_spacing: float = 0.0         # optional spacing term -w_spacing·min((e/v)², 1); not the paper's
     spacing_gap_s: float = 0.8     # its time gap h_s (s)
+    spacing_head_gap_s: float | None = None  # the head's (first follower's) h_s (s; None: h_s)
     spacing_standstill_m: float = 2.0  # its standstill gap s0 (m; Ploeg's, control/cacc.py)
     headway_mu: float = 0.4226     # μ of ln(h), h in s
     headway_sigma: float = 0.4366  # σ of ln(h)

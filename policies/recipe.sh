@@ -31,6 +31,10 @@ REAL_ACC="${REAL_ACC/--adj-max 1/--adj-max 2}"
 # string-stable gains below 0.8 s on the real plant, so following closer is left to the learned term. Checkpoints and
 # seeds are chosen by validation reward (--select reward), safety first (no collision, no more TTC < 1.5 s than the base).
 REAL_SPACING="${REAL_AW/--select comfort/--select reward} --w-spacing 1 --spacing-gap 0.7"
+# real_spacing_ha_recipe: REAL_SPACING on the degraded CACC base (ha=1.4): the head, which hears no message from the
+# human leader, runs the law as an ACC at 1.4 s, the smallest time gap whose first link is string stable for every
+# class of the real fleet (docs/string_stability.md), and the spacing term holds the head at 1.4 s, the rest at 0.7 s.
+REAL_SPACING_HA="${REAL_SPACING/--base ploeg:h=0.8:kp=0.0445:kd=1:aw=1/--base ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4} --spacing-head-gap 1.4"
 PRODUCT="--base ploeg-tuned:h=0.8 --shield-ttc 4 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
 
 train_seeds() {  # STEM "SEEDS" TRAIN_ARGS...

@@ -30,6 +30,9 @@ def _add_reward_options(p: argparse.ArgumentParser) -> None:
                         "h_s·v (default 0: off)")
     p.add_argument("--spacing-gap", type=float, default=None,
                    help="time gap h_s of the spacing term (s; default 0.8)")
+    p.add_argument("--spacing-head-gap", type=float, default=None,
+                   help="the head's h_s (s; default: --spacing-gap), e.g. the ha of a degraded "
+                        "CACC base")
     p.add_argument("--jerk-scale", type=float, default=None,
                    help="jerk that normalises the comfort term (m/s³)")
 
@@ -57,7 +60,8 @@ _RANGES = {  # option: (lowest, highest, whether the bounds are allowed), finite
     "noise": (0.0, math.inf, True), "w_gap": (0.0, math.inf, True),
     "w_safe": (0.0, math.inf, True), "w_comfort": (0.0, math.inf, True),
     "w_accel": (0.0, math.inf, True), "w_spacing": (0.0, math.inf, True),
-    "spacing_gap": (0.0, 5.0, True), "smooth_jerk": (0.0, math.inf, True),
+    "spacing_gap": (0.0, 5.0, True), "spacing_head_gap": (0.0, 5.0, True),
+    "smooth_jerk": (0.0, math.inf, True),
     "smooth_accel": (0.0, math.inf, True), "adj_l2": (0.0, math.inf, True),
     "adj_max": (0.0, math.inf, False), "jerk_scale": (0.0, math.inf, False),
     "noise_correlation": (0.0, 1.0, None), "critic_burn_in": (0, math.inf, True),
@@ -300,7 +304,7 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
 
 
 TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "w_spacing",
-                   "spacing_gap", "jerk_scale",
+                   "spacing_gap", "spacing_head_gap", "jerk_scale",
                    "message_dim", "hidden", "actor_lr", "critic_lr", "tau", "noise",
                    "noise_correlation", "smooth_jerk", "smooth_accel", "adj_l2", "eval_events",
                    "val_seed", "val_source", "gamma", "adj_max", "base", "critic_burn_in",

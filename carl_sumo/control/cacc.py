@@ -21,6 +21,11 @@ receives the leader's acceleration over the last step instead (0 at the first st
 h is the time gap (s), s0 = 2 m the standstill gap, kp (1/s²) and kd (1/s) the feedback gains.
 The textbook gains are kp = 0.2, kd = 0.7 (Ploeg et al. 2011).
 
+Degraded CACC (``ha=T`` in a name, e.g. ``ploeg:h=0.8:kp=0.0445:kd=1:ha=1.4``): a vehicle that
+hears no V2V message (the first follower behind a human leader, a follower behind a cut-in
+human) runs the same law as an ACC at the longer time gap T (h → T in e_i, ė_i and the filter),
+as a radar-only link needs a longer gap to stay string stable (docs/string_stability.md).
+
 As the base of a learned controller (``carl-sumo train --base ploeg-tuned:h=1``), a learned term
 a_adj,i (m/s²) enters the law as one more feed-forward input beside the predecessor's:
 u_i(k+1) = u_i(k) + (dt/h)·(-u_i(k) + kp·e_i + kd·ė_i + u_{i-1}(k) + a_adj,i). So it passes
@@ -68,12 +73,23 @@ class PloegParams:
     feed_forward: bool = True   # the predecessor's V2V state (CACC), or none (ACC, radar only)
     anti_windup: bool = False   # aw=1: each state stays within its own vehicle's limits
                                 # (PloegController.know_vehicles), so messages are realisable
+    alone_gap_s: float | None = None  # ha: time gap (s) of a CACC vehicle that hears no V2V
+                                # message (the head behind a human, a follower behind a cut-in
+                                # human): degraded to an ACC at a longer gap (None: h)
 
     def name(self) -> str:
         """The controller name that runs these gains."""
         kind = "ploeg" if self.feed_forward else "acc"
         return f"{kind}:h={self.time_gap_s:g}:kp={self.kp:g}:kd={self.kd:g}" + \
-            (":aw=1" if self.anti_windup else "")
+            (":aw=1" if self.anti_windup else "") + \
+            (f":ha={self.alone_gap_s:g}" if self.alone_gap_s is not None else "")
+
+    @property
+    def gap_alone_s(self) -> float:
+        """The time gap of a vehicle without a V2V predecessor (s): ``ha`` on a CACC, else h."""
+        if self.feed_forward and self.alone_gap_s is not None:
+            return self.alone_gap_s
+        return self.time_gap_s
 
 
 TEXTBOOK = PloegParams()
@@ -82,27 +98,29 @@ CRUISE_GAIN_PER_S = 0.4
 
 
 @njit(cache=True)
-def _ploeg_step(obs, u, u_lead, adj, h, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc,
+def _ploeg_step(obs, u, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc,
                 pred_mode, pred_held, u_min, u_max):
     """One step of every follower (head first): updates ``u`` in place, returns a (m/s²);
     ``adj`` (m/s², shape (n,)) is the learned feed-forward term (zeros for the plain law).
     ``pred_mode`` / ``pred_held`` (shape (n,)): how follower i > 0 hears its predecessor's
     message (carl_sumo.control.channel: 0 this step's, 1 the held value, 2 none: no feed-forward).
     ``u_min`` / ``u_max`` (m/s², shape (n,)): each vehicle's own limits, which its state does not
-    pass (anti-windup; ±inf: none), so the message it sends is a command it can follow."""
+    pass (anti-windup; ±inf: none), so the message it sends is a command it can follow.
+    ``h_alone`` (s): the time gap of the head and of a follower that hears no message."""
     n = obs.shape[0]
     out = np.empty(n)
     u_pred = u_lead
     for i in range(n):
-        e = obs[i, 2] - s0 - h * obs[i, 0]
-        e_dot = obs[i, 3] - h * obs[i, 1]
+        hi = h_alone if i == 0 or pred_mode[i] == 2 else h
+        e = obs[i, 2] - s0 - hi * obs[i, 0]
+        e_dot = obs[i, 3] - hi * obs[i, 1]
         u_in = u_pred
         if i > 0 and pred_mode[i] == 1:
             u_in = pred_held[i]
         elif i > 0 and pred_mode[i] == 2:
             u_in = 0.0
         u_old = u[i]
-        u[i] = min(u_old + (dt / h) * (-u_old + kp * e + kd * e_dot + u_in + adj[i]),
+        u[i] = min(u_old + (dt / hi) * (-u_old + kp * e + kd * e_dot + u_in + adj[i]),
                    k_cc * (v0 - obs[i, 0]))
         u[i] = min(max(u[i], u_min[i]), u_max[i])
         u_pred = u_old  # the message of vehicle i is its state at step k
@@ -194,7 +212,8 @@ class PloegController:
             u_lead, pred_mode, pred_held = 0.0, np.full(n, 2, dtype=np.int64), np.zeros(n)
         elif pred_mode is None:
             pred_mode, pred_held = np.zeros(n, dtype=np.int64), np.zeros(n)
-        return _ploeg_step(obs, u, u_lead, adj, p.time_gap_s, p.kp, p.kd, p.standstill_gap_m,
+        return _ploeg_step(obs, u, u_lead, adj, p.time_gap_s, p.gap_alone_s, p.kp, p.kd,
+                           p.standstill_gap_m,
                            DT_S, b.acc_min_mps2, b.acc_max_mps2, IDM.desired_speed_mps,
                            CRUISE_GAIN_PER_S, np.ascontiguousarray(pred_mode, dtype=np.int64),
                            np.ascontiguousarray(pred_held, dtype=np.float64), *self._limits(n))
@@ -292,12 +311,12 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
     kind = name.split(":")[0]
     law = "acc" if kind.startswith("acc") else "ploeg"
     if kind in ("ploeg", "acc"):
-        opts = _parse_options(name, ("h", "kp", "kd", "aw"))
+        opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha"))
         return PloegParams(opts.get("h", TEXTBOOK.time_gap_s), opts.get("kp", TEXTBOOK.kp),
                            opts.get("kd", TEXTBOOK.kd), feed_forward=law == "ploeg",
-                           anti_windup=_anti_windup(name, opts))
+                           anti_windup=_anti_windup(name, opts), alone_gap_s=opts.get("ha"))
     if kind in ("ploeg-tuned", "acc-tuned"):
-        opts = _parse_options(name, ("h", "aw"))
+        opts = _parse_options(name, ("h", "aw", "ha"))
         if "h" not in opts:
             raise InputError(f"controller {name!r}: name the time gap, e.g. {kind}:h=1")
         entries = [e for e in read_tuned_entries(tuned_file) if e.get("law", "ploeg") == law]
@@ -317,7 +336,8 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
             raise InputError(f"controller {name!r}: the tuning found no safe gains for h = "
                              f"{opts['h']:g} s (see {tuned_file or TUNED_FILE.parent})")
         return PloegParams(float(entry["h"]), float(entry["kp"]), float(entry["kd"]),
-                           feed_forward=law == "ploeg", anti_windup=_anti_windup(name, opts))
+                           feed_forward=law == "ploeg", anti_windup=_anti_windup(name, opts),
+                           alone_gap_s=opts.get("ha"))
     raise InputError(f"{name!r} is not a Ploeg CACC or ACC controller name")
 
 

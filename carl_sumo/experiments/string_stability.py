@@ -183,9 +183,9 @@ def analytic(controller: str, omegas: Sequence[float], plant: Plant | None,
     delay_steps = int(round(comm_delay_s / DT_S))
     p = parse_ploeg(controller)
     w = np.asarray(omegas, dtype=float)
-    args = (p.time_gap_s, p.kp, p.kd, tau or 0.0)
     out = {}
     for name, first in (("first_link", True), ("inner_links", False)):
+        args = (p.gap_alone_s if first else p.time_gap_s, p.kp, p.kd, tau or 0.0)
         cont = gamma_continuous(w, *args, phi=dead_steps * DT_S,
                                 theta=0.0 if first else delay_steps * DT_S,
                                 cacc=p.feed_forward, first_link=first)

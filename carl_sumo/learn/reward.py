@@ -8,7 +8,9 @@ for accelerations within ±3 m/s²), and ``collision_penalty`` for a follower wh
 An optional control-effort term -w_accel·a² (a in m/s²; w_accel = 0, i.e. off, by default) is
 this project's addition: it rewards attenuating the leader's accelerations (string stability).
 So is the optional spacing term -w_spacing·min((e/v)², 1) (off by default): e = d - s0 - h_s·v is
-the spacing error of a constant-time-gap policy (m), e/v its time-gap error (s, v floored at 1 m/s).
+the spacing error of a constant-time-gap policy (m), e/v its time-gap error (s, v floored at 1 m/s);
+the head (row 0, which hears no message from a human leader) may have its own time gap h_head
+(the degraded CACC's ``ha``, control/cacc.py).
 It holds a learned term on a CACC base at a chosen time gap instead of the human headway.
 Compiled with numba because it runs every 0.1 s step.
 """
@@ -35,7 +37,7 @@ def _headway_reward(h: float, mu: float, sigma: float) -> float:
 
 @njit(cache=True)
 def _platoon_reward(obs, prev_acc, w_gap, w_safe, w_comfort, w_accel, w_spacing, gap_s,
-                    standstill_m, mu, sigma, ttc_max, jerk_scale, penalty, dt):
+                    head_gap_s, standstill_m, mu, sigma, ttc_max, jerk_scale, penalty, dt):
     n = obs.shape[0]
     reward = np.empty(n)
     collided = np.zeros(n, dtype=np.bool_)
@@ -49,7 +51,8 @@ def _platoon_reward(obs, prev_acc, w_gap, w_safe, w_comfort, w_accel, w_spacing,
         jerk = (a - prev_acc[i]) / dt / jerk_scale
         r -= w_comfort * min(jerk * jerk, 1.0) + w_accel * a * a
         if w_spacing > 0.0:
-            gap_error_s = (d - standstill_m - gap_s * v) / max(v, 1.0)
+            h_s = head_gap_s if i == 0 else gap_s
+            gap_error_s = (d - standstill_m - h_s * v) / max(v, 1.0)
             r -= w_spacing * min(gap_error_s * gap_error_s, 1.0)
         if d <= 0.0:
             collided[i] = True
@@ -60,8 +63,9 @@ def _platoon_reward(obs, prev_acc, w_gap, w_safe, w_comfort, w_accel, w_spacing,
 
 @lru_cache(maxsize=16)
 def _params(cfg: RewardConfig) -> tuple[float, ...]:
+    head_gap = cfg.spacing_gap_s if cfg.spacing_head_gap_s is None else cfg.spacing_head_gap_s
     return (cfg.w_gap, cfg.w_safe, cfg.w_comfort, cfg.w_accel, cfg.w_spacing, cfg.spacing_gap_s,
-            cfg.spacing_standstill_m, cfg.headway_mu, cfg.headway_sigma,
+            head_gap, cfg.spacing_standstill_m, cfg.headway_mu, cfg.headway_sigma,
             cfg.ttc_threshold_s, cfg.jerk_scale_mps3, cfg.collision_penalty, DT_S)
 
 

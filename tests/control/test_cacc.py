@@ -265,3 +265,31 @@ def test_chains_keep_each_known_vehicles_state_within_its_limits_with_aw():
     assert runs["ploeg:h=0.8:aw=1"]["truck"] == 1.0
     assert runs["ploeg:h=0.8"]["truck"] > 1.5
     assert runs["ploeg:h=0.8:aw=1"]["car"] == runs["ploeg:h=0.8"]["car"]
+
+
+def test_ha_degrades_a_vehicle_without_a_message_to_an_acc_at_the_longer_gap():
+    """``ha=T``: the head (no message from a human leader) and a follower that hears nothing run
+    the law at the time gap T; a follower that hears its predecessor keeps h. Without ``ha``
+    the law is what it was."""
+    params = parse_ploeg("ploeg:h=0.8:kp=0.2:kd=0.7:aw=1:ha=1.4")
+    assert params.alone_gap_s == 1.4 and params.gap_alone_s == 1.4
+    assert params.name() == "ploeg:h=0.8:kp=0.2:kd=0.7:aw=1:ha=1.4"
+    assert parse_ploeg("acc:h=2:ha=3").gap_alone_s == 2.0  # an ACC has one gap: its own
+    assert parse_ploeg("ploeg:h=0.8").gap_alone_s == 0.8
+    with pytest.raises(InputError, match="ha must be a positive"):
+        parse_ploeg("ploeg:h=0.8:ha=0")
+    # three followers at 10 m/s, each at s0 + 1.4·v = 16 m: the head and a follower without
+    # a message are at their equilibrium (u stays 0); the one with a message is 6 m long
+    obs = np.array([[10.0, 0.0, 16.0, 0.0]] * 3)
+    law = PloegController(params)
+    law.reset(3)
+    law.step(obs, law.u, 0.0, pred_mode=np.array([0, 2, 0]), pred_held=np.zeros(3))
+    assert law.u[0] == 0.0 and law.u[1] == 0.0
+    assert math.isclose(law.u[2], (DT_S / 0.8) * 0.2 * (16.0 - 2.0 - 8.0), rel_tol=1e-12)
+    plain, reference = PloegController(parse_ploeg("ploeg:h=0.8")), \
+        PloegController(PloegParams(time_gap_s=0.8))
+    for law in (plain, reference):
+        law.reset(3)
+        law.step(obs, law.u, 0.0)
+    np.testing.assert_array_equal(plain.u, reference.u)
+    assert plain.u[0] > 0.0

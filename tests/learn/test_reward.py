@@ -51,3 +51,14 @@ def test_optional_spacing_term_penalises_the_time_gap_error():
     plain, _ = platoon_reward(obs, obs[:, 1].copy())
     spaced, _ = platoon_reward(obs, obs[:, 1].copy(), cfg)
     assert np.allclose(plain - spaced, [0.0, 2.0 * 0.09, 2.0 * 0.04, 2.0, 2.0 * 1.0])
+
+
+def test_the_head_may_have_its_own_spacing_gap():
+    from dataclasses import replace
+
+    cfg = replace(REWARD, w_spacing=1.0, spacing_gap_s=0.7, spacing_head_gap_s=1.4)
+    # both at 2 + 1.4·10 = 16 m: the head is at its reference, the second 0.7 s long
+    obs = np.array([[10.0, 0.0, 16.0, 0.0], [10.0, 0.0, 16.0, 0.0]])
+    plain, _ = platoon_reward(obs, obs[:, 1].copy())
+    spaced, _ = platoon_reward(obs, obs[:, 1].copy(), cfg)
+    assert np.allclose(plain - spaced, [0.0, 0.49])
