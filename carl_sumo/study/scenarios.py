@@ -5,8 +5,9 @@ One run = one event, one :class:`carl_sumo.sim.scenario.Manoeuvre` drawn for it,
 o = [v, a, d, Δv] of the vehicle SUMO has ahead of it (``getLeader``), whoever it is. The V2V
 chains are the runs of consecutive members in the platoon lane (:func:`chains_of`): a human who
 cuts in splits the chain, and the member behind him heads a chain of its own with no message
-from ahead (the degraded mode: Ploeg's CACC drops its feed-forward and acts as an ACC, the CA
-module takes its boundary message); a cut-out or a merge links the chain again; a joiner joins
+from ahead (the degraded mode: Ploeg's CACC drops its feed-forward and acts as an ACC, at the
+time gap ``ha`` of a name with one, the base of a policy trained on it included; the CA module
+takes its boundary message); a cut-out or a merge links the chain again; a joiner joins
 it. Controllers keep their state per vehicle ID (a joiner's starts at 0; with V2V delay or loss a
 new neighbour is heard from its first message that arrives,
 :class:`carl_sumo.control.channel.KeyedChannel`). On the real plant each controller is told every

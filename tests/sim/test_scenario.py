@@ -383,3 +383,106 @@ def test_before_the_manoeuvre_a_scenario_run_is_the_plain_run(event, name):
     diff = np.abs(trace.speed[:before, cols] - plain.speed[:before]).max()
     assert diff < 1e-6, diff
     assert np.abs(trace.gap[:before, cols] - plain.gap[:before]).max() < 1e-6
+
+
+# ------------------------------------------------------------------------------ degraded CACC
+ROBUST_HA = ROBUST + ":aw=1:ha=1.4"  # the real plant's robust CACC, an ACC at 1.4 s unheard
+
+
+def _ha_policy(tmp_path) -> str:
+    """A CA-TD3 policy file on the degraded CACC (untrained: its a_adj is the shielded zero)."""
+    from carl_sumo.learn.agents import Agent, AgentConfig
+    from carl_sumo.learn.policy import save_policy
+
+    path = tmp_path / "ha.pt"
+    save_policy(Agent(AgentConfig(algo="ca-td3", n_vehicles=4, adj_max=1.0, base=ROBUST_HA)),
+                path, {})
+    return str(path)
+
+
+def _law_steps(controller, watch: str, pred: str) -> list:
+    """Record every committed step of the classical law (a policy's base): (obs, ids, ahead,
+    adjustment, states u before, a, and how ``watch`` hears ``pred`` as (mode, message) when
+    ``pred`` is directly ahead of it, else None)."""
+    law = getattr(controller, "base", controller)
+    steps, inner = [], law.acceleration
+
+    def acceleration(obs, chains, ids, ahead, last_acc, adjustment=None, commit=True):
+        heard = None
+        row = ids.index(watch) if watch in ids else None
+        if commit and row is not None and ahead[row] is not None and ahead[row][0] == pred:
+            mode, held = law.links.receive(law._k, [(watch, pred)])  # what the law hears now
+            heard = (int(mode[0]), float(held[0, 0]))
+        before = dict(law.u)
+        out = inner(obs, chains, ids, ahead, last_acc, adjustment, commit)
+        if commit:
+            steps.append((obs.copy(), list(ids), list(ahead),
+                          np.zeros(len(ids)) if adjustment is None else np.array(adjustment),
+                          before, out.copy(), heard))
+        return out
+
+    law.acceleration = acceleration
+    return steps
+
+
+def _law(law, vid: str, gap_s: float, feed_forward: bool):
+    """A one- or two-row law of ``law``'s gains at time gap ``gap_s`` with ``vid``'s limits."""
+    from dataclasses import replace
+
+    from carl_sumo.control.cacc import PloegController
+
+    one = PloegController(replace(law.controller.params, time_gap_s=gap_s, alone_gap_s=None,
+                                  feed_forward=feed_forward))
+    a_max, b_max = law.limits[vid]
+    rows = 1 if not feed_forward else 2
+    one.u_min, one.u_max = np.full(rows, -b_max), np.full(rows, a_max)
+    return one
+
+
+@pytest.mark.parametrize("which", ["law", "policy"])
+def test_ha_the_follower_behind_a_cut_in_is_an_acc_at_ha_and_a_cacc_again_after(event, which,
+                                                                                tmp_path):
+    """Real plant, ``ha=1.4``: while the human is ahead of follower 4 (k=3) it hears no message
+    and its command is the ACC law's at h = 1.4 s (not 0.8 s), from the step after the cut-in
+    on; once he has left, it is in the chain again and runs the CACC at h = 0.8 s on its
+    predecessor's message (at 1.4 s only at a step when no message from it has arrived yet).
+    The same for a policy on that base (ChainController builds its base from the policy's)."""
+    from carl_sumo.sim.vehicle import REAL_PLANT
+
+    name = ROBUST_HA if which == "law" else _ha_policy(tmp_path)
+    imp = Impairments(delay_s=0.1, plant=REAL_PLANT)
+    model, controller = scenario_controller(name, imp.plant_key)
+    law = getattr(controller, "base", controller)
+    assert law.controller.params.alone_gap_s == 1.4 and law.controller.params.time_gap_s == 0.8
+    steps = _law_steps(controller, "f3", "f2")
+    sim = ScenarioSim(NET, model)
+    manoeuvre = parse_scenario("cut-in:k=3:t=6:f=0.5:leave=4").draw(event, N)
+    trace = run_scenario_event(sim, event, N, manoeuvre, controller, imp)
+    assert trace.collisions == 0 and sim.left_step is not None
+    alone = [s for s in steps if s[2][s[1].index("f3")][0] == "human"]
+    assert alone and alone[0] is steps[sim.done_step]  # from the step after the cut-in on
+    for obs, ids, ahead, adj, u, out, _ in alone:
+        row = ids.index("f3")
+        assert chains_of(ids, ahead)[1][0] == row  # f3 heads a chain of its own
+        expected = _law(law, "f3", 1.4, False).step(obs[[row]], np.array([u.get("f3", 0.0)]),
+                                                    0.0, adj[[row]])[0]
+        assert out[row] == pytest.approx(expected, abs=1e-12)
+    obs, ids, ahead, adj, u, out, _ = alone[0]
+    row = ids.index("f3")
+    at_h = _law(law, "f3", 0.8, False).step(obs[[row]], np.array([u.get("f3", 0.0)]), 0.0,
+                                            adj[[row]])[0]
+    assert abs(out[row] - at_h) > 1e-3  # not the ACC at h
+    rejoined = [s for s in steps[sim.left_step:] if s[6] is not None]
+    assert len(rejoined) > 20 and len(chains_of(rejoined[-1][1], rejoined[-1][2])) == 1
+    modes = [s[6][0] for s in rejoined]
+    assert modes[0] == 2 and set(modes[1:]) == {1}  # unheard one step, then its message
+    for obs, ids, ahead, adj, u, out, (mode, held) in rejoined:
+        row = ids.index("f3")
+        if mode == 2:
+            expected = _law(law, "f3", 1.4, False).step(obs[[row]], np.array([u["f3"]]), 0.0,
+                                                        adj[[row]])[0]
+        else:  # row 1 of a two-row chain hears the held message: the CACC at h = 0.8 s
+            expected = _law(law, "f3", 0.8, True).step(
+                obs[[row - 1, row]], np.array([u["f2"], u["f3"]]), 0.0, adj[[row - 1, row]],
+                np.array([0, 1]), np.array([0.0, held]))[1]
+        assert out[row] == pytest.approx(expected, abs=1e-12)
