@@ -35,6 +35,10 @@ REAL_SPACING="${REAL_AW/--select comfort/--select reward} --w-spacing 1 --spacin
 # human leader, runs the law as an ACC at 1.4 s, the smallest time gap whose first link is string stable for every
 # class of the real fleet (docs/string_stability.md), and the spacing term holds the head at 1.4 s, the rest at 0.7 s.
 REAL_SPACING_HA="${REAL_SPACING/--base ploeg:h=0.8:kp=0.0445:kd=1:aw=1/--base ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4} --spacing-head-gap 1.4"
+# real_spacing_ha_allval_recipe: REAL_SPACING_HA validated on 64 events of every training source (no --val-source):
+# validated on zhu2020_pool_transfollower alone, the shipped run collided on 79 events of tzhang_reextracted_i80.
+REAL_SPACING_HA_ALLVAL="$REAL_SPACING_HA"
+COMMON_ALLVAL="${COMMON/ --val-source zhu2020_pool_transfollower/}"
 PRODUCT="--base ploeg-tuned:h=0.8 --shield-ttc 4 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
 
 train_seeds() {  # STEM "SEEDS" TRAIN_ARGS...

@@ -119,10 +119,10 @@ def selection_score(val: dict[str, float], select: str,
     """Higher is better. Every rule but ``reward`` ranks an unsafe checkpoint (any collision, any
     TTC < 1.5 s sample, a mean headway outside [1, 2.5] s) below all safe ones.
 
-    - ``reward``: mean validation reward (the objective the agent is trained on), with any
-      collision, or more TTC < 1.5 s samples than the ``baseline`` (none when there is no
-      baseline), ranked below all safe checkpoints; no headway bound (a reward with a spacing
-      term sets the gap itself).
+    - ``reward``: mean validation reward (the objective the agent is trained on), with more
+      collisions or more TTC < 1.5 s samples than the ``baseline`` (none when there is no
+      baseline: validation events may include ones the base itself cannot survive) ranked below
+      all safe checkpoints; no headway bound (a reward with a spacing term sets the gap itself).
     - ``metrics``: -(dampening ratio + mean |jerk|), each divided by the IDM ``baseline``'s value
       on the same events when one is given, with (given a baseline) a lower mean speed than
       IDM's ranked as unsafe. An undefined term (NaN: a leader that never accelerates) counts 0.
@@ -136,8 +136,9 @@ def selection_score(val: dict[str, float], select: str,
       frontier where it stands, not by following further behind).
     """
     if select == "reward":
-        allowed_ttc = baseline["ttc_lt_1_5s_count"] if baseline else 0.0
-        unsafe = val["collisions"] > 0 or val["ttc_lt_1_5s_count"] > allowed_ttc
+        allowed = baseline or {"collisions": 0.0, "ttc_lt_1_5s_count": 0.0}
+        unsafe = val["collisions"] > allowed["collisions"] or \
+            val["ttc_lt_1_5s_count"] > allowed["ttc_lt_1_5s_count"]
         return val["val_reward"] - (1000.0 if unsafe else 0.0)
     penalty = 1000.0 if is_unsafe(val) else 0.0
     if select == "margin":

@@ -79,6 +79,11 @@ def test_selection_prefers_safe_smooth_policies():
     assert selection_score(risky, "reward") < selection_score(base, "reward")
     assert selection_score(risky, "reward", dict(base, ttc_lt_1_5s_count=3)) > \
         selection_score(base, "reward", dict(base, ttc_lt_1_5s_count=3))
+    # a base that collides once on the validation events: one collision is no worse than it
+    hard = dict(base, collisions=1)
+    assert selection_score(dict(hard, val_reward=0.9), "reward", hard) > \
+        selection_score(hard, "reward", hard) > selection_score(dict(hard, collisions=2,
+                                                                      val_reward=0.9), "reward", hard)
     idm = dict(base, speed_mps=8.0, dampening_ratio=0.8, jerk_mps3=0.2)
     fast = dict(base, speed_mps=9.0)
     slow = dict(fast, speed_mps=7.5)
