@@ -39,6 +39,9 @@ REAL_SPACING_HA="${REAL_SPACING/--base ploeg:h=0.8:kp=0.0445:kd=1:aw=1/--base pl
 # validated on zhu2020_pool_transfollower alone, the shipped run collided on 79 events of tzhang_reextracted_i80.
 REAL_SPACING_HA_ALLVAL="$REAL_SPACING_HA"
 COMMON_ALLVAL="${COMMON/ --val-source zhu2020_pool_transfollower/}"
+# real_spacing_ha_own_gap_recipe: REAL_SPACING_HA_ALLVAL with the spacing term at the base's own 0.8 s: the term only
+# keeps the learned term from buying comfort with a longer gap (at 0.7 s it was not safe on every source).
+REAL_SPACING_HA_OWN_GAP="${REAL_SPACING_HA_ALLVAL/--spacing-gap 0.7/--spacing-gap 0.8}"
 PRODUCT="--base ploeg-tuned:h=0.8 --shield-ttc 4 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
 
 train_seeds() {  # STEM "SEEDS" TRAIN_ARGS...
