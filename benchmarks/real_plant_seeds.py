@@ -12,7 +12,7 @@ Usage: python benchmarks/real_plant_seeds.py [DATA] [CA_STEM CA_OFF_STEM [TD3_ST
 With stems (e.g. ``ca_td3_real_acc_10 ca_td3_real_acc_nocomm_10``, the communication test on the
 radar-only base) the same for those models, written to ``learned_test_<CA_STEM>.json`` and
 ``learned_test_<CA_OFF_STEM>.json``; with TD3_STEM (plain TD3 on the same recipe, e.g.
-``td3_real_spacing_1``) also ``learned_test_<TD3_STEM>.json`` and CA against it, paired by seed.
+``td3_real_ha_1``) also ``learned_test_<TD3_STEM>.json`` and CA against it, paired by seed.
 """
 import glob
 import json
@@ -97,6 +97,7 @@ def compare(ca: dict, other: dict, ca_stem: str, other_stem: str) -> None:
         p = stats.ttest_rel(a, b).pvalue
         print(f"{key}: CA {a.mean():.4f} ± {a.std(ddof=1):.4f}, other {b.mean():.4f} ± "
               f"{b.std(ddof=1):.4f}, {(a.mean() / b.mean() - 1) * 100:+.1f} %, paired p = {p:.3f}")
+
 
 if __name__ == "__main__":
     main()

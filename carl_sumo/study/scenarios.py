@@ -43,8 +43,8 @@ from carl_sumo.control.controllers import applied_acceleration
 from carl_sumo.control.external import is_external_name, load_external
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
-from carl_sumo.experiments.simulate import NATIVE_CONTROLLERS, cached_sim, check_impairable, fcd_run, \
-    plant_of
+from carl_sumo.experiments.simulate import (NATIVE_CONTROLLERS, cached_sim, check_impairable,
+                                            fcd_run, plant_of)
 from carl_sumo.sim.manoeuvre_metrics import ScenarioTrace, manoeuvre_metrics, whole_run_metrics
 from carl_sumo.sim.scenario import Manoeuvre, ScenarioSpec
 from carl_sumo.sim.scenario_sim import ScenarioSim, adjacent_route
