@@ -105,6 +105,14 @@ def _trial_process(sweep_pid: int) -> int | None:
     return None
 
 
+def _driver_holds_second_checkpoint(tune_dir: Path) -> bool:
+    """Tune's driver has registered the step-200 checkpoint. The worker writes the folder
+    before the driver hears of it; only after registering it does the driver delete the
+    step-100 one (``num_to_keep=1``)."""
+    return any(tune_dir.glob("*/checkpoint_000001")) and \
+        not any(tune_dir.glob("*/checkpoint_000000"))
+
+
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc to find the trial's worker")
 def test_a_killed_trial_resumes_from_its_checkpoint_and_the_sweep_finishes(tmp_path):
     pytest.importorskip("ray")
@@ -118,7 +126,7 @@ def test_a_killed_trial_resumes_from_its_checkpoint_and_the_sweep_finishes(tmp_p
         victim = None
         while victim is None and time.monotonic() < deadline and proc.poll() is None:
             time.sleep(0.5)
-            if any(tune_dir.glob("*/checkpoint_000001")):  # Tune holds the step-200 checkpoint
+            if _driver_holds_second_checkpoint(tune_dir):
                 victim = _trial_process(proc.pid)
         assert victim is not None, "the trial never reached its second checkpoint"
         os.kill(victim, signal.SIGKILL)
