@@ -26,6 +26,17 @@ hears no V2V message (the first follower behind a human leader, a follower behin
 human) runs the same law as an ACC at the longer time gap T (h → T in e_i, ė_i and the filter),
 as a radar-only link needs a longer gap to stay string stable (docs/string_stability.md).
 
+Reaction layer (``ttc=T`` in a name, e.g. ``ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2``): a
+vehicle that hears no V2V message reacts at once when it closes in on the vehicle ahead, which the
+law at T, filtered with time constant T, does too slowly on a lagging powertrain. When the time to
+collision (d_i - 1 m)/c_i with closing speed c_i = v_i - v_{i-1} > 0 drops below T, it applies at
+most -c_i²/(2·(d_i - 1 m - 0.5 s·c_i)), the constant deceleration that stops the closing in 1 m
+short after 0.5 s of lag (the most braking when no room is left). That braking is what it applies
+and what its follower hears as its message; its state u is left to the law, so it resumes from
+its own state when the threat has passed (written into u, the braking outlasted the threat and
+the platoon behind came to a stop). A follower that hears its predecessor has the message and
+does not react (with a reaction there too the training events had more collisions, 4 against 2).
+
 As the base of a learned controller (``carl-sumo train --base ploeg-tuned:h=1``), a learned term
 a_adj,i (m/s²) enters the law as one more feed-forward input beside the predecessor's:
 u_i(k+1) = u_i(k) + (dt/h)·(-u_i(k) + kp·e_i + kd·ė_i + u_{i-1}(k) + a_adj,i). So it passes
@@ -76,13 +87,16 @@ class PloegParams:
     alone_gap_s: float | None = None  # ha: time gap (s) of a CACC vehicle that hears no V2V
                                 # message (the head behind a human, a follower behind a cut-in
                                 # human): degraded to an ACC at a longer gap (None: h)
+    reaction_ttc_s: float | None = None  # ttc: below this time to collision (s) the state brakes
+                                # at least as hard as closing in needs (None: no reaction layer)
 
     def name(self) -> str:
         """The controller name that runs these gains."""
         kind = "ploeg" if self.feed_forward else "acc"
         return f"{kind}:h={self.time_gap_s:g}:kp={self.kp:g}:kd={self.kd:g}" + \
             (":aw=1" if self.anti_windup else "") + \
-            (f":ha={self.alone_gap_s:g}" if self.alone_gap_s is not None else "")
+            (f":ha={self.alone_gap_s:g}" if self.alone_gap_s is not None else "") + \
+            (f":ttc={self.reaction_ttc_s:g}" if self.reaction_ttc_s is not None else "")
 
     @property
     def gap_alone_s(self) -> float:
@@ -93,20 +107,28 @@ class PloegParams:
 
 
 TEXTBOOK = PloegParams()
+REACTION_MARGIN_M = 1.0
+"""The reaction layer brakes to keep this much bumper gap when closing in (m)."""
+REACTION_LAG_S = 0.5
+"""The reaction layer's allowance for dead time and powertrain lag: the gap it counts on is
+reduced by the closing speed times this (s; a truck's lag is 0.4-0.6 s, docs/vehicles.md)."""
 CRUISE_GAIN_PER_S = 0.4
 """k_cc: cruise-control gain of the speed cap a ≤ k_cc·(v0 - v) (1/s)."""
 
 
 @njit(cache=True)
-def _ploeg_step(obs, u, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc,
-                pred_mode, pred_held, u_min, u_max):
+def _ploeg_step(obs, u, sent, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc,
+                pred_mode, pred_held, u_min, u_max, ttc_on, margin, lag):
     """One step of every follower (head first): updates ``u`` in place, returns a (m/s²);
     ``adj`` (m/s², shape (n,)) is the learned feed-forward term (zeros for the plain law).
     ``pred_mode`` / ``pred_held`` (shape (n,)): how follower i > 0 hears its predecessor's
     message (carl_sumo.control.channel: 0 this step's, 1 the held value, 2 none: no feed-forward).
     ``u_min`` / ``u_max`` (m/s², shape (n,)): each vehicle's own limits, which its state does not
     pass (anti-windup; ±inf: none), so the message it sends is a command it can follow.
-    ``h_alone`` (s): the time gap of the head and of a follower that hears no message."""
+    ``h_alone`` (s): the time gap of the head and of a follower that hears no message.
+    ``ttc_on`` (s; 0: off): below this time to collision, (d - margin)/closing speed, the state
+    is at most -c²/(2·(d - margin - lag·c)), the deceleration that stops the closing in at
+    ``margin`` (m) after ``lag`` (s) of reaction (the most braking when no room is left)."""
     n = obs.shape[0]
     out = np.empty(n)
     u_pred = u_lead
@@ -119,12 +141,21 @@ def _ploeg_step(obs, u, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min, acc_ma
             u_in = pred_held[i]
         elif i > 0 and pred_mode[i] == 2:
             u_in = 0.0
+        sent_old = sent[i]
         u_old = u[i]
         u[i] = min(u_old + (dt / hi) * (-u_old + kp * e + kd * e_dot + u_in + adj[i]),
                    k_cc * (v0 - obs[i, 0]))
         u[i] = min(max(u[i], u_min[i]), u_max[i])
-        u_pred = u_old  # the message of vehicle i is its state at step k
+        u_pred = sent_old  # the message of vehicle i at step k
         out[i] = min(max(u[i], acc_min), acc_max)
+        sent[i] = u[i]
+        closing = -obs[i, 3]
+        alone = i == 0 or pred_mode[i] == 2
+        if alone and ttc_on > 0.0 and closing > 0.0 and obs[i, 2] - margin < ttc_on * closing:
+            room = obs[i, 2] - margin - lag * closing
+            need = closing * closing / (2.0 * room) if room > 0.0 else np.inf
+            out[i] = max(min(out[i], -need), acc_min, u_min[i])  # at most its own braking
+            sent[i] = min(u[i], out[i])  # its follower hears the reaction's braking
     return out
 
 
@@ -148,13 +179,14 @@ class PloegController:
         self.name = name or params.name()
         self.bounds = bounds
         self.u = np.zeros(0)
+        self.sent = np.zeros(0)  # each follower's last message (m/s²): u, or a reaction's braking
         self.u_min, self.u_max = np.zeros(0), np.zeros(0)
         self._leader_speed: float | None = None
         self.channel: Channel | None = None
         self._k = 0
 
     def reset(self, n_followers: int) -> None:
-        self.u = np.zeros(n_followers)
+        self.u, self.sent = np.zeros(n_followers), np.zeros(n_followers)
         self.u_min, self.u_max = np.full(n_followers, -np.inf), np.full(n_followers, np.inf)
         self._leader_speed = None
         self.channel, self._k = None, 0
@@ -188,10 +220,10 @@ class PloegController:
             mode, held = self.channel.receive(self._k)
             held = held[:, 0]
         if not commit:
-            return self.step(obs, self.u.copy(), a_lead, None, mode, held)
+            return self.step(obs, self.u.copy(), a_lead, None, mode, held, self.sent.copy())
         self._leader_speed = leader_speed
-        messages = np.concatenate([[0.0], self.u[:-1]])  # follower j hears u_{j-1} of step k
-        out = self.step(obs, self.u, a_lead, adjustment, mode, held)
+        messages = np.concatenate([[0.0], self.sent[:-1]])  # follower j hears j - 1's of step k
+        out = self.step(obs, self.u, a_lead, adjustment, mode, held, self.sent)
         if self.channel is not None:
             self.channel.send(self._k, messages[:, None])
             self._k += 1
@@ -199,11 +231,12 @@ class PloegController:
 
     def step(self, obs: np.ndarray, u: np.ndarray, u_lead: float,
              adjustment: np.ndarray | None = None, pred_mode: np.ndarray | None = None,
-             pred_held: np.ndarray | None = None) -> np.ndarray:
+             pred_held: np.ndarray | None = None, sent: np.ndarray | None = None) -> np.ndarray:
         """One step of the law on a chain (head first): updates the states ``u`` in place; the
         head hears ``u_lead`` (m/s²); ``adjustment``: the learned feed-forward term (m/s²);
         ``pred_mode`` / ``pred_held``: how each follower hears its predecessor (default: this
-        step's message). Returns a (m/s²)."""
+        step's message); ``sent``: each vehicle's last message, updated in place (default: its
+        state ``u``, as without a reaction layer). Returns a (m/s²)."""
         p, b = self.params, self.bounds
         n = obs.shape[0]
         adj = np.zeros(n) if adjustment is None else \
@@ -212,11 +245,13 @@ class PloegController:
             u_lead, pred_mode, pred_held = 0.0, np.full(n, 2, dtype=np.int64), np.zeros(n)
         elif pred_mode is None:
             pred_mode, pred_held = np.zeros(n, dtype=np.int64), np.zeros(n)
-        return _ploeg_step(obs, u, u_lead, adj, p.time_gap_s, p.gap_alone_s, p.kp, p.kd,
+        sent = u.copy() if sent is None else sent
+        return _ploeg_step(obs, u, sent, u_lead, adj, p.time_gap_s, p.gap_alone_s, p.kp, p.kd,
                            p.standstill_gap_m,
                            DT_S, b.acc_min_mps2, b.acc_max_mps2, IDM.desired_speed_mps,
                            CRUISE_GAIN_PER_S, np.ascontiguousarray(pred_mode, dtype=np.int64),
-                           np.ascontiguousarray(pred_held, dtype=np.float64), *self._limits(n))
+                           np.ascontiguousarray(pred_held, dtype=np.float64), *self._limits(n),
+                           p.reaction_ttc_s or 0.0, REACTION_MARGIN_M, REACTION_LAG_S)
 
     def _limits(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """(u_min, u_max) of a chain of ``n`` (m/s²): the known vehicles' limits, else none
@@ -311,12 +346,13 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
     kind = name.split(":")[0]
     law = "acc" if kind.startswith("acc") else "ploeg"
     if kind in ("ploeg", "acc"):
-        opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha"))
+        opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "ttc"))
         return PloegParams(opts.get("h", TEXTBOOK.time_gap_s), opts.get("kp", TEXTBOOK.kp),
                            opts.get("kd", TEXTBOOK.kd), feed_forward=law == "ploeg",
-                           anti_windup=_anti_windup(name, opts), alone_gap_s=opts.get("ha"))
+                           anti_windup=_anti_windup(name, opts), alone_gap_s=opts.get("ha"),
+                           reaction_ttc_s=opts.get("ttc"))
     if kind in ("ploeg-tuned", "acc-tuned"):
-        opts = _parse_options(name, ("h", "aw", "ha"))
+        opts = _parse_options(name, ("h", "aw", "ha", "ttc"))
         if "h" not in opts:
             raise InputError(f"controller {name!r}: name the time gap, e.g. {kind}:h=1")
         entries = [e for e in read_tuned_entries(tuned_file) if e.get("law", "ploeg") == law]
@@ -337,7 +373,7 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
                              f"{opts['h']:g} s (see {tuned_file or TUNED_FILE.parent})")
         return PloegParams(float(entry["h"]), float(entry["kp"]), float(entry["kd"]),
                            feed_forward=law == "ploeg", anti_windup=_anti_windup(name, opts),
-                           alone_gap_s=opts.get("ha"))
+                           alone_gap_s=opts.get("ha"), reaction_ttc_s=opts.get("ttc"))
     raise InputError(f"{name!r} is not a Ploeg CACC or ACC controller name")
 
 
@@ -362,13 +398,14 @@ class PloegChains:
         self.controller = PloegController(params, name, bounds)
         self.name = self.controller.name
         self.u: dict[str, float] = {}
+        self.sent: dict[str, float] = {}  # ID: its last message (m/s²; u, or a reaction's)
         self.limits: dict[str, tuple[float, float]] = {}  # ID: (a_max, b_max) (m/s²)
         self.links: KeyedChannel | None = None
         self._k = 0
 
     def reset(self) -> None:
         """Forget every state, limit and link: a new run starts (every vehicle's u at 0)."""
-        self.u, self.limits, self.links, self._k = {}, {}, None, 0
+        self.u, self.sent, self.limits, self.links, self._k = {}, {}, {}, None, 0
 
     def know_vehicle(self, vehicle_id: str, a_max_mps2: float, b_max_mps2: float) -> None:
         """What one vehicle's powertrain can do (:meth:`PloegController.know_vehicles`; only a
@@ -400,11 +437,12 @@ class PloegChains:
         that leaves the states as they are."""
         out = np.empty(obs.shape[0])
         u_new: dict[str, float] = {}
+        sent_new: dict[str, float] = {}
         for chain in chains:
             head = ahead[chain[0]]
             a_pred = last_acc.get(head[0], 0.0) if head is not None else 0.0
             u = np.array([self.u.get(ids[i], 0.0) for i in chain])
-            sent = u.copy()  # vehicle j's message is its state at this step
+            sent = np.array([self.sent.get(ids[i], self.u.get(ids[i], 0.0)) for i in chain])
             adj = None if adjustment is None else adjustment[chain]
             mode = held = None
             if self.links is not None:  # follower j > 0 hears j - 1 over its link
@@ -413,12 +451,13 @@ class PloegChains:
                 got_mode, got_held = self.links.receive(self._k, pairs)
                 mode[1:], held[1:] = got_mode, got_held[:, 0]
                 if commit:
-                    self.links.send(self._k, pairs, sent[:-1, None])
+                    self.links.send(self._k, pairs, sent[:-1, None].copy())
             self._set_limits([ids[i] for i in chain])
             out[chain] = self.controller.step(np.ascontiguousarray(obs[chain]), u, a_pred, adj,
-                                              mode, held)
+                                              mode, held, sent)
             u_new.update(zip((ids[i] for i in chain), u.tolist()))
+            sent_new.update(zip((ids[i] for i in chain), sent.tolist()))
         if commit:
-            self.u = u_new
+            self.u, self.sent = u_new, sent_new
             self._k += 1
         return out

@@ -293,3 +293,63 @@ def test_ha_degrades_a_vehicle_without_a_message_to_an_acc_at_the_longer_gap():
         law.step(obs, law.u, 0.0)
     np.testing.assert_array_equal(plain.u, reference.u)
     assert plain.u[0] > 0.0
+
+
+def test_ttc_reaction_brakes_a_vehicle_without_a_message_at_once_and_tells_its_follower():
+    """``ttc=T``: below a time to collision T, a vehicle that hears no message applies at most
+    -c²/(2·(d - 1 - 0.5·c)) and sends it; its state stays the law's. A follower that hears its
+    predecessor, and every vehicle above T, is left to the law."""
+    params = parse_ploeg("ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2")
+    assert params.reaction_ttc_s == 2.0 and params.name().endswith(":ha=1.4:ttc=2")
+    with pytest.raises(InputError, match="ttc must be a positive"):
+        parse_ploeg("ploeg:h=0.8:ttc=0")
+    plain = PloegController(parse_ploeg("ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4"))
+    law = PloegController(params)
+    # the head closes at 2.5 m/s with 4 m of gap (TTC (4 - 1)/2.5 = 1.2 s); followers 1 and 2
+    # close as fast, 1 on its predecessor's message, 2 without one
+    obs = np.array([[8.5, 0.0, 4.0, -2.5]] * 3)
+    mode = np.array([0, 0, 2])
+    for c in (plain, law):
+        c.reset(3)
+    a_plain = plain.step(obs, plain.u, 0.0, pred_mode=mode, pred_held=np.zeros(3))
+    sent = np.zeros(3)
+    a = law.step(obs, law.u, 0.0, pred_mode=mode, pred_held=np.zeros(3), sent=sent)
+    need = 2.5 ** 2 / (2.0 * (4.0 - 1.0 - 0.5 * 2.5))
+    assert math.isclose(a[0], -need, rel_tol=1e-12) and math.isclose(a[2], -need, rel_tol=1e-12)
+    assert a[1] == a_plain[1] > -need  # it hears a message: no reaction
+    np.testing.assert_array_equal(law.u, plain.u)  # the states are the law's
+    np.testing.assert_allclose(sent, [-need, a_plain[1], -need], rtol=1e-12)
+    # the next step, follower 1 hears the head's braking, not its state
+    a_next = law.step(obs, law.u, 0.0, pred_mode=mode, pred_held=np.zeros(3), sent=sent)
+    a_plain_next = plain.step(obs, plain.u, 0.0, pred_mode=mode, pred_held=np.zeros(3))
+    assert math.isclose(a_next[1] - a_plain_next[1], (DT_S / 0.8) * (-need - a_plain[0]),
+                        rel_tol=1e-9)
+    # no room left (d - 1 m ≤ 0.5 s·c): the most braking its vehicle can (aw: its own limit)
+    law.reset(1)
+    law.know_vehicles(np.array([1.0]), np.array([6.0]))
+    assert law.step(np.array([[8.5, 0.0, 2.0, -2.5]]), law.u, 0.0)[0] == -6.0
+    # a time to collision above T, or opening: the law alone
+    for row in ([8.5, 0.0, 9.0, -2.5], [8.5, 0.0, 2.0, 0.5]):
+        for c in (plain, law):
+            c.reset(1)
+        one = np.array([row])
+        assert law.step(one, law.u, 0.0)[0] == plain.step(one, plain.u, 0.0)[0]
+
+
+def test_ttc_reaction_keeps_the_platoon_of_a_close_start_apart_in_sumo():
+    """A settled start from a recorded gap of 3.9 m closing at 2.5 m/s on the real plant: the
+    degraded head without the reaction brakes too late; with it no follower collides."""
+    from carl_sumo.control.channel import Impairments
+    from carl_sumo.sim.vehicle import Plant, parse_fleet
+
+    n, v_lead, v0, gap0, steps = 10, 6.09, 8.55, 3.93, 200
+    event = Event("close_start", "synthetic", "none", v_lead * DT_S * np.arange(steps),
+                  np.full(steps, v_lead), 5.0, np.full(steps, v0), np.full(steps, gap0),
+                  dt=DT_S).with_warmup(10.0)
+    sim = cached_sim(NET, "external")
+    imp = Impairments(delay_s=0.1, plant=Plant(parse_fleet("truck:1")))  # a truck at its head
+    base = "ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4"
+    runs = {name: run_event(sim, event, n, ploeg_controller(name), impairments=imp)
+            for name in (base, base + ":ttc=2")}
+    assert runs[base].collisions > 0
+    assert runs[base + ":ttc=2"].collisions == 0
