@@ -42,6 +42,9 @@ COMMON_ALLVAL="${COMMON/ --val-source zhu2020_pool_transfollower/}"
 # real_spacing_ha_own_gap_recipe: REAL_SPACING_HA_ALLVAL with the spacing term at the base's own 0.8 s: the term only
 # keeps the learned term from buying comfort with a longer gap (at 0.7 s it was not safe on every source).
 REAL_SPACING_HA_OWN_GAP="${REAL_SPACING_HA_ALLVAL/--spacing-gap 0.7/--spacing-gap 0.8}"
+# real_react_recipe: REAL_SPACING_HA_ALLVAL on the degraded CACC with its reaction layer (ttc=2): a vehicle that hears no
+# message brakes at once when its time to collision drops below 2 s (docs/vehicles.md); validated on every source.
+REAL_REACT="${REAL_SPACING_HA_ALLVAL/--base ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4/--base ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2}"
 PRODUCT="--base ploeg-tuned:h=0.8 --shield-ttc 4 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
 
 train_seeds() {  # STEM "SEEDS" TRAIN_ARGS...
