@@ -33,18 +33,22 @@ ROBUST_HA = ROBUST_AW + ":ha=1.4"
 """:data:`ROBUST_AW` as a degraded CACC: a vehicle that hears no V2V message (the first follower,
 the follower behind a cut-in human, a merge's second platoon before it links) runs the law as an
 ACC at the time gap 1.4 s."""
+ROBUST_TTC = ROBUST_HA + ":ttc=2"
+""":data:`ROBUST_HA` with its reaction layer: a vehicle that hears no message brakes at once when
+its time to collision drops below 2 s (:mod:`carl_sumo.control.cacc`)."""
 PLANT_CONTROLLERS = {
     "ideal": ("idm", "sumo-cacc", "acc:h=2.5:kp=0.45:kd=1.5", "ploeg-tuned:h=0.8",
               "ca_td3_10.pt", "ca_td3_ploeg_10.pt", "ca_td3_real_10.pt", "maddpg_10.pt"),
     "real": ("idm-external", "acc-tuned:h=2.5", "ploeg-tuned:h=0.8", ROBUST_AW, ROBUST_HA,
-             "ca_td3_10.pt", "ca_td3_ploeg_10.pt", "ca_td3_real_10.pt", "ca_td3_real_aw_10.pt",
+             ROBUST_TTC, "ca_td3_10.pt", "ca_td3_ploeg_10.pt", "ca_td3_real_10.pt", "ca_td3_real_aw_10.pt",
              "ca_td3_real_ha_10.pt", "maddpg_10.pt"),
 }
 """The controllers of each plant's tables (policy files in the policies folder): SUMO's IDM (run
 by carl-sumo on the real plant, whose vehicles SUMO's models cannot drive) and SUMO's CACC (the
 ideal plant only), the ACC at h = 2.5 s with the gains tuned for the fleet, the tuned Ploeg CACC
 at h = 0.8 s (the gains tuned for each plant; on the real plant also with anti-windup,
-:data:`ROBUST_AW`, and that as a degraded CACC, :data:`ROBUST_HA`), the paper's CA-TD3 on IDM, the
+:data:`ROBUST_AW`, that as a degraded CACC, :data:`ROBUST_HA`, and that with its reaction
+layer, :data:`ROBUST_TTC`), the paper's CA-TD3 on IDM, the
 product CA-TD3 on the tuned CACC for the ideal and for the real plant (and the real plant's on
 :data:`ROBUST_AW` and on :data:`ROBUST_HA`), and MADDPG (n/a: fixed size)."""
 LABELS = {"idm": "IDM (SUMO)", "idm-external": "IDM (carl-sumo, on the plant)",
@@ -54,6 +58,7 @@ LABELS = {"idm": "IDM (SUMO)", "idm-external": "IDM (carl-sumo, on the plant)",
           "ca_td3_real_10.pt": "CA-TD3 product (real)", ROBUST_AW: "Ploeg tuned h=0.8 s, aw=1",
           "ca_td3_real_aw_10.pt": "CA-TD3 product (real, aw=1)",
           ROBUST_HA: "Ploeg tuned h=0.8 s, aw=1, degraded ha=1.4 s",
+          ROBUST_TTC: "the same with its reaction layer ttc=2 s",
           "ca_td3_real_ha_10.pt": "CA-TD3 product (real, ha=1.4)", "maddpg_10.pt": "MADDPG"}
 TABLE_COLUMNS = (
     ("done", "done", "{}"), ("min gap (m)", "min_gap_m", "{:.2f}"),

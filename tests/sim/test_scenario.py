@@ -486,3 +486,21 @@ def test_ha_the_follower_behind_a_cut_in_is_an_acc_at_ha_and_a_cacc_again_after(
                 obs[[row - 1, row]], np.array([u["f2"], u["f3"]]), 0.0, adj[[row - 1, row]],
                 np.array([0, 1]), np.array([0.0, held]))[1]
         assert out[row] == pytest.approx(expected, abs=1e-12)
+
+
+def test_ttc_reaction_stops_a_lagging_follower_running_into_a_cut_in_human():
+    """Real plant, a recorded default event: the human cuts in 0.45 of the gap ahead of follower
+    8 and brakes to open his own gap; behind him the degraded CACC (ACC at 1.4 s, no message)
+    collides, with the reaction layer (``ttc=2``) it stops short."""
+    from carl_sumo.sim.vehicle import REAL_PLANT
+
+    event = next(e for e in load_events("default", "test")
+                 if e.event_id == "sumo42_f2500_l2473_fr8486").with_warmup(60.0)
+    imp = Impairments(delay_s=0.1, plant=REAL_PLANT)
+    manoeuvre = parse_scenario("cut-in:k=7:t=68.2:f=0.45").draw(event, 10)
+    collisions = {}
+    for name in (ROBUST_HA, ROBUST_HA + ":ttc=2"):
+        model, controller = scenario_controller(name, imp.plant_key)
+        trace = run_scenario_event(ScenarioSim(NET, model), event, 10, manoeuvre, controller, imp)
+        collisions[name] = trace.collisions
+    assert collisions == {ROBUST_HA: 1, ROBUST_HA + ":ttc=2": 0}
