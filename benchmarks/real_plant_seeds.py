@@ -7,7 +7,11 @@ settled start); ‖Γ‖∞ of the CA seeds per class at 0.5 and 2 m/s (5 follow
 Writes ``docs/results_real/learned_test.json`` (CA, with ‖Γ‖∞) and ``learned_test_nocomm.json``
 and prints the comparison. About 15 minutes on 2 free cores.
 
-Usage: python benchmarks/real_plant_seeds.py [DATA] [CA_STEM CA_OFF_STEM [TD3_STEM] [--no-hinf]]
+Usage: python benchmarks/real_plant_seeds.py [DATA] [CA_STEM CA_OFF_STEM [TD3_STEM] [--no-hinf]
+[--reuse]]
+
+``--reuse``: a model whose JSON is already written (with a row for each of its seed files) is
+read from it, not run again (e.g. to add TD3 when its seeds finish later).
 
 With stems (e.g. ``ca_td3_real_acc_10 ca_td3_real_acc_nocomm_10``, the communication test on the
 radar-only base) the same for those models, written to ``learned_test_<CA_STEM>.json`` and
@@ -37,10 +41,16 @@ KEYS = ("headway_s", "jerk_mps3", "dampening_ratio", "speed_mps", "ttc_lt_1_5s_c
 REAL = Impairments(delay_s=REAL_COMM_DELAY_S, plant=REAL_PLANT)
 
 
-def test_split(model: str, events) -> dict:
-    """Every seed file of ``model`` on the events: {path: metrics}."""
+def test_split(model: str, events, saved: Path | None = None) -> dict:
+    """Every seed file of ``model`` on the events: {path: metrics}; read from ``saved`` (a JSON
+    this script wrote) when given and it has every seed."""
+    paths = sorted(glob.glob(f"policies/seeds/{model}_seed[0-9]*.pt"))
+    if saved is not None and saved.is_file():
+        rows = json.loads(saved.read_text())
+        if set(rows) == set(paths):
+            return rows
     rows = {}
-    for path in sorted(glob.glob(f"policies/seeds/{model}_seed[0-9]*.pt")):
+    for path in paths:
         metrics = simulate(path, events, 10, workers=2, impairments=REAL)["metrics"]
         rows[path] = {k: metrics[k] for k in KEYS}
         print(path, rows[path], flush=True)
@@ -64,25 +74,28 @@ def add_hinf(rows: dict) -> None:
 
 
 def main() -> None:
-    args = [a for a in sys.argv[1:] if a != "--no-hinf"]
+    args = [a for a in sys.argv[1:] if a not in ("--no-hinf", "--reuse")]
+    reuse = "--reuse" in sys.argv
     data = args[0] if args else "../shared/data/ngsim/ngsim_cf_events.csv.gz"
     ca_stem, off_stem = args[1:3] if len(args) >= 3 else ("ca_td3_real_10",
                                                           "ca_td3_real_nocomm_10")
     default = ca_stem == "ca_td3_real_10"
     events = [e.with_warmup(60.0) for e in load_events(data, "test")]
     OUT.mkdir(parents=True, exist_ok=True)
-    ca = test_split(ca_stem, events)
-    if "--no-hinf" not in sys.argv:
+    ca_out = OUT / ("learned_test.json" if default else f"learned_test_{ca_stem}.json")
+    ca = test_split(ca_stem, events, ca_out if reuse else None)
+    if "--no-hinf" not in sys.argv and not any(k.startswith("hinf") for r in ca.values()
+                                               for k in r):
         add_hinf(ca)
-    write_text_atomic(OUT / ("learned_test.json" if default else f"learned_test_{ca_stem}.json"),
-                      json.dumps(ca, indent=1))
-    off = test_split(off_stem, events)
-    write_text_atomic(OUT / ("learned_test_nocomm.json" if default
-                             else f"learned_test_{off_stem}.json"), json.dumps(off, indent=1))
+    write_text_atomic(ca_out, json.dumps(ca, indent=1))
+    off_out = OUT / ("learned_test_nocomm.json" if default else f"learned_test_{off_stem}.json")
+    off = test_split(off_stem, events, off_out if reuse else None)
+    write_text_atomic(off_out, json.dumps(off, indent=1))
     compare(ca, off, ca_stem, off_stem)
     if len(args) >= 4:
-        td3 = test_split(args[3], events)
-        write_text_atomic(OUT / f"learned_test_{args[3]}.json", json.dumps(td3, indent=1))
+        td3_out = OUT / f"learned_test_{args[3]}.json"
+        td3 = test_split(args[3], events, td3_out if reuse else None)
+        write_text_atomic(td3_out, json.dumps(td3, indent=1))
         compare(ca, td3, ca_stem, args[3])
 
 
