@@ -41,6 +41,7 @@ from carl_sumo.control.cacc import PloegChains, is_ploeg_name, parse_ploeg
 from carl_sumo.control.channel import Impairments
 from carl_sumo.control.controllers import applied_acceleration
 from carl_sumo.control.external import is_external_name, load_external
+from carl_sumo.control.sensors import Sensors
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
 from carl_sumo.experiments.simulate import (NATIVE_CONTROLLERS, cached_sim, check_impairable,
@@ -124,6 +125,26 @@ def heard_accelerations(sim: ScenarioSim, ids: Sequence[str], leader_acc: float
     return {"leader": leader_acc, **{v: sim.accels[v] for v in ids}}
 
 
+class MeasuredLeader:
+    """The NGSIM leader's acceleration over the last step (m/s²) as the member behind it
+    measures it under ``--sensor-noise``: the change of its measured v + Δv (0 at its first step
+    behind the leader), what a plain run's first follower feeds forward (its law's and
+    :class:`carl_sumo.control.controllers.AheadAcceleration`'s a_lead). Call once per step."""
+
+    def __init__(self) -> None:
+        self._last: tuple[str, float] | None = None  # (member ID, measured leader speed m/s)
+
+    def __call__(self, ids: Sequence[str], measured: np.ndarray,
+                 ahead: Sequence[tuple[str, float] | None]) -> float:
+        row = next((i for i, a in enumerate(ahead) if a is not None and a[0] == "leader"), None)
+        if row is None:
+            self._last = None
+            return 0.0
+        speed = float(measured[row, 0] + measured[row, 3])
+        last, self._last = self._last, (ids[row], speed)
+        return 0.0 if last is None or last[0] != ids[row] else (speed - last[1]) / DT_S
+
+
 class _Recorder:
     """Speed, gap and predecessor speed of every vehicle in the platoon lane, every step."""
 
@@ -169,12 +190,19 @@ def tell_limits(controller, sim: ScenarioSim, known: set[str]) -> None:
 def run_scenario_event(sim: ScenarioSim, event: Event, n_followers: int, manoeuvre: Manoeuvre,
                        controller, impairments: Impairments | None = None,
                        fcd_path: Path | None = None) -> ScenarioTrace:
-    """Run one event with its manoeuvre to the end or to the first collision."""
+    """Run one event with its manoeuvre to the end or to the first collision. With
+    ``--sensor-noise`` the controller sees each member's measured gap (m) and relative speed
+    (m/s) (:class:`carl_sumo.control.sensors.Sensors`, the plain run's stream of the event;
+    tracks keyed by vehicle ID and the ID ahead) and the leader's acceleration as measured
+    (:class:`MeasuredLeader`); the trace and collisions are the true ones."""
+    sensors = None
     if controller is not None:
         controller.reset()
         if impairments is not None and not impairments.perfect_channel \
                 and hasattr(controller, "connect"):
             controller.connect(impairments, event.event_id)
+        sensors = Sensors.of(impairments, event.event_id)
+    measured_leader = MeasuredLeader()
     sim.start(event, n_followers, manoeuvre, fcd_path,
               plant=impairments.plant if impairments is not None else None,
               plant_seed=impairments.seed if impairments is not None else 0)
@@ -188,6 +216,10 @@ def run_scenario_event(sim: ScenarioSim, event: Event, n_followers: int, manoeuv
         if controller is not None:
             ids, obs, ahead = sim.observe()
             last_acc = heard_accelerations(sim, ids, leader_acc)
+            if sensors is not None and ids:  # a track restarts when the vehicle ahead changes
+                obs = sensors.measure(obs, vehicles=ids,
+                                      predecessors=[a[0] if a else None for a in ahead])
+                last_acc["leader"] = measured_leader(ids, obs, ahead)
             accel = controller.acceleration(obs, chains_of(ids, ahead), ids, ahead, last_acc) \
                 if ids else np.zeros(0)
             sim.advance(dict(zip(ids, np.asarray(accel, float).tolist())))
@@ -237,9 +269,6 @@ def check_scenario(name: str, spec: ScenarioSpec, events: Sequence[Event], n_fol
                    net_path: str | Path, impairments: Impairments | None = None) -> None:
     """Everything that can be wrong before any simulation: InputError (NotApplicable for a
     controller that cannot run it) for a bad controller, spec, event or network."""
-    if impairments is not None and impairments.sensor_noise:
-        raise InputError("--scenario runs with a perfect or impaired V2V channel and the real "
-                         "plant, not with --sensor-noise (the trackers hold one row per follower)")
     check_impairable(name, impairments)
     spec.check(n_followers)
     route = _routes(str(net_path))

@@ -504,3 +504,96 @@ def test_ttc_reaction_stops_a_lagging_follower_running_into_a_cut_in_human():
         trace = run_scenario_event(ScenarioSim(NET, model), event, 10, manoeuvre, controller, imp)
         collisions[name] = trace.collisions
     assert collisions == {ROBUST_HA: 1, ROBUST_HA + ":ttc=2": 0}
+
+
+# ------------------------------------------------------------------------------ sensor noise
+CUT_IN = Manoeuvre("cut-in", 3, 6.0, 0.5)  # the human cuts in ahead of follower 4 ("f3")
+
+
+def _noisy_run(event, imp: Impairments | None, name: str = "ploeg-tuned:h=0.8"):
+    """One cut-in run of ``name`` with impairments ``imp``: its trace."""
+    model, controller = scenario_controller(name, "ideal")
+    return run_scenario_event(ScenarioSim(NET, model), event, N, CUT_IN, controller, imp)
+
+
+@pytest.mark.parametrize("filtered", [False, True])
+def test_a_scenario_run_with_sensor_noise_is_reproducible_and_noisy(event, filtered):
+    """The same noise twice (the event's stream), not the clean run; up to the manoeuvre the
+    plain run with the same noise (one stream for both; the first follower's feed-forward is
+    the leader's acceleration it measures, as in a plain run)."""
+    from carl_sumo.experiments.simulate import resolve_controller, run_event
+    from carl_sumo.sim.sumo import PlatoonSim
+
+    imp = Impairments(sensor_noise=True, sensor_filter=filtered)
+    first, second, clean = _noisy_run(event, imp), _noisy_run(event, imp), _noisy_run(event, None)
+    assert first.collisions == 0 and first.done_step is not None
+    np.testing.assert_array_equal(first.speed, second.speed)
+    np.testing.assert_array_equal(first.gap, second.gap)
+    assert str(score_trace(first)) == str(score_trace(second))  # NaN-safe
+    assert np.nanmax(np.abs(first.speed - clean.speed)) > 1e-3
+    model, plain_controller = resolve_controller("ploeg-tuned:h=0.8")
+    plain = run_event(PlatoonSim(NET, model), event, N, plain_controller, impairments=imp)
+    cols = [first.column(f"f{i}") for i in range(N)]
+    before = first.done_step
+    assert np.abs(first.speed[:before, cols] - plain.speed[:before]).max() < 1e-6
+    assert np.abs(first.gap[:before, cols] - plain.gap[:before]).max() < 1e-6
+
+
+def test_with_sensor_filter_the_follower_behind_a_cut_in_restarts_its_track(event, monkeypatch):
+    """Tracks are keyed by vehicle ID and the ID ahead: at the first step f3 has the human
+    ahead its estimate is its raw noisy measurement (a fresh track), filtered before and after;
+    the controller sees the measurements, the trace is the true gap."""
+    import carl_sumo.study.scenarios as scenarios
+    from carl_sumo.control.sensors import Sensors
+
+    calls: list[tuple] = []  # (true obs, noisy obs, tracked obs, ids, predecessors)
+    made: list = []
+
+    class Recording(Sensors):
+        def measure(self, obs, vehicles=None, predecessors=None):
+            noisy = []
+            estimate = self.tracker.estimate
+            self.tracker.estimate = lambda o, v, p: noisy.append(o.copy()) or estimate(o, v, p)
+            out = super().measure(obs, vehicles, predecessors)
+            del self.tracker.estimate
+            calls.append((obs.copy(), noisy[0], out, list(vehicles), list(predecessors)))
+            made.append(self)
+            return out
+
+    monkeypatch.setattr(scenarios, "Sensors", Recording)
+    trace = _noisy_run(event, Impairments(sensor_noise=True, sensor_filter=True))
+    assert trace.collisions == 0 and len(calls) == trace.speed.shape[0] - 1
+    rows = [ids.index("f3") for *_, ids, _ in calls]
+    preds = [p[r] for (*_, p), r in zip(calls, rows)]
+    k = preds.index("human")
+    assert k > 10 and preds[k - 1] == "f2" and set(preds[k:]) == {"human"}
+    for step in (k - 1, k, k + 1):
+        _, noisy, out, _, _ = calls[step]
+        r = rows[step]
+        fresh = np.allclose(out[r, 2:4], [max(noisy[r, 2], 0.01), noisy[r, 3]], atol=1e-12)
+        assert fresh == (step == k), step
+    true_gap = np.array([c[0][r, 2] for c, r in zip(calls, rows)])
+    np.testing.assert_allclose(trace.gap[:len(calls), trace.column("f3")], true_gap, atol=1e-9)
+    assert np.abs(np.array([c[2][r, 2] for c, r in zip(calls, rows)]) - true_gap).max() > 0.01
+    assert made[-1].tracker._tracks["f3"][0] == "human"  # keyed by vehicle ID, on the human
+
+
+def test_cli_simulate_and_replay_a_cut_in_with_sensor_noise(capsys, tmp_path):
+    """``--scenario`` with ``--sensor-noise --sensor-filter`` runs on simulate and replay."""
+    import json
+
+    from carl_sumo.cli import main
+
+    out_json = tmp_path / "noisy.json"
+    code = main(["simulate", "--scenario", "cut-in", "--sensor-noise", "--sensor-filter",
+                 "--events", "2", "--vehicles", "4", "--controller", "ploeg-tuned:h=0.8",
+                 "--workers", "1", "--json", str(out_json)])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    rows = json.loads(out_json.read_text())["controllers"]
+    assert len(rows) == 1 and len(rows[0]["events"]) == 2
+    fcd = tmp_path / "noisy.xml"
+    code = main(["replay", "--scenario", "cut-in:k=3:t=6", "--event", EVENT_ID, "--vehicles",
+                 str(N), "--controller", "ploeg-tuned:h=0.8", "--sensor-noise", "--fcd", str(fcd)])
+    out, err = capsys.readouterr()
+    assert code == 0 and "done=1" in out and fcd.stat().st_size > 0, err
