@@ -108,8 +108,14 @@ def link_gains(leader_speed: np.ndarray, speed: np.ndarray, omega: float, test: 
 
 
 def equilibrium_gap(controller: str, speed_mps: float) -> float:
-    """Where a follower starts (m): the law's own spacing s0 + h·v for the linear laws, else a
-    1.5 s gap (about IDM's)."""
+    """Where a follower starts (m): the law's own spacing s0 + h·v for the linear laws and for a
+    policy on one (its base's), else a 1.5 s gap (about IDM's)."""
+    if controller.endswith(".pt"):
+        from carl_sumo.learn.policy import read_policy_payload
+
+        base = read_policy_payload(Path(controller))["agent_config"].get("base") or ""
+        if is_ploeg_name(base):
+            return equilibrium_gap(base, speed_mps)
     if is_ploeg_name(controller):
         if controller.split(":")[0].endswith("-tuned"):  # its time gap, whichever plant's gains
             options = dict(part.partition("=")[::2] for part in controller.split(":")[1:])

@@ -40,6 +40,23 @@ def test_measured_gains_match_theory(controller, tau, dead, delay):
         assert np.max(np.abs(measured[link] - cont)[up_to_1]) < 0.03
 
 
+def test_a_policy_on_a_ploeg_base_starts_where_its_base_does_and_measures_the_same(tmp_path):
+    """An untrained policy (a_adj = 0) on a Ploeg base is its base: from the base's own
+    equilibrium gap it gives the same link gains, to the last bit."""
+    from carl_sumo.learn.agents import Agent, AgentConfig
+    from carl_sumo.learn.policy import save_policy
+
+    base = "ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2"
+    policy = tmp_path / "zero.pt"
+    save_policy(Agent(AgentConfig(algo="ca-td3", n_vehicles=3, adj_max=1.0, base=base)),
+                policy, {})
+    imp = Impairments(delay_s=0.1, plant=Plant((("truck", 1.0),), 0.5, 0.2))
+    omegas = np.array([0.3])
+    gains = [measure(c, omegas, 3, SineTest(), imp, str(NET))["per_link"]
+             for c in (base, str(policy))]
+    assert gains[0] == gains[1]
+
+
 def test_theory_gives_the_classical_minimum_time_gaps():
     """Ploeg et al. (2014): τ = 0.1 s, kp = 0.2, kd = 0.7: ACC string stable only from
     h ≈ 3.2 s, CACC from 0.55 / 0.68 / 0.78 s at V2V delays of 0.1 / 0.15 / 0.2 s."""
