@@ -14,3 +14,5 @@ carl-sumo study $common --controller ploeg:h=0.8:kp=0.0445:kd=1:aw=1 --out $out/
 carl-sumo study $common --controller policies/ca_td3_real_aw_10.pt --out $out/ca_td3_real_aw_10
 carl-sumo study $common --controller ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4 --out $out/ploeg_robust_h08_aw_ha
 carl-sumo study $common --controller policies/ca_td3_real_ha_10.pt --out $out/ca_td3_real_ha_10
+carl-sumo study $common --controller ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2 --out $out/ploeg_robust_h08_aw_ha_ttc
+carl-sumo study $common --controller policies/ca_td3_real_react_10.pt --out $out/ca_td3_real_react_10
