@@ -117,7 +117,7 @@ CRUISE_GAIN_PER_S = 0.4
 
 
 @njit(cache=True)
-def _ploeg_step(obs, u, sent, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc,
+def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc,
                 pred_mode, pred_held, u_min, u_max, ttc_on, margin, lag):
     """One step of every follower (head first): updates ``u`` in place, returns a (m/s²);
     ``adj`` (m/s², shape (n,)) is the learned feed-forward term (zeros for the plain law).
@@ -141,21 +141,21 @@ def _ploeg_step(obs, u, sent, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min, 
             u_in = pred_held[i]
         elif i > 0 and pred_mode[i] == 2:
             u_in = 0.0
-        sent_old = sent[i]
+        sent_old = min(u[i], brake[i])  # its message of step k: u, or its reaction's braking
         u_old = u[i]
         u[i] = min(u_old + (dt / hi) * (-u_old + kp * e + kd * e_dot + u_in + adj[i]),
                    k_cc * (v0 - obs[i, 0]))
         u[i] = min(max(u[i], u_min[i]), u_max[i])
-        u_pred = sent_old  # the message of vehicle i at step k
+        u_pred = sent_old
         out[i] = min(max(u[i], acc_min), acc_max)
-        sent[i] = u[i]
+        brake[i] = np.inf
         closing = -obs[i, 3]
         alone = i == 0 or pred_mode[i] == 2
         if alone and ttc_on > 0.0 and closing > 0.0 and obs[i, 2] - margin < ttc_on * closing:
             room = obs[i, 2] - margin - lag * closing
             need = closing * closing / (2.0 * room) if room > 0.0 else np.inf
             out[i] = max(min(out[i], -need), acc_min, u_min[i])  # at most its own braking
-            sent[i] = min(u[i], out[i])  # its follower hears the reaction's braking
+            brake[i] = out[i]  # its follower hears the reaction's braking
     return out
 
 
@@ -179,14 +179,14 @@ class PloegController:
         self.name = name or params.name()
         self.bounds = bounds
         self.u = np.zeros(0)
-        self.sent = np.zeros(0)  # each follower's last message (m/s²): u, or a reaction's braking
+        self.brake = np.zeros(0)  # each follower's last reaction braking (m/s²; inf: none)
         self.u_min, self.u_max = np.zeros(0), np.zeros(0)
         self._leader_speed: float | None = None
         self.channel: Channel | None = None
         self._k = 0
 
     def reset(self, n_followers: int) -> None:
-        self.u, self.sent = np.zeros(n_followers), np.zeros(n_followers)
+        self.u, self.brake = np.zeros(n_followers), np.full(n_followers, np.inf)
         self.u_min, self.u_max = np.full(n_followers, -np.inf), np.full(n_followers, np.inf)
         self._leader_speed = None
         self.channel, self._k = None, 0
@@ -220,10 +220,11 @@ class PloegController:
             mode, held = self.channel.receive(self._k)
             held = held[:, 0]
         if not commit:
-            return self.step(obs, self.u.copy(), a_lead, None, mode, held, self.sent.copy())
+            return self.step(obs, self.u.copy(), a_lead, None, mode, held, self.brake.copy())
         self._leader_speed = leader_speed
-        messages = np.concatenate([[0.0], self.sent[:-1]])  # follower j hears j - 1's of step k
-        out = self.step(obs, self.u, a_lead, adjustment, mode, held, self.sent)
+        sent = np.minimum(self.u, self.brake)  # a message: the state, or a reaction's braking
+        messages = np.concatenate([[0.0], sent[:-1]])  # follower j hears j - 1's of step k
+        out = self.step(obs, self.u, a_lead, adjustment, mode, held, self.brake)
         if self.channel is not None:
             self.channel.send(self._k, messages[:, None])
             self._k += 1
@@ -231,12 +232,12 @@ class PloegController:
 
     def step(self, obs: np.ndarray, u: np.ndarray, u_lead: float,
              adjustment: np.ndarray | None = None, pred_mode: np.ndarray | None = None,
-             pred_held: np.ndarray | None = None, sent: np.ndarray | None = None) -> np.ndarray:
+             pred_held: np.ndarray | None = None, brake: np.ndarray | None = None) -> np.ndarray:
         """One step of the law on a chain (head first): updates the states ``u`` in place; the
         head hears ``u_lead`` (m/s²); ``adjustment``: the learned feed-forward term (m/s²);
         ``pred_mode`` / ``pred_held``: how each follower hears its predecessor (default: this
-        step's message); ``sent``: each vehicle's last message, updated in place (default: its
-        state ``u``, as without a reaction layer). Returns a (m/s²)."""
+        step's message); ``brake``: each vehicle's reaction braking of the last step (m/s², inf:
+        none; its message is min(u, brake)), updated in place (default: none). Returns a (m/s²)."""
         p, b = self.params, self.bounds
         n = obs.shape[0]
         adj = np.zeros(n) if adjustment is None else \
@@ -245,8 +246,8 @@ class PloegController:
             u_lead, pred_mode, pred_held = 0.0, np.full(n, 2, dtype=np.int64), np.zeros(n)
         elif pred_mode is None:
             pred_mode, pred_held = np.zeros(n, dtype=np.int64), np.zeros(n)
-        sent = u.copy() if sent is None else sent
-        return _ploeg_step(obs, u, sent, u_lead, adj, p.time_gap_s, p.gap_alone_s, p.kp, p.kd,
+        brake = np.full(n, np.inf) if brake is None else brake
+        return _ploeg_step(obs, u, brake, u_lead, adj, p.time_gap_s, p.gap_alone_s, p.kp, p.kd,
                            p.standstill_gap_m,
                            DT_S, b.acc_min_mps2, b.acc_max_mps2, IDM.desired_speed_mps,
                            CRUISE_GAIN_PER_S, np.ascontiguousarray(pred_mode, dtype=np.int64),
@@ -398,14 +399,14 @@ class PloegChains:
         self.controller = PloegController(params, name, bounds)
         self.name = self.controller.name
         self.u: dict[str, float] = {}
-        self.sent: dict[str, float] = {}  # ID: its last message (m/s²; u, or a reaction's)
+        self.brake: dict[str, float] = {}  # ID: its last reaction braking (m/s²; none: inf)
         self.limits: dict[str, tuple[float, float]] = {}  # ID: (a_max, b_max) (m/s²)
         self.links: KeyedChannel | None = None
         self._k = 0
 
     def reset(self) -> None:
         """Forget every state, limit and link: a new run starts (every vehicle's u at 0)."""
-        self.u, self.sent, self.limits, self.links, self._k = {}, {}, {}, None, 0
+        self.u, self.brake, self.limits, self.links, self._k = {}, {}, {}, None, 0
 
     def know_vehicle(self, vehicle_id: str, a_max_mps2: float, b_max_mps2: float) -> None:
         """What one vehicle's powertrain can do (:meth:`PloegController.know_vehicles`; only a
@@ -437,12 +438,13 @@ class PloegChains:
         that leaves the states as they are."""
         out = np.empty(obs.shape[0])
         u_new: dict[str, float] = {}
-        sent_new: dict[str, float] = {}
+        brake_new: dict[str, float] = {}
         for chain in chains:
             head = ahead[chain[0]]
             a_pred = last_acc.get(head[0], 0.0) if head is not None else 0.0
             u = np.array([self.u.get(ids[i], 0.0) for i in chain])
-            sent = np.array([self.sent.get(ids[i], self.u.get(ids[i], 0.0)) for i in chain])
+            brake = np.array([self.brake.get(ids[i], np.inf) for i in chain])
+            sent = np.minimum(u, brake)  # vehicle j's message: its state, or its reaction's
             adj = None if adjustment is None else adjustment[chain]
             mode = held = None
             if self.links is not None:  # follower j > 0 hears j - 1 over its link
@@ -451,13 +453,13 @@ class PloegChains:
                 got_mode, got_held = self.links.receive(self._k, pairs)
                 mode[1:], held[1:] = got_mode, got_held[:, 0]
                 if commit:
-                    self.links.send(self._k, pairs, sent[:-1, None].copy())
+                    self.links.send(self._k, pairs, sent[:-1, None])
             self._set_limits([ids[i] for i in chain])
             out[chain] = self.controller.step(np.ascontiguousarray(obs[chain]), u, a_pred, adj,
-                                              mode, held, sent)
+                                              mode, held, brake)
             u_new.update(zip((ids[i] for i in chain), u.tolist()))
-            sent_new.update(zip((ids[i] for i in chain), sent.tolist()))
+            brake_new.update(zip((ids[i] for i in chain), brake.tolist()))
         if commit:
-            self.u, self.sent = u_new, sent_new
+            self.u, self.brake = u_new, brake_new
             self._k += 1
         return out

@@ -246,7 +246,9 @@ class ScenarioSim(PlatoonSim):
             self._insert(ls)
 
     def _insert(self, ls) -> None:
-        """Insert the entering vehicle beside its gap, when the gap has room."""
+        """Insert the entering vehicle beside its gap, when the gap has room. SUMO puts a new
+        vehicle at its depart position after it has moved the others in the step, so the gap is
+        measured where the step will leave its two vehicles (each at its speed for dt)."""
         m = self.manoeuvre
         original = self.ids
         if m.position == self.n:  # join behind the tail, at the gap the tail keeps
@@ -254,19 +256,21 @@ class ScenarioSim(PlatoonSim):
             if tail not in self.order:
                 return
             gap = self.ahead[tail][1]
-            front = self._route_x(ls, tail) - self.lengths[-1] - gap
             speed = self.speeds[tail]
+            front = self._route_x(ls, tail) + speed * DT_S - self.lengths[-1] - gap
         else:
             behind = original[m.position]
             if behind not in self.order:
                 return
             pred, gap = self.ahead[behind]
+            v_behind = self.speeds[behind]
+            v_pred = self.speeds.get(pred, v_behind)
             length = self._entering_length()
-            room = gap - length
+            room = gap + (v_pred - v_behind) * DT_S - length
             if room < MIN_ROOM_M:
                 return
-            front = self._route_x(ls, behind) + m.gap_fraction * room + length
-            speed = 0.5 * (self.speeds[behind] + self.speeds.get(pred, self.speeds[behind]))
+            front = self._route_x(ls, behind) + v_behind * DT_S + m.gap_fraction * room + length
+            speed = 0.5 * (v_behind + v_pred)
         lane, lane_pos = self.adjacent.locate(front)
         route_index = self.adjacent.lanes.index(lane)
         ls.vehicle.add(self.entering, f"platoon{route_index}", self._entering_type(),

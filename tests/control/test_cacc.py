@@ -312,15 +312,15 @@ def test_ttc_reaction_brakes_a_vehicle_without_a_message_at_once_and_tells_its_f
     for c in (plain, law):
         c.reset(3)
     a_plain = plain.step(obs, plain.u, 0.0, pred_mode=mode, pred_held=np.zeros(3))
-    sent = np.zeros(3)
-    a = law.step(obs, law.u, 0.0, pred_mode=mode, pred_held=np.zeros(3), sent=sent)
+    brake = np.full(3, np.inf)
+    a = law.step(obs, law.u, 0.0, pred_mode=mode, pred_held=np.zeros(3), brake=brake)
     need = 2.5 ** 2 / (2.0 * (4.0 - 1.0 - 0.5 * 2.5))
     assert math.isclose(a[0], -need, rel_tol=1e-12) and math.isclose(a[2], -need, rel_tol=1e-12)
     assert a[1] == a_plain[1] > -need  # it hears a message: no reaction
     np.testing.assert_array_equal(law.u, plain.u)  # the states are the law's
-    np.testing.assert_allclose(sent, [-need, a_plain[1], -need], rtol=1e-12)
+    np.testing.assert_allclose(np.minimum(law.u, brake), [-need, a_plain[1], -need], rtol=1e-12)
     # the next step, follower 1 hears the head's braking, not its state
-    a_next = law.step(obs, law.u, 0.0, pred_mode=mode, pred_held=np.zeros(3), sent=sent)
+    a_next = law.step(obs, law.u, 0.0, pred_mode=mode, pred_held=np.zeros(3), brake=brake)
     a_plain_next = plain.step(obs, plain.u, 0.0, pred_mode=mode, pred_held=np.zeros(3))
     assert math.isclose(a_next[1] - a_plain_next[1], (DT_S / 0.8) * (-need - a_plain[0]),
                         rel_tol=1e-9)

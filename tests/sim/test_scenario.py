@@ -597,3 +597,29 @@ def test_cli_simulate_and_replay_a_cut_in_with_sensor_noise(capsys, tmp_path):
                  str(N), "--controller", "ploeg-tuned:h=0.8", "--sensor-noise", "--fcd", str(fcd)])
     out, err = capsys.readouterr()
     assert code == 0 and "done=1" in out and fcd.stat().st_size > 0, err
+
+
+@pytest.mark.parametrize("kind, fraction", [("cut-in", 0.5), ("join", 0.4)])
+def test_an_entering_vehicle_takes_its_share_of_the_gap_as_the_step_leaves_it(event, kind,
+                                                                               fraction):
+    """SUMO places a new vehicle after it has moved the others: the gap behind the entering
+    vehicle right after its insertion is f·(g - L) of the gap g it was given, not a step's
+    travel shorter."""
+    _, controller = scenario_controller("ploeg-tuned:h=0.8")
+    sim = ScenarioSim(NET, "external")
+    sim.start(event, N, Manoeuvre(kind, 3, 6.0, fraction))
+
+    def watch(s, ls):
+        if s.phase != "inserted" or s.entering not in ls.vehicle.getIDList():
+            return None
+        lane = ls.vehicle.getLaneID(s.entering)
+        front = s.adjacent.lane_starts[s.adjacent.lanes.index(lane)] + \
+            ls.vehicle.getLanePosition(s.entering)
+        behind, ahead = s.ids[3], s.ids[2]
+        length = ls.vehicle.getLength(s.entering)
+        return (front - length - s._route_x(ls, behind),
+                s._route_x(ls, ahead) - ls.vehicle.getLength(ahead) - front)
+
+    gaps = [g for g in _drive(sim, controller, watch) if g is not None]
+    behind, ahead = gaps[0]
+    assert behind == pytest.approx(fraction * (behind + ahead), abs=0.05)
