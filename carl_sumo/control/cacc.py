@@ -33,9 +33,9 @@ collision (d_i - 1 m)/c_i with closing speed c_i = v_i - v_{i-1} > 0 drops below
 most -c_i²/(2·(d_i - 1 m - 0.5 s·c_i)), the constant deceleration that stops the closing in 1 m
 short after 0.5 s of lag (the most braking when no room is left). That braking is what it applies
 and what its follower hears as its message; its state u is left to the law, so it resumes from
-its own state when the threat has passed (written into u, the braking outlasted the threat and
-the platoon behind came to a stop). A follower that hears its predecessor has the message and
-does not react (with a reaction there too the training events had more collisions, 4 against 2).
+its own state when the threat has passed (written into u, the filter would keep the braking at
+dt/T per step after the threat). A follower that hears its predecessor has the braking in its
+message and does not react.
 
 As the base of a learned controller (``carl-sumo train --base ploeg-tuned:h=1``), a learned term
 a_adj,i (m/s²) enters the law as one more feed-forward input beside the predecessor's:
@@ -126,14 +126,17 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
     ``u_min`` / ``u_max`` (m/s², shape (n,)): each vehicle's own limits, which its state does not
     pass (anti-windup; ±inf: none), so the message it sends is a command it can follow.
     ``h_alone`` (s): the time gap of the head and of a follower that hears no message.
-    ``ttc_on`` (s; 0: off): below this time to collision, (d - margin)/closing speed, the state
-    is at most -c²/(2·(d - margin - lag·c)), the deceleration that stops the closing in at
-    ``margin`` (m) after ``lag`` (s) of reaction (the most braking when no room is left)."""
+    ``ttc_on`` (s; 0: off): below this time to collision, (d - margin)/closing speed, a vehicle
+    without a message applies at most -c²/(2·(d - margin - lag·c)), the deceleration that stops
+    the closing in at ``margin`` (m) after ``lag`` (s) of reaction (the most braking when no room
+    is left), and ``brake`` (m/s², inf: none; its message is min(u, brake)) holds it; its state
+    ``u`` stays the law's."""
     n = obs.shape[0]
     out = np.empty(n)
     u_pred = u_lead
     for i in range(n):
-        hi = h_alone if i == 0 or pred_mode[i] == 2 else h
+        alone = i == 0 or pred_mode[i] == 2  # no message from ahead: ACC at h_alone, reacts
+        hi = h_alone if alone else h
         e = obs[i, 2] - s0 - hi * obs[i, 0]
         e_dot = obs[i, 3] - hi * obs[i, 1]
         u_in = u_pred
@@ -150,7 +153,6 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
         out[i] = min(max(u[i], acc_min), acc_max)
         brake[i] = np.inf
         closing = -obs[i, 3]
-        alone = i == 0 or pred_mode[i] == 2
         if alone and ttc_on > 0.0 and closing > 0.0 and obs[i, 2] - margin < ttc_on * closing:
             room = obs[i, 2] - margin - lag * closing
             need = closing * closing / (2.0 * room) if room > 0.0 else np.inf
@@ -222,8 +224,9 @@ class PloegController:
         if not commit:
             return self.step(obs, self.u.copy(), a_lead, None, mode, held, self.brake.copy())
         self._leader_speed = leader_speed
-        sent = np.minimum(self.u, self.brake)  # a message: the state, or a reaction's braking
-        messages = np.concatenate([[0.0], sent[:-1]])  # follower j hears j - 1's of step k
+        if self.channel is not None:  # follower j hears j - 1's message of step k: its state,
+            sent = np.minimum(self.u, self.brake)  # or its reaction's braking
+            messages = np.concatenate([[0.0], sent[:-1]])
         out = self.step(obs, self.u, a_lead, adjustment, mode, held, self.brake)
         if self.channel is not None:
             self.channel.send(self._k, messages[:, None])
@@ -444,7 +447,6 @@ class PloegChains:
             a_pred = last_acc.get(head[0], 0.0) if head is not None else 0.0
             u = np.array([self.u.get(ids[i], 0.0) for i in chain])
             brake = np.array([self.brake.get(ids[i], np.inf) for i in chain])
-            sent = np.minimum(u, brake)  # vehicle j's message: its state, or its reaction's
             adj = None if adjustment is None else adjustment[chain]
             mode = held = None
             if self.links is not None:  # follower j > 0 hears j - 1 over its link
@@ -452,8 +454,8 @@ class PloegChains:
                 mode, held = np.zeros(len(chain), dtype=np.int64), np.zeros(len(chain))
                 got_mode, got_held = self.links.receive(self._k, pairs)
                 mode[1:], held[1:] = got_mode, got_held[:, 0]
-                if commit:
-                    self.links.send(self._k, pairs, sent[:-1, None])
+                if commit:  # vehicle j's message: its state, or its reaction's braking
+                    self.links.send(self._k, pairs, np.minimum(u, brake)[:-1, None])
             self._set_limits([ids[i] for i in chain])
             out[chain] = self.controller.step(np.ascontiguousarray(obs[chain]), u, a_pred, adj,
                                               mode, held, brake)
