@@ -45,6 +45,10 @@ REAL_SPACING_HA_OWN_GAP="${REAL_SPACING_HA_ALLVAL/--spacing-gap 0.7/--spacing-ga
 # real_react_recipe: REAL_SPACING_HA_ALLVAL on the degraded CACC with its reaction layer (ttc=2): a vehicle that hears no
 # message brakes at once when its time to collision drops below 2 s (docs/vehicles.md); validated on every source.
 REAL_REACT="${REAL_SPACING_HA_ALLVAL/--base ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4/--base ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2}"
+# real_crit_recipe: REAL_REACT with a critical-TTC term in the reward (--w-critical 1: -1 per vehicle and step with a time
+# to collision below 1.5 s, the samples the TTC < 1.5 s bar counts; as much as the spacing term's cap): on REAL_REACT every
+# checkpoint that beat the base's validation reward had more such samples or collisions, so validation kept the base.
+REAL_CRIT="$REAL_REACT --w-critical 1"
 PRODUCT="--base ploeg-tuned:h=0.8 --shield-ttc 4 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
 
 train_seeds() {  # STEM "SEEDS" TRAIN_ARGS...

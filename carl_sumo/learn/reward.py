@@ -12,6 +12,9 @@ the spacing error of a constant-time-gap policy (m), e/v its time-gap error (s, 
 the head (row 0, which hears no message from a human leader) may have its own time gap h_head
 (the degraded CACC's ``ha``, control/cacc.py).
 It holds a learned term on a CACC base at a chosen time gap instead of the human headway.
+So is the optional critical-TTC term -w_critical per follower and step with 0 < TTC < 1.5 s (off
+by default): the samples that the metric ``ttc_lt_1_5s_count`` counts (sim/metrics.py), priced
+in the reward where r_safe's log(TTC/4 s) is only -0.98 at 1.5 s.
 Compiled with numba because it runs every 0.1 s step.
 """
 
@@ -26,6 +29,8 @@ from numba import njit
 from carl_sumo.config import DT_S, REWARD, RewardConfig
 
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
+CRITICAL_TTC_S = 1.5
+"""The time to collision below which the critical-TTC term applies (s): the metric's bar."""
 
 
 @njit(cache=True)
@@ -37,7 +42,8 @@ def _headway_reward(h: float, mu: float, sigma: float) -> float:
 
 @njit(cache=True)
 def _platoon_reward(obs, prev_acc, w_gap, w_safe, w_comfort, w_accel, w_spacing, gap_s,
-                    head_gap_s, standstill_m, mu, sigma, ttc_max, jerk_scale, penalty, dt):
+                    head_gap_s, standstill_m, mu, sigma, ttc_max, jerk_scale, penalty, dt,
+                    w_critical, critical_ttc):
     n = obs.shape[0]
     reward = np.empty(n)
     collided = np.zeros(n, dtype=np.bool_)
@@ -48,6 +54,8 @@ def _platoon_reward(obs, prev_acc, w_gap, w_safe, w_comfort, w_accel, w_spacing,
             ttc = max(d, 1e-3) / -dv
             if ttc <= ttc_max:
                 r += w_safe * math.log(ttc / ttc_max)
+            if d > 0.0 and ttc < critical_ttc:
+                r -= w_critical
         jerk = (a - prev_acc[i]) / dt / jerk_scale
         r -= w_comfort * min(jerk * jerk, 1.0) + w_accel * a * a
         if w_spacing > 0.0:
@@ -66,7 +74,8 @@ def _params(cfg: RewardConfig) -> tuple[float, ...]:
     head_gap = cfg.spacing_gap_s if cfg.spacing_head_gap_s is None else cfg.spacing_head_gap_s
     return (cfg.w_gap, cfg.w_safe, cfg.w_comfort, cfg.w_accel, cfg.w_spacing, cfg.spacing_gap_s,
             head_gap, cfg.spacing_standstill_m, cfg.headway_mu, cfg.headway_sigma,
-            cfg.ttc_threshold_s, cfg.jerk_scale_mps3, cfg.collision_penalty, DT_S)
+            cfg.ttc_threshold_s, cfg.jerk_scale_mps3, cfg.collision_penalty, DT_S,
+            cfg.w_critical, CRITICAL_TTC_S)
 
 
 def headway_reward(headway_s: float, cfg: RewardConfig = REWARD) -> float:

@@ -62,3 +62,16 @@ def test_the_head_may_have_its_own_spacing_gap():
     plain, _ = platoon_reward(obs, obs[:, 1].copy())
     spaced, _ = platoon_reward(obs, obs[:, 1].copy(), cfg)
     assert np.allclose(plain - spaced, [0.0, 0.49])
+
+
+def test_optional_critical_ttc_term_counts_the_metrics_samples():
+    from dataclasses import replace
+
+    cfg = replace(REWARD, w_critical=3.0)
+    # closing at 10 m/s: TTC 1.4 s (below 1.5: penalised), 1.5 s and 2 s (not); opening: not;
+    # a collision (d ≤ 0) has its own penalty and no critical term
+    obs = np.array([[20.0, 0.0, 14.0, -10.0], [20.0, 0.0, 15.0, -10.0], [20.0, 0.0, 20.0, -10.0],
+                    [20.0, 0.0, 5.0, 1.0], [20.0, 0.0, -0.1, -10.0]])
+    plain, _ = platoon_reward(obs, obs[:, 1].copy())
+    critical, _ = platoon_reward(obs, obs[:, 1].copy(), cfg)
+    assert np.allclose(plain - critical, [3.0, 0.0, 0.0, 0.0, 0.0])
