@@ -118,7 +118,7 @@ CRUISE_GAIN_PER_S = 0.4
 
 @njit(cache=True)
 def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc,
-                pred_mode, pred_held, u_min, u_max, ttc_on, margin, lag):
+                pred_mode, pred_held, u_min, u_max, ttc_on, margin, lag, armed):
     """One step of every follower (head first): updates ``u`` in place, returns a (m/s²);
     ``adj`` (m/s², shape (n,)) is the learned feed-forward term (zeros for the plain law).
     ``pred_mode`` / ``pred_held`` (shape (n,)): how follower i > 0 hears its predecessor's
@@ -130,7 +130,8 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
     without a message applies at most -c²/(2·(d - margin - lag·c)), the deceleration that stops
     the closing in at ``margin`` (m) after ``lag`` (s) of reaction (the most braking when no room
     is left), and ``brake`` (m/s², inf: none; its message is min(u, brake)) holds it; its state
-    ``u`` stays the law's."""
+    ``u`` stays the law's. ``armed`` (bool, shape (n,)): vehicles whose reaction acts although
+    they hear a message (a joiner until it has linked, carl_sumo.sim.scenario_sim)."""
     n = obs.shape[0]
     out = np.empty(n)
     u_pred = u_lead
@@ -153,7 +154,8 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
         out[i] = min(max(u[i], acc_min), acc_max)
         brake[i] = np.inf
         closing = -obs[i, 3]
-        if alone and ttc_on > 0.0 and closing > 0.0 and obs[i, 2] - margin < ttc_on * closing:
+        if (alone or armed[i]) and ttc_on > 0.0 and closing > 0.0 \
+                and obs[i, 2] - margin < ttc_on * closing:
             room = obs[i, 2] - margin - lag * closing
             need = closing * closing / (2.0 * room) if room > 0.0 else np.inf
             out[i] = max(min(out[i], -need), acc_min, u_min[i])  # at most its own braking
@@ -167,6 +169,14 @@ def _no_limits(n: int) -> tuple[np.ndarray, np.ndarray]:
     low, high = np.full(n, -np.inf), np.full(n, np.inf)
     low.flags.writeable = high.flags.writeable = False
     return low, high
+
+
+@lru_cache(maxsize=64)
+def _none_armed(n: int) -> np.ndarray:
+    """No vehicle of ``n`` armed (read-only, shared by every call)."""
+    armed = np.zeros(n, dtype=np.bool_)
+    armed.flags.writeable = False
+    return armed
 
 
 class PloegController:
@@ -235,12 +245,15 @@ class PloegController:
 
     def step(self, obs: np.ndarray, u: np.ndarray, u_lead: float,
              adjustment: np.ndarray | None = None, pred_mode: np.ndarray | None = None,
-             pred_held: np.ndarray | None = None, brake: np.ndarray | None = None) -> np.ndarray:
+             pred_held: np.ndarray | None = None, brake: np.ndarray | None = None,
+             armed: np.ndarray | None = None) -> np.ndarray:
         """One step of the law on a chain (head first): updates the states ``u`` in place; the
         head hears ``u_lead`` (m/s²); ``adjustment``: the learned feed-forward term (m/s²);
         ``pred_mode`` / ``pred_held``: how each follower hears its predecessor (default: this
         step's message); ``brake``: each vehicle's reaction braking of the last step (m/s², inf:
-        none; its message is min(u, brake)), updated in place (default: none). Returns a (m/s²)."""
+        none; its message is min(u, brake)), updated in place (default: none); ``armed``: the
+        vehicles whose reaction layer acts although they hear a message (default: none).
+        Returns a (m/s²)."""
         p, b = self.params, self.bounds
         n = obs.shape[0]
         adj = np.zeros(n) if adjustment is None else \
@@ -255,7 +268,9 @@ class PloegController:
                            DT_S, b.acc_min_mps2, b.acc_max_mps2, IDM.desired_speed_mps,
                            CRUISE_GAIN_PER_S, np.ascontiguousarray(pred_mode, dtype=np.int64),
                            np.ascontiguousarray(pred_held, dtype=np.float64), *self._limits(n),
-                           p.reaction_ttc_s or 0.0, REACTION_MARGIN_M, REACTION_LAG_S)
+                           p.reaction_ttc_s or 0.0, REACTION_MARGIN_M, REACTION_LAG_S,
+                           _none_armed(n) if armed is None else
+                           np.ascontiguousarray(armed, dtype=np.bool_))
 
     def _limits(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """(u_min, u_max) of a chain of ``n`` (m/s²): the known vehicles' limits, else none
@@ -405,11 +420,18 @@ class PloegChains:
         self.brake: dict[str, float] = {}  # ID: its last reaction braking (m/s²; none: inf)
         self.limits: dict[str, tuple[float, float]] = {}  # ID: (a_max, b_max) (m/s²)
         self.links: KeyedChannel | None = None
+        self.armed: set[str] = set()  # IDs whose reaction acts although they hear a message
         self._k = 0
 
     def reset(self) -> None:
         """Forget every state, limit and link: a new run starts (every vehicle's u at 0)."""
         self.u, self.brake, self.limits, self.links, self._k = {}, {}, {}, None, 0
+        self.armed = set()
+
+    def arm(self, vehicle_ids: set[str]) -> None:
+        """Arm the reaction layer of these vehicles although they hear a message (a joiner
+        until it has linked, carl_sumo.sim.scenario_sim); only a law with ``ttc=T`` has one."""
+        self.armed = set(vehicle_ids)
 
     def know_vehicle(self, vehicle_id: str, a_max_mps2: float, b_max_mps2: float) -> None:
         """What one vehicle's powertrain can do (:meth:`PloegController.know_vehicles`; only a
@@ -457,8 +479,9 @@ class PloegChains:
                 if commit:  # vehicle j's message: its state, or its reaction's braking
                     self.links.send(self._k, pairs, np.minimum(u, brake)[:-1, None])
             self._set_limits([ids[i] for i in chain])
+            armed = [ids[i] in self.armed for i in chain] if self.armed else None
             out[chain] = self.controller.step(np.ascontiguousarray(obs[chain]), u, a_pred, adj,
-                                              mode, held, brake)
+                                              mode, held, brake, armed)
             u_new.update(zip((ids[i] for i in chain), u.tolist()))
             brake_new.update(zip((ids[i] for i in chain), brake.tolist()))
         if commit:

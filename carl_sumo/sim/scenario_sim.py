@@ -11,7 +11,10 @@ request is carried out as asked), so FCD output and sumo-gui show the lane chang
 The **members** are the CACC followers in the platoon lane, front first: carl-sumo drives them
 (``follower_model="external"``) or SUMO does (a native model). A member leaves when its cut-out
 lane change is done (SUMO then drives it in the adjacent lane) and a joiner becomes one when its
-lane change into the platoon lane is done. A human who cuts in is never a member: it is driven by
+lane change into the platoon lane is done. It hears the chain's messages from then on, and it is
+``joining`` (its reaction layer armed, if its law has one: carl_sumo.control.cacc) until it is
+no longer closing in on the vehicle ahead and its spacing (d - 2 m)/v has reached
+:data:`JOIN_LINK_GAP_S`: it entered at a share of a gap kept for one vehicle. A human who cuts in is never a member: it is driven by
 SUMO's Krauss model (``human_krauss``) from the step it is in the platoon lane, and it sends no
 V2V.
 """
@@ -40,6 +43,11 @@ the paper's T = 1.5 s brakes at its emergency 9 m/s² behind a 12 m gap at 17 m/
 LANE_CHANGE_S = 5.0
 """How long a ``changeLane`` request holds (s)."""
 ENTERING_ID = {"cut-in": "human", "join": "joiner"}
+JOIN_LINK_GAP_S = 0.8
+"""A joiner is joining until its spacing (d - 2 m)/v reaches this (s; the product's time gap)
+and it is not closing in (the module docstring)."""
+JOIN_STANDSTILL_M = 2.0
+"""The standstill gap of that spacing (m; Ploeg's s0, carl_sumo.control.cacc)."""
 
 
 def adjacent_route(net_path: str | Path, ngsim_lane: int) -> LaneRoute:
@@ -59,7 +67,8 @@ class ScenarioSim(PlatoonSim):
     After :meth:`start` and every :meth:`advance`: ``members`` (CACC followers in the platoon
     lane, front first), ``order`` (every tracked vehicle in the platoon lane, front first),
     ``ahead[vid]`` = (predecessor ID or None, bumper gap m), ``speeds`` / ``accels`` (m/s, m/s²),
-    ``done_step`` (the step the manoeuvre was complete, None before), ``behind`` (the vehicles
+    ``done_step`` (the step the manoeuvre was complete, None before), ``joining`` (a joiner
+    that has no room yet, module docstring), ``behind`` (the vehicles
     behind the manoeuvre, from then on) and, on the real plant, ``limits[vid]`` = (a_max, b_max)
     (m/s², positive) of every CACC vehicle carl-sumo drives that exists so far: the followers from
     the start, a joiner from the step it is on the road, each with its own powertrain's class
@@ -104,6 +113,7 @@ class ScenarioSim(PlatoonSim):
         self.left_step: int | None = None  # cut-in with leave: the step the human was out
         self.behind: list[str] = []
         self.radar_only: set[str] = set()
+        self.joining: set[str] = set()
         self.offset: dict[str, float] = {}
         self._enter_speed = 0.0
         self._joiner_plant = None if plant is None else plant.draw(1, event.event_id + "/joiner",
@@ -144,6 +154,18 @@ class ScenarioSim(PlatoonSim):
                 self.ahead[vid] = (item[0], item[1] + ls.vehicle.getMinGap(vid))
         member_set = set(self.members)
         self.members = [v for v in self.order if v in member_set]
+        self._settle_joiner()
+
+    def _settle_joiner(self) -> None:
+        """The joiner stops joining once it has room (:data:`JOIN_LINK_GAP_S`)."""
+        joiner = "joiner"
+        if joiner not in self.joining or joiner not in self.ahead:
+            return
+        pred, gap = self.ahead[joiner]
+        v = self.speeds.get(joiner, 0.0)
+        closing = pred is not None and v > self.speeds.get(pred, v)
+        if not closing and gap - JOIN_STANDSTILL_M >= JOIN_LINK_GAP_S * v:
+            self.joining.discard(joiner)
 
     def observe(self) -> tuple[list[str], np.ndarray, list[tuple[str, float] | None]]:
         """(member IDs front first, observations [v, a, d, Δv] (m, 4), what each sees ahead as
@@ -321,6 +343,7 @@ class ScenarioSim(PlatoonSim):
                 ls.vehicle.setSpeed(self.entering, -1)  # SUMO's own model drives it
             if m.kind == "join":
                 self.members.append(self.entering)  # _sense puts it in its place
+                self.joining.add(self.entering)  # until it has room (_settle_joiner)
             x = self._route_x(ls, self.entering)
             self.behind = [v for v in self.order if self._route_x(ls, v) < x]
             if m.kind == "join" and not self.behind:  # at the tail: the joiner's own gap

@@ -83,6 +83,11 @@ class ChainController:
         if self.base is not None:
             self.base.reset()
 
+    def arm(self, vehicle_ids: set[str]) -> None:
+        """Arm a classical base's reaction layer of these vehicles (PloegChains.arm)."""
+        if self.base is not None:
+            self.base.arm(vehicle_ids)
+
     def connect(self, impairments: Impairments, run_id: str) -> None:
         """Carry the CA messages (streams 2 and 3 of ``run_id``) and a classical base's
         predecessor states over impaired vehicle-keyed links (:class:`KeyedChannel`)."""

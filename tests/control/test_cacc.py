@@ -336,6 +336,20 @@ def test_ttc_reaction_brakes_a_vehicle_without_a_message_at_once_and_tells_its_f
         assert law.step(one, law.u, 0.0)[0] == plain.step(one, plain.u, 0.0)[0]
 
 
+def test_an_armed_vehicle_reacts_although_it_hears_a_message():
+    """``armed`` (a joiner without room yet): the reaction acts on a follower that hears its
+    predecessor; unarmed, the same follower is left to the law; the head is unchanged."""
+    law = PloegController(parse_ploeg("ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2"))
+    obs = np.array([[8.5, 0.0, 20.0, 0.0], [8.5, 0.0, 4.0, -2.5]])
+    out = {}
+    for armed in (None, np.array([False, True])):
+        law.reset(2)
+        out[armed is None] = law.step(obs, law.u, 0.0, armed=armed)
+    need = 2.5 ** 2 / (2.0 * (4.0 - 1.0 - 0.5 * 2.5))
+    assert out[True][1] > -need and math.isclose(out[False][1], -need, rel_tol=1e-12)
+    assert out[True][0] == out[False][0]
+
+
 def test_ttc_reaction_keeps_the_platoon_of_a_close_start_apart_in_sumo():
     """A settled start from a recorded gap of 3.9 m closing at 2.5 m/s on the real plant: the
     degraded head without the reaction brakes too late; with it no follower collides."""

@@ -506,6 +506,30 @@ def test_ttc_reaction_stops_a_lagging_follower_running_into_a_cut_in_human():
     assert collisions == {ROBUST_HA: 1, ROBUST_HA + ":ttc=2": 0}
 
 
+def test_a_joiner_without_room_reacts_although_it_hears_the_chain():
+    """Real plant, a recorded default event: a second after the join the joiner is 1.4 m behind
+    the vehicle ahead and closing. It hears that vehicle's message, so only its armed reaction
+    layer (joining until it has room, scenario_sim.JOIN_LINK_GAP_S) keeps it from colliding."""
+    from carl_sumo.sim.vehicle import REAL_PLANT
+
+    event = next(e for e in load_events("default", "test")
+                 if e.event_id == "sumo42_f2591_l2599_fr8959").with_warmup(60.0)
+    imp = Impairments(delay_s=0.1, plant=REAL_PLANT)
+    manoeuvre = parse_scenario("join:k=3:t=70.4:f=0.54").draw(event, 10)
+    collisions = {}
+    for armed in (False, True):
+        model, controller = scenario_controller(ROBUST_HA + ":ttc=2", imp.plant_key)
+        if not armed:
+            controller.arm = lambda ids: None  # the layer for vehicles without a message only
+        sim = ScenarioSim(NET, model)
+        trace = run_scenario_event(sim, event, 10, manoeuvre, controller, imp)
+        collisions[armed] = trace.collisions
+        assert sim.done_step is not None
+        if armed:  # 16 s later, at the event's end, it is still opening its gap (2.2 m)
+            assert "joiner" in sim.members and sim.joining == {"joiner"}
+    assert collisions == {False: 1, True: 0}
+
+
 # ------------------------------------------------------------------------------ sensor noise
 CUT_IN = Manoeuvre("cut-in", 3, 6.0, 0.5)  # the human cuts in ahead of follower 4 ("f3")
 
