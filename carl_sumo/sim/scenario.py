@@ -20,7 +20,10 @@ the gap behind it is ``gap_fraction``·(g - L), the gap ahead (1 - ``gap_fractio
 starts at the first step from ``time_s`` on at which g - L is at least :data:`MIN_ROOM_M`
 (drivers cut into a gap that has room), beside the gap in the adjacent lane at the mean speed of
 the two vehicles, and changes lanes with SUMO's own ``vehicle.changeLane``. At the tail a joiner
-enters at the gap the tail keeps.
+enters at the gap the tail keeps. A lane change is done in one 0.1 s step, or, with ``lc=S``
+(cut-in, cut-out, join), gradually over S seconds (SUMO's ``--lanechange.duration``: the vehicle
+moves sideways over S and SUMO counts it in its new lane from halfway, when the vehicles there
+see it as their leader).
 
 Drawn per event (what the spec leaves open), from ``seed`` and the event's ID:
 ``time_s`` uniform in :data:`TIME_SHARE` of the scored part of the event (after a warm-up),
@@ -50,6 +53,8 @@ MERGE_EXTRA_GAP_M = (20.0, 40.0)
 """How much further back the second platoon of a merge starts (m)."""
 MIN_ROOM_M = 4.0
 """An entering vehicle needs g - L at least this (m): 1.6-2.4 m behind it at the drawn shares."""
+MAX_LANE_CHANGE_S = 10.0
+"""The longest lane change ``lc=S`` takes (s)."""
 SETTLE_AFTER_S = 5.0
 """A manoeuvre time must leave at least this much of the event after it (s)."""
 
@@ -64,6 +69,7 @@ class Manoeuvre:
     gap_fraction: float = 0.5
     extra_gap_m: float = 0.0
     leave_s: float | None = None  # cut-in: the human leaves again this long after (s)
+    lane_change_s: float = 0.0    # how long a lane change takes (s; 0: one step)
 
     @property
     def step(self) -> int:
@@ -78,6 +84,8 @@ class Manoeuvre:
             text += f" extra={self.extra_gap_m:.1f}m"
         if self.leave_s is not None:
             text += f" leave={self.leave_s:g}s"
+        if self.lane_change_s > 0:
+            text += f" lc={self.lane_change_s:g}s"
         return text
 
 
@@ -95,7 +103,7 @@ def drawn_positions(kind: str, n_followers: int) -> tuple[int, int]:
 
 @dataclass(frozen=True)
 class ScenarioSpec:
-    """What ``--scenario KIND[:k=K][:t=T][:f=F][:gap=M]`` and ``--scenario-seed`` ask for; the
+    """What ``--scenario KIND[:k=K][:t=T][:f=F][:gap=M][:lc=S]`` and ``--scenario-seed`` ask for; the
     values not given are drawn per event (:meth:`draw`)."""
 
     kind: str
@@ -104,6 +112,7 @@ class ScenarioSpec:
     gap_fraction: float | None = None
     extra_gap_m: float | None = None
     leave_s: float | None = None
+    lane_change_s: float = 0.0
     seed: int = 0
 
     def check(self, n_followers: int) -> None:
@@ -144,7 +153,7 @@ class ScenarioSpec:
             self.time_s if self.time_s is not None else float(time_s),
             self.gap_fraction if self.gap_fraction is not None else fraction,
             (self.extra_gap_m if self.extra_gap_m is not None else extra)
-            if self.kind == "merge" else 0.0, self.leave_s)
+            if self.kind == "merge" else 0.0, self.leave_s, self.lane_change_s)
 
 
 def _number(spec: str, key: str, text: str) -> float:
@@ -172,6 +181,8 @@ def parse_scenario(text: str, seed: int = 0) -> ScenarioSpec:
         allowed["leave"] = "leave_s"
     if kind == "merge":
         allowed["gap"] = "extra_gap_m"
+    else:
+        allowed["lc"] = "lane_change_s"
     for part in parts:
         key, sep, value_text = part.partition("=")
         if not sep or key not in allowed:
@@ -190,6 +201,10 @@ def parse_scenario(text: str, seed: int = 0) -> ScenarioSpec:
         if key == "leave" and (value <= 0 or abs(value / DT_S - round(value / DT_S)) > 1e-6):
             raise InputError(f"--scenario {text!r}: leave is a positive time in s, a multiple "
                              f"of {DT_S} s, got {value_text}")
+        if key == "lc" and not (0 <= value <= MAX_LANE_CHANGE_S
+                                and abs(value / DT_S - round(value / DT_S)) < 1e-6):
+            raise InputError(f"--scenario {text!r}: lc is the lane change's duration, 0 to "
+                             f"{MAX_LANE_CHANGE_S:g} s in multiples of {DT_S} s, got {value_text}")
         if key == "gap" and value <= 0:
             raise InputError(f"--scenario {text!r}: the merge gap must be positive (m), got "
                              f"{value_text}")

@@ -41,7 +41,7 @@ HUMAN_TYPE = "human_krauss"
 imperfection), which brakes at most at its 4.5 m/s² to open the gap it cut into; SUMO's IDM with
 the paper's T = 1.5 s brakes at its emergency 9 m/s² behind a 12 m gap at 17 m/s."""
 LANE_CHANGE_S = 5.0
-"""How long a ``changeLane`` request holds (s)."""
+"""How long a ``changeLane`` request holds (s), beyond a gradual lane change's duration."""
 ENTERING_ID = {"cut-in": "human", "join": "joiner"}
 JOIN_LINK_GAP_S = 0.8
 """A joiner is joining until its spacing (d - 2 m)/v reaches this (s; the product's time gap)
@@ -90,6 +90,7 @@ class ScenarioSim(PlatoonSim):
         """Load SUMO and place the platoon as :meth:`PlatoonSim.reset` does (a merge's second
         platoon ``extra_gap_m`` further back); the manoeuvre starts at its step."""
         extra = manoeuvre.extra_gap_m
+        self.manoeuvre = manoeuvre
         self.scenario = replace(self.base_scenario,
                                 start_margin_m=self.base_scenario.start_margin_m + extra)
         self._shifted = {f"f{i}" for i in range(manoeuvre.position, n_followers)} \
@@ -101,7 +102,6 @@ class ScenarioSim(PlatoonSim):
             self.scenario = self.base_scenario
             self._shifted = set()
         ls = _libsumo()
-        self.manoeuvre = manoeuvre
         self.members = list(self.ids)
         self.tracked = list(self.ids)
         self.speeds = dict(zip(self.ids, self.speed.tolist()))
@@ -114,6 +114,7 @@ class ScenarioSim(PlatoonSim):
         self.behind: list[str] = []
         self.radar_only: set[str] = set()
         self.joining: set[str] = set()
+        self._gone: set[str] = set()  # vehicles that left the lane, tracked while in it
         self.offset: dict[str, float] = {}
         self._enter_speed = 0.0
         self._joiner_plant = None if plant is None else plant.draw(1, event.event_id + "/joiner",
@@ -129,29 +130,63 @@ class ScenarioSim(PlatoonSim):
                 ls.vehicle.setMinGap(head, ls.vehicle.getMinGap(head) + extra)
         self._sense(ls)
 
+    def _sumo_args(self, fcd_path: Path | None, seed: int) -> list[str]:
+        """A plain run's options, and gradual lane changes when the manoeuvre has ``lc=S``."""
+        args = super()._sumo_args(fcd_path, seed)
+        if self.manoeuvre.lane_change_s > 0:
+            args += ["--lanechange.duration", f"{self.manoeuvre.lane_change_s:g}"]
+        return args
+
+    @property
+    def _hold_s(self) -> float:
+        """How long this run's ``changeLane`` requests hold (s)."""
+        return LANE_CHANGE_S + self.manoeuvre.lane_change_s
+
     def _add(self, vid: str, vtype: str, x: float, speed: float) -> None:
         """Insert as PlatoonSim does; a merge's second platoon ``extra_gap_m`` further back."""
         super()._add(vid, vtype, x - self._extra_m if vid in self._shifted else x, speed)
 
     # ----------------------------------------------------------------------------------------
     def _route_x(self, ls, vid: str) -> float:
-        """Route coordinate of a vehicle's front bumper in the platoon lane (m)."""
+        """Route coordinate of a vehicle's front bumper, in the platoon lane or beside it (m)."""
         lane = ls.vehicle.getLaneID(vid)
-        start = self.route.lane_starts[self.route.lanes.index(lane)]
-        return start + ls.vehicle.getLanePosition(vid)
+        route = self.route if lane in self.route.lanes else self.adjacent
+        return route.lane_starts[route.lanes.index(lane)] + ls.vehicle.getLanePosition(vid)
+
+    def _crossing(self, ls) -> list[str]:
+        """Tracked vehicles in the adjacent lane whose body reaches over the line into the
+        platoon lane: halfway through a gradual lane change in or out (``lc=S``), SUMO has them
+        in the adjacent lane, but a radar behind them in the platoon lane sees them."""
+        if self.manoeuvre.lane_change_s <= 0:
+            return []
+        out = []
+        for vid in self.tracked:
+            lane = ls.vehicle.getLaneID(vid)
+            if lane in self.adjacent.lanes and ls.vehicle.getLateralLanePosition(vid) > \
+                    0.5 * (ls.lane.getWidth(lane) - ls.vehicle.getWidth(vid)):
+                out.append(vid)  # the platoon lane is the adjacent lane's left neighbour
+        return out
 
     def _sense(self, ls) -> None:
-        """The platoon-lane order and every tracked vehicle's predecessor and gap, from SUMO."""
+        """The platoon-lane order and every tracked vehicle's predecessor and gap, from SUMO;
+        a vehicle crossing into or out of the lane (:meth:`_crossing`) counts in it."""
         lanes = set(self.route.lanes)
-        in_lane = [v for v in self.tracked if ls.vehicle.getLaneID(v) in lanes]
-        self.order = sorted(in_lane, key=lambda v: -self._route_x(ls, v))
+        crossing = self._crossing(ls)
+        in_lane = [v for v in self.tracked if ls.vehicle.getLaneID(v) in lanes] + crossing
+        x = {v: self._route_x(ls, v) for v in in_lane + [self.leader_id]}
+        self.order = sorted(in_lane, key=lambda v: -x[v])
         self.ahead: dict[str, tuple[str | None, float]] = {}
         for vid in self.order:
-            item = ls.vehicle.getLeader(vid, SENSOR_RANGE_M)
+            item = None if vid in crossing else ls.vehicle.getLeader(vid, SENSOR_RANGE_M)
             if item is None or item[0] == "":
                 self.ahead[vid] = (None, SENSOR_RANGE_M)
             else:
                 self.ahead[vid] = (item[0], item[1] + ls.vehicle.getMinGap(vid))
+            for other in ([self.leader_id] + self.order) if crossing else ():
+                gap = x[other] - ls.vehicle.getLength(other) - x[vid]  # bumper gap (m)
+                if other != vid and x[other] > x[vid] and gap < self.ahead[vid][1] \
+                        and (vid in crossing or other in crossing):
+                    self.ahead[vid] = (other, gap)
         member_set = set(self.members)
         self.members = [v for v in self.order if v in member_set]
         self._settle_joiner()
@@ -219,6 +254,7 @@ class ScenarioSim(PlatoonSim):
         self.speeds["leader"] = self._leader_speed[k1]
         self.k = k1
         self._complete(ls)
+        self._untrack_gone(ls)
         self._sense(ls)
 
     def _realised(self, accel: dict[str, float]) -> dict[str, float]:
@@ -241,20 +277,22 @@ class ScenarioSim(PlatoonSim):
         m = self.manoeuvre
         if self.phase == "inserted":
             ls.vehicle.setLaneChangeMode(self.entering, 0)
+            if m.lane_change_s > 0:  # it keeps pace with its gap while it moves over
+                ls.vehicle.setSpeedMode(self.entering, 0)
             ls.vehicle.changeLane(self.entering, ls.vehicle.getLaneIndex(self.entering) + 1,
-                                  LANE_CHANGE_S)
+                                  self._hold_s)
             self.phase = "changing"
         if self.phase == "done" and m.leave_s is not None and m.kind == "cut-in" \
                 and self.k >= self.done_step + int(round(m.leave_s / DT_S)):
             ls.vehicle.changeLane(self.entering, ls.vehicle.getLaneIndex(self.entering) - 1,
-                                  LANE_CHANGE_S)  # the human leaves again
+                                  self._hold_s)  # the human leaves again
             self.phase = "leaving"
         if self.phase != "waiting" or self.k < m.step:
             return
         if m.kind == "cut-out":
             leaver = self.ids[m.position - 1]
             ls.vehicle.setLaneChangeMode(leaver, 0)
-            ls.vehicle.changeLane(leaver, ls.vehicle.getLaneIndex(leaver) - 1, LANE_CHANGE_S)
+            ls.vehicle.changeLane(leaver, ls.vehicle.getLaneIndex(leaver) - 1, self._hold_s)
             self.phase = "changing"
         elif m.kind == "merge":
             head = self.ids[m.position]
@@ -313,11 +351,19 @@ class ScenarioSim(PlatoonSim):
             return float(self._joiner_plant.length_m[0])
         return self.scenario.vehicle_length_m
 
+    def _untrack_gone(self, ls) -> None:
+        """Stop tracking a vehicle that has left the platoon lane once no part of it is in the
+        lane (at once without ``lc=S``)."""
+        if self.phase == "left":
+            self._gone.add(self.entering)
+        crossing = set(self._crossing(ls))
+        for vid in [v for v in self._gone if v in self.tracked and v not in crossing]:
+            self.tracked.remove(vid)
+
     def _complete(self, ls) -> None:
         """Whether this step's lane change finished the manoeuvre; hand vehicles over."""
         lanes = set(self.route.lanes)
         if self.phase == "leaving" and ls.vehicle.getLaneID(self.entering) not in lanes:
-            self.tracked.remove(self.entering)
             self.left_step, self.phase = self.k, "left"
         if self.phase != "changing":
             return
@@ -327,20 +373,22 @@ class ScenarioSim(PlatoonSim):
             if ls.vehicle.getLaneID(leaver) in lanes:
                 return
             self.members.remove(leaver)
-            self.tracked.remove(leaver)
+            self._gone.add(leaver)  # tracked until it is out of the lane (_untrack_gone)
             if self.follower_model == "external":  # SUMO drives it from now on
                 ls.vehicle.setSpeedMode(leaver, 31)
                 ls.vehicle.setSpeed(leaver, -1)
             self.behind = [v for v in self.order[self.order.index(leaver) + 1:]]
-        else:
-            if ls.vehicle.getLaneID(self.entering) not in lanes:
+        else:  # in the lane from the step its body crosses the line (lc=S: before SUMO has it)
+            if ls.vehicle.getLaneID(self.entering) not in lanes \
+                    and self.entering not in self._crossing(ls):
                 return
             ls.vehicle.setLaneChangeMode(self.entering, 0)
             if m.kind == "join" and self.follower_model == "external":
                 ls.vehicle.setSpeedMode(self.entering, 0)
                 self.accels[self.entering] = 0.0
             else:
-                ls.vehicle.setSpeed(self.entering, -1)  # SUMO's own model drives it
+                ls.vehicle.setSpeedMode(self.entering, 31)  # SUMO's own model drives it
+                ls.vehicle.setSpeed(self.entering, -1)
             if m.kind == "join":
                 self.members.append(self.entering)  # _sense puts it in its place
                 self.joining.add(self.entering)  # until it has room (_settle_joiner)

@@ -316,6 +316,10 @@ class PlatoonSim:
         self.lengths = np.zeros(0)
 
     # ----------------------------------------------------------------------------------------
+    def _sumo_args(self, fcd_path: Path | None, seed: int) -> list[str]:
+        """SUMO's options for a run of this simulation (:func:`sumo_args`)."""
+        return sumo_args(self.route.net_path, fcd_path, seed)
+
     def reset(self, event: Event, n_followers: int, fcd_path: Path | None = None,
               seed: int = 0, plant: Plant | None = None, plant_seed: int = 0) -> None:
         """Load SUMO afresh and place the leader and ``n_followers`` at the event's t = 0 state.
@@ -338,7 +342,7 @@ class PlatoonSim:
         extra = float(np.sum(lengths - length)) if self.powertrains is not None else 0.0
         check_fits(self.route, event, n_followers, self.scenario, extra)
         ls = _libsumo()
-        start_sumo(sumo_args(self.route.net_path, fcd_path, seed))
+        start_sumo(self._sumo_args(fcd_path, seed))
         global _OWNER
         _OWNER = self  # libsumo runs one simulation per process: this episode's, until a reset
         self.event, self.n, self.k = event, n_followers, 0

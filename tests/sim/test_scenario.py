@@ -139,6 +139,60 @@ def test_cut_out_leaves_the_lane_and_relinks_the_chain(event):
     assert sim.behind == ["f3", "f4", "f5"]
 
 
+@pytest.mark.parametrize("lc", [0.0, 3.0])
+def test_a_gradual_cut_in_is_seen_from_the_step_the_human_crosses_the_line(event, lc):
+    """``lc=S``: SUMO moves the human sideways over S seconds and has him in the platoon lane
+    from halfway; the follower behind sees him from the step his body crosses the lane line,
+    before that, and the manoeuvre is done then. Without it the change takes one step."""
+    _, controller = scenario_controller("ploeg-tuned:h=0.8")
+    sim = ScenarioSim(NET, "external")
+    spec = parse_scenario(f"cut-in:k=3:t=6:f=0.5:lc={lc:g}")
+    assert spec.lane_change_s == lc
+    sim.start(event, N, spec.draw(event, N))
+
+    def watch(s, ls):
+        if "human" not in s.tracked or "human" not in ls.vehicle.getIDList():
+            return None
+        lane = ls.vehicle.getLaneID("human")
+        half = 0.5 * (ls.lane.getWidth(lane) - ls.vehicle.getWidth("human"))
+        return (s.k, ls.vehicle.getLaneIndex("human"), ls.vehicle.getLateralLanePosition("human"),
+                half, s.ahead["f3"][0], s.phase)
+
+    seen = [w for w in _drive(sim, controller, watch) if w is not None]
+    first_seen = next(w for w in seen if w[4] == "human")
+    in_lane = next(w for w in seen if w[1] == PLATOON_INDEX)
+    assert first_seen[5] == "done" and sim.done_step == first_seen[0]
+    if lc == 0:
+        assert first_seen[0] == in_lane[0] and first_seen[2] == 0.0
+        return
+    assert first_seen[1] == PLATOON_INDEX - 1 and first_seen[2] > first_seen[3]  # over the line
+    before = [w for w in seen if w[0] < first_seen[0]]
+    assert before[-1][2] <= before[-1][3] and before[-1][4] == "f2"
+    start = next(w for w in seen if w[2] > 0)[0]
+    assert in_lane[0] - start == pytest.approx(0.5 * lc / DT_S, abs=2)  # SUMO: halfway
+    assert first_seen[0] < in_lane[0]
+    lateral = [w[2] for w in seen if start <= w[0] < in_lane[0]]
+    assert np.all(np.diff(lateral) > 0)  # it moves over gradually
+
+
+def test_a_gradual_cut_out_is_seen_until_the_leaver_is_out_of_the_lane(event):
+    """``cut-out:lc=3``: the follower behind keeps the leaver as its predecessor after SUMO has
+    moved it to the adjacent lane, while part of it is still in the platoon lane."""
+    _, controller = scenario_controller("ploeg-tuned:h=0.8")
+    sim = ScenarioSim(NET, "external")
+    sim.start(event, N, parse_scenario("cut-out:k=3:t=6:lc=3").draw(event, N))
+
+    def watch(s, ls):
+        return s.k, ls.vehicle.getLaneIndex("f2"), s.ahead["f3"][0], "f2" in s.members
+
+    seen = _drive(sim, controller, watch)
+    moved = next(w for w in seen if w[1] == PLATOON_INDEX - 1)
+    relinked = next(w for w in seen if w[2] == "f1")
+    assert not moved[3] and moved[2] == "f2"  # no longer a member, still seen
+    assert relinked[0] - moved[0] >= 5
+    assert seen[-1][2] == "f1" and "f2" not in sim.tracked
+
+
 def test_join_grows_the_platoon_by_one(event):
     _, controller = scenario_controller("policies/ca_td3_ploeg_10.pt")
     sim = ScenarioSim(NET, "external")
@@ -316,7 +370,8 @@ def test_a_manoeuvre_that_did_not_happen_has_nan_metrics():
     ("overtake", "unknown manoeuvre"), ("cut-out:f=0.5", "not an option"),
     ("cut-in:k=1.5", "whole vehicle position"), ("cut-in:t=-1", "multiple"),
     ("merge:gap=0", "positive"), ("cut-in:leave=0", "positive time"),
-    ("join:leave=3", "not an option")])
+    ("join:leave=3", "not an option"), ("cut-in:lc=-1", "duration"),
+    ("join:lc=0.05", "duration"), ("cut-out:lc=11", "duration"), ("merge:lc=3", "not an option")])
 def test_bad_scenario_text_is_refused(text, message):
     with pytest.raises(InputError, match=message):
         parse_scenario(text)
