@@ -21,12 +21,13 @@ if TYPE_CHECKING:
 SCENARIO_HELP = ("a manoeuvre in every event: cut-in | cut-out | join | merge, optionally with "
                  "its values fixed, e.g. cut-in:k=3:t=8:f=0.5 (k: position, 0 = the leader; "
                  "t: time, s; f: share of the gap behind an entering vehicle, in (0, 1); merge:"
-                 "gap=M, m; cut-in:leave=S: the human leaves again S s later); what is not fixed "
+                 "gap=M, m; cut-in:leave=S: the human leaves again S s later; lc=S: lane "
+                 "changes take S s, 0 = one step, the default); what is not fixed "
                  "is drawn per event (docs/scenarios.md)")
 
 
 def add_scenario(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scenario", default=None, metavar="KIND[:k=K][:t=T][:f=F]",
+    p.add_argument("--scenario", default=None, metavar="KIND[:k=K][:t=T][:f=F][:lc=S]",
                    help=SCENARIO_HELP)
     p.add_argument("--scenario-seed", type=int, default=0,
                    help="seed of the manoeuvre values drawn per event (default 0)")
