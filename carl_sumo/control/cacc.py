@@ -30,12 +30,13 @@ Reaction layer (``ttc=T`` in a name, e.g. ``ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1
 vehicle that hears no V2V message reacts at once when it closes in on the vehicle ahead, which the
 law at T, filtered with time constant T, does too slowly on a lagging powertrain. When the time to
 collision (d_i - 1 m)/c_i with closing speed c_i = v_i - v_{i-1} > 0 drops below T, it applies at
-most -c_i²/(2·(d_i - 1 m - 0.5 s·c_i)), the constant deceleration that stops the closing in 1 m
-short after 0.5 s of lag (the most braking when no room is left). That braking is what it applies
-and what its follower hears as its message; its state u is left to the law, so it resumes from
-its own state when the threat has passed (written into u, the filter would keep the braking at
-dt/T per step after the threat). A follower that hears its predecessor has the braking in its
-message and does not react.
+most -c_i²/(2·(d_i - 1 m - 0.5 s·c_i)) - b_{i-1}, the deceleration that stops the closing in 1 m
+short after 0.5 s of lag while the vehicle ahead brakes at b_{i-1} (its deceleration as the radar
+measures it: a_i plus the change of Δv_i over the step), or the most braking when no room is
+left. That braking is what it applies and what its follower hears as its message; its state u is
+left to the law, so it resumes from its own state when the threat has passed (written into u, the
+filter would keep the braking at dt/T per step). A follower that hears its predecessor has the
+braking in its message and does not react.
 
 As the base of a learned controller (``carl-sumo train --base ploeg-tuned:h=1``), a learned term
 a_adj,i (m/s²) enters the law as one more feed-forward input beside the predecessor's:
@@ -118,7 +119,7 @@ CRUISE_GAIN_PER_S = 0.4
 
 @njit(cache=True)
 def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc,
-                pred_mode, pred_held, u_min, u_max, ttc_on, margin, lag, armed):
+                pred_mode, pred_held, u_min, u_max, ttc_on, margin, lag, armed, a_ahead):
     """One step of every follower (head first): updates ``u`` in place, returns a (m/s²);
     ``adj`` (m/s², shape (n,)) is the learned feed-forward term (zeros for the plain law).
     ``pred_mode`` / ``pred_held`` (shape (n,)): how follower i > 0 hears its predecessor's
@@ -127,11 +128,10 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
     pass (anti-windup; ±inf: none), so the message it sends is a command it can follow.
     ``h_alone`` (s): the time gap of the head and of a follower that hears no message.
     ``ttc_on`` (s; 0: off): below this time to collision, (d - margin)/closing speed, a vehicle
-    without a message applies at most -c²/(2·(d - margin - lag·c)), the deceleration that stops
-    the closing in at ``margin`` (m) after ``lag`` (s) of reaction (the most braking when no room
-    is left), and ``brake`` (m/s², inf: none; its message is min(u, brake)) holds it; its state
-    ``u`` stays the law's. ``armed`` (bool, shape (n,)): vehicles whose reaction acts although
-    they hear a message (a joiner until it has linked, carl_sumo.sim.scenario_sim)."""
+    without a message applies at most -c²/(2·(d - margin - lag·c)) - max(-a_ahead, 0) (the module
+    docstring; ``a_ahead`` m/s², shape (n,)), and ``brake`` (m/s², inf: none; its message is
+    min(u, brake)) holds it; its state ``u`` stays the law's. ``armed`` (bool, shape (n,)):
+    vehicles whose reaction acts although they hear a message (a joiner that is joining)."""
     n = obs.shape[0]
     out = np.empty(n)
     u_pred = u_lead
@@ -157,7 +157,8 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
         if (alone or armed[i]) and ttc_on > 0.0 and closing > 0.0 \
                 and obs[i, 2] - margin < ttc_on * closing:
             room = obs[i, 2] - margin - lag * closing
-            need = closing * closing / (2.0 * room) if room > 0.0 else np.inf
+            need = closing * closing / (2.0 * room) + max(-a_ahead[i], 0.0) if room > 0.0 \
+                else np.inf
             out[i] = max(min(out[i], -need), acc_min, u_min[i])  # at most its own braking
             brake[i] = out[i]  # its follower hears the reaction's braking
     return out
@@ -169,14 +170,6 @@ def _no_limits(n: int) -> tuple[np.ndarray, np.ndarray]:
     low, high = np.full(n, -np.inf), np.full(n, np.inf)
     low.flags.writeable = high.flags.writeable = False
     return low, high
-
-
-@lru_cache(maxsize=64)
-def _none_armed(n: int) -> np.ndarray:
-    """No vehicle of ``n`` armed (read-only, shared by every call)."""
-    armed = np.zeros(n, dtype=np.bool_)
-    armed.flags.writeable = False
-    return armed
 
 
 class PloegController:
@@ -194,13 +187,14 @@ class PloegController:
         self.brake = np.zeros(0)  # each follower's last reaction braking (m/s²; inf: none)
         self.u_min, self.u_max = np.zeros(0), np.zeros(0)
         self._leader_speed: float | None = None
+        self._dv: np.ndarray | None = None  # each follower's Δv of the last step (m/s)
         self.channel: Channel | None = None
         self._k = 0
 
     def reset(self, n_followers: int) -> None:
         self.u, self.brake = np.zeros(n_followers), np.full(n_followers, np.inf)
         self.u_min, self.u_max = np.full(n_followers, -np.inf), np.full(n_followers, np.inf)
-        self._leader_speed = None
+        self._leader_speed, self._dv = None, None
         self.channel, self._k = None, 0
 
     def know_vehicles(self, a_max_mps2: np.ndarray, b_max_mps2: np.ndarray) -> None:
@@ -231,13 +225,15 @@ class PloegController:
         if self.channel is not None:
             mode, held = self.channel.receive(self._k)
             held = held[:, 0]
+        a_ahead = None if self._dv is None else obs[:, 1] + (obs[:, 3] - self._dv) / DT_S
         if not commit:
-            return self.step(obs, self.u.copy(), a_lead, None, mode, held, self.brake.copy())
-        self._leader_speed = leader_speed
+            return self.step(obs, self.u.copy(), a_lead, None, mode, held, self.brake.copy(),
+                             a_ahead=a_ahead)
+        self._leader_speed, self._dv = leader_speed, np.array(obs[:, 3], dtype=np.float64)
         if self.channel is not None:  # follower j hears j - 1's message of step k: its state,
             sent = np.minimum(self.u, self.brake)  # or its reaction's braking
             messages = np.concatenate([[0.0], sent[:-1]])
-        out = self.step(obs, self.u, a_lead, adjustment, mode, held, self.brake)
+        out = self.step(obs, self.u, a_lead, adjustment, mode, held, self.brake, a_ahead=a_ahead)
         if self.channel is not None:
             self.channel.send(self._k, messages[:, None])
             self._k += 1
@@ -246,13 +242,16 @@ class PloegController:
     def step(self, obs: np.ndarray, u: np.ndarray, u_lead: float,
              adjustment: np.ndarray | None = None, pred_mode: np.ndarray | None = None,
              pred_held: np.ndarray | None = None, brake: np.ndarray | None = None,
-             armed: np.ndarray | None = None) -> np.ndarray:
+             armed: np.ndarray | None = None, a_ahead: np.ndarray | None = None
+             ) -> np.ndarray:
         """One step of the law on a chain (head first): updates the states ``u`` in place; the
         head hears ``u_lead`` (m/s²); ``adjustment``: the learned feed-forward term (m/s²);
         ``pred_mode`` / ``pred_held``: how each follower hears its predecessor (default: this
         step's message); ``brake``: each vehicle's reaction braking of the last step (m/s², inf:
         none; its message is min(u, brake)), updated in place (default: none); ``armed``: the
-        vehicles whose reaction layer acts although they hear a message (default: none).
+        vehicles whose reaction layer acts although they hear a message (default: none);
+        ``a_ahead``: the acceleration of each vehicle's vehicle ahead as its radar measures it
+        (m/s², for the reaction; default: 0).
         Returns a (m/s²)."""
         p, b = self.params, self.bounds
         n = obs.shape[0]
@@ -269,8 +268,10 @@ class PloegController:
                            CRUISE_GAIN_PER_S, np.ascontiguousarray(pred_mode, dtype=np.int64),
                            np.ascontiguousarray(pred_held, dtype=np.float64), *self._limits(n),
                            p.reaction_ttc_s or 0.0, REACTION_MARGIN_M, REACTION_LAG_S,
-                           _none_armed(n) if armed is None else
-                           np.ascontiguousarray(armed, dtype=np.bool_))
+                           np.zeros(n, dtype=np.bool_) if armed is None else
+                           np.ascontiguousarray(armed, dtype=np.bool_),
+                           np.zeros(n) if a_ahead is None else
+                           np.ascontiguousarray(a_ahead, dtype=np.float64))
 
     def _limits(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """(u_min, u_max) of a chain of ``n`` (m/s²): the known vehicles' limits, else none
@@ -421,16 +422,16 @@ class PloegChains:
         self.limits: dict[str, tuple[float, float]] = {}  # ID: (a_max, b_max) (m/s²)
         self.links: KeyedChannel | None = None
         self.armed: set[str] = set()  # IDs whose reaction acts although they hear a message
+        self._dv: dict[str, tuple[str | None, float]] = {}
         self._k = 0
 
     def reset(self) -> None:
         """Forget every state, limit and link: a new run starts (every vehicle's u at 0)."""
         self.u, self.brake, self.limits, self.links, self._k = {}, {}, {}, None, 0
-        self.armed = set()
+        self.armed, self._dv = set(), {}
 
     def arm(self, vehicle_ids: set[str]) -> None:
-        """Arm the reaction layer of these vehicles although they hear a message (a joiner
-        until it has linked, carl_sumo.sim.scenario_sim); only a law with ``ttc=T`` has one."""
+        """Arm these vehicles' reaction layer (``ttc=T``) although they hear a message."""
         self.armed = set(vehicle_ids)
 
     def know_vehicle(self, vehicle_id: str, a_max_mps2: float, b_max_mps2: float) -> None:
@@ -464,6 +465,7 @@ class PloegChains:
         out = np.empty(obs.shape[0])
         u_new: dict[str, float] = {}
         brake_new: dict[str, float] = {}
+        dv_new: dict[str, tuple[str | None, float]] = {}
         for chain in chains:
             head = ahead[chain[0]]
             a_pred = last_acc.get(head[0], 0.0) if head is not None else 0.0
@@ -480,11 +482,19 @@ class PloegChains:
                     self.links.send(self._k, pairs, np.minimum(u, brake)[:-1, None])
             self._set_limits([ids[i] for i in chain])
             armed = [ids[i] in self.armed for i in chain] if self.armed else None
+            a_ahead = np.zeros(len(chain))
+            for j, i in enumerate(chain):
+                pred = ahead[i][0] if ahead[i] is not None else None
+                prev = self._dv.get(ids[i])
+                if prev is not None and prev[0] == pred:
+                    a_ahead[j] = obs[i, 1] + (obs[i, 3] - prev[1]) / DT_S
+                if commit:
+                    dv_new[ids[i]] = (pred, float(obs[i, 3]))
             out[chain] = self.controller.step(np.ascontiguousarray(obs[chain]), u, a_pred, adj,
-                                              mode, held, brake, armed)
+                                              mode, held, brake, armed, a_ahead)
             u_new.update(zip((ids[i] for i in chain), u.tolist()))
             brake_new.update(zip((ids[i] for i in chain), brake.tolist()))
         if commit:
-            self.u, self.brake = u_new, brake_new
+            self.u, self.brake, self._dv = u_new, brake_new, dv_new
             self._k += 1
         return out

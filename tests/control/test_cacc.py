@@ -350,6 +350,21 @@ def test_an_armed_vehicle_reacts_although_it_hears_a_message():
     assert out[True][0] == out[False][0]
 
 
+def test_the_reaction_adds_the_braking_of_the_vehicle_ahead_as_the_radar_measures_it():
+    """The reaction stops the closing in while the vehicle ahead brakes: -c²/(2·room) - b_ahead,
+    b_ahead from the change of Δv over the step plus the vehicle's own acceleration."""
+    law = PloegController(parse_ploeg("ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2"))
+    law.reset(1)
+    law.acceleration(np.array([[8.5, 0.0, 4.0, -2.0]]))  # Δv -2 m/s; no history yet: b = 0
+    need = 2.5 ** 2 / (2.0 * (3.8 - 1.0 - 0.5 * 2.5))
+    # a step later Δv is -2.5 and the own acceleration -1: the vehicle ahead braked at 6 m/s²
+    a = law.acceleration(np.array([[8.4, -1.0, 3.8, -2.5]]))[0]
+    assert math.isclose(a, -(need + 6.0), rel_tol=1e-9)
+    law.reset(1)  # without the history the vehicle ahead counts as keeping its speed
+    assert math.isclose(law.acceleration(np.array([[8.4, -1.0, 3.8, -2.5]]))[0], -need,
+                        rel_tol=1e-9)
+
+
 def test_ttc_reaction_keeps_the_platoon_of_a_close_start_apart_in_sumo():
     """A settled start from a recorded gap of 3.9 m closing at 2.5 m/s on the real plant: the
     degraded head without the reaction brakes too late; with it no follower collides."""
