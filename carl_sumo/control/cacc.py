@@ -30,13 +30,14 @@ Reaction layer (``ttc=T`` in a name, e.g. ``ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1
 vehicle that hears no V2V message reacts at once when it closes in on the vehicle ahead, which the
 law at T, filtered with time constant T, does too slowly on a lagging powertrain. When the time to
 collision (d_i - 1 m)/c_i with closing speed c_i = v_i - v_{i-1} > 0 drops below T, it applies at
-most -c_i²/(2·(d_i - 1 m - 0.5 s·c_i)) - b_{i-1}, the deceleration that stops the closing in 1 m
-short after 0.5 s of lag while the vehicle ahead brakes at b_{i-1} (its deceleration as the radar
-measures it: a_i plus the change of Δv_i over the step), or the most braking when no room is
-left. That braking is what it applies and what its follower hears as its message; its state u is
-left to the law, so it resumes from its own state when the threat has passed (written into u, the
-filter would keep the braking at dt/T per step). A follower that hears its predecessor has the
-braking in its message and does not react.
+most -c_i²/(2·(d_i - 1 m - 0.5 s·c_i)), the deceleration that stops the closing in 1 m short
+after 0.5 s of lag if the vehicle ahead keeps its speed, or the most braking when no room is left.
+With ``rb=1`` it also brakes as hard as the vehicle ahead does, b_{i-1}, which the radar measures
+as a_i plus the change of Δv_i over the step (-c_i²/(2·...) - b_{i-1}). That braking is what it
+applies and what its follower hears as its message; its state u is left to the law, so it resumes
+from its own state when the threat has passed (written into u, the filter would keep the braking
+at dt/T per step). A follower that hears its predecessor has the braking in its message and does
+not react.
 
 As the base of a learned controller (``carl-sumo train --base ploeg-tuned:h=1``), a learned term
 a_adj,i (m/s²) enters the law as one more feed-forward input beside the predecessor's:
@@ -56,58 +57,20 @@ adaptive cruise control that CACC is compared with (Ploeg et al. 2014).
 
 from __future__ import annotations
 
-import json
 import math
 from functools import lru_cache
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from numba import njit
 
 from carl_sumo.control.channel import Channel, Impairments, KeyedChannel
+from carl_sumo.control.ploeg_names import (  # noqa: F401 (the names are read from here too)
+    CLASSICAL_KINDS, TEXTBOOK, TUNED_FILE, PloegParams, is_ploeg_name, parse_ploeg, read_tuned,
+    read_tuned_entries, tuned_file_for)
 from carl_sumo.config import BOUNDS, DT_S, IDM, ControlBounds
 from carl_sumo.errors import InputError
-from carl_sumo.sim.sumo import REPO_ROOT
 
-TUNED_FILE = REPO_ROOT / "policies" / "ploeg_tuned.json"
-"""The tuned gains per time gap, written by ``carl-sumo tune ploeg``."""
-
-
-@dataclass(frozen=True)
-class PloegParams:
-    """Gains of the Ploeg CACC (units in the names)."""
-
-    time_gap_s: float = 1.0     # h: desired time gap (s)
-    kp: float = 0.2             # spacing-error gain (1/s²)
-    kd: float = 0.7             # spacing-error-rate gain (1/s)
-    standstill_gap_m: float = 2.0  # s0 (m)
-    feed_forward: bool = True   # the predecessor's V2V state (CACC), or none (ACC, radar only)
-    anti_windup: bool = False   # aw=1: each state stays within its own vehicle's limits
-                                # (PloegController.know_vehicles), so messages are realisable
-    alone_gap_s: float | None = None  # ha: time gap (s) of a CACC vehicle that hears no V2V
-                                # message (the head behind a human, a follower behind a cut-in
-                                # human): degraded to an ACC at a longer gap (None: h)
-    reaction_ttc_s: float | None = None  # ttc: below this time to collision (s) the state brakes
-                                # at least as hard as closing in needs (None: no reaction layer)
-
-    def name(self) -> str:
-        """The controller name that runs these gains."""
-        kind = "ploeg" if self.feed_forward else "acc"
-        return f"{kind}:h={self.time_gap_s:g}:kp={self.kp:g}:kd={self.kd:g}" + \
-            (":aw=1" if self.anti_windup else "") + \
-            (f":ha={self.alone_gap_s:g}" if self.alone_gap_s is not None else "") + \
-            (f":ttc={self.reaction_ttc_s:g}" if self.reaction_ttc_s is not None else "")
-
-    @property
-    def gap_alone_s(self) -> float:
-        """The time gap of a vehicle without a V2V predecessor (s): ``ha`` on a CACC, else h."""
-        if self.feed_forward and self.alone_gap_s is not None:
-            return self.alone_gap_s
-        return self.time_gap_s
-
-
-TEXTBOOK = PloegParams()
 REACTION_MARGIN_M = 1.0
 """The reaction layer brakes to keep this much bumper gap when closing in (m)."""
 REACTION_LAG_S = 0.5
@@ -225,7 +188,8 @@ class PloegController:
         if self.channel is not None:
             mode, held = self.channel.receive(self._k)
             held = held[:, 0]
-        a_ahead = None if self._dv is None else obs[:, 1] + (obs[:, 3] - self._dv) / DT_S
+        a_ahead = None if self._dv is None or not self.params.reaction_braking_ahead \
+            else obs[:, 1] + (obs[:, 3] - self._dv) / DT_S
         if not commit:
             return self.step(obs, self.u.copy(), a_lead, None, mode, held, self.brake.copy(),
                              a_ahead=a_ahead)
@@ -279,122 +243,6 @@ class PloegController:
         if self.u_min.shape[0] == n:
             return self.u_min, self.u_max
         return _no_limits(n)
-
-
-# ------------------------------------------------------------------------------------ names
-def _parse_options(name: str, allowed: tuple[str, ...]) -> dict[str, float]:
-    """``{key: value}`` of ``kind:key=value:...``; InputError naming what is wrong."""
-    options: dict[str, float] = {}
-    for part in name.split(":")[1:]:
-        key, sep, text = part.partition("=")
-        if not sep or key not in allowed:
-            raise InputError(f"controller {name!r}: {part!r} is not an option; write "
-                             f"{name.split(':')[0]}:" + ":".join(f"{k}=VALUE" for k in allowed))
-        if key in options:
-            raise InputError(f"controller {name!r}: {key} is given twice")
-        try:
-            value = float(text)
-        except ValueError:
-            raise InputError(f"controller {name!r}: {key}={text!r} is not a number") from None
-        if not (math.isfinite(value) and value > 0):
-            raise InputError(f"controller {name!r}: {key} must be a positive number, got {text}")
-        options[key] = value
-    return options
-
-
-CLASSICAL_KINDS = ("ploeg", "ploeg-tuned", "acc", "acc-tuned")
-"""The names of the constant-time-gap laws: Ploeg's CACC and the same law as a radar-only ACC."""
-
-
-def is_ploeg_name(name: str) -> bool:
-    """Whether ``name`` is one of the constant-time-gap laws (CACC or ACC)."""
-    return name.split(":")[0] in CLASSICAL_KINDS
-
-
-def tuned_file_for(law: str, plant: str) -> Path:
-    """Where ``carl-sumo tune`` writes the gains of a law for a plant: :data:`TUNED_FILE` for the
-    Ploeg CACC on the ideal plant, else ``policies/<law>_tuned_<plant>.json``."""
-    if law == "ploeg" and plant == "ideal":
-        return TUNED_FILE
-    slug = "".join(c if c.isalnum() or c == "." else "_" for c in plant).strip("_")
-    return TUNED_FILE.with_name(f"{law}_tuned_{slug}.json")
-
-
-def read_tuned_entries(path: Path | None = None) -> list[dict]:
-    """Every tuned entry (``h``, ``kp``, ``kd``, ``law`` and ``plant``) of ``path``, or of every
-    tuned-gains file beside :data:`TUNED_FILE` (one per law and plant)."""
-    if path is None:
-        paths = sorted(p for p in TUNED_FILE.parent.glob("*_tuned*.json")
-                       if not p.name.endswith(".partial.json"))
-        if TUNED_FILE not in paths:
-            paths.insert(0, TUNED_FILE)
-        return [e for p in paths for e in read_tuned_entries(p)]
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"no tuned Ploeg gains at {path}; run `carl-sumo tune ploeg` first")
-    try:
-        payload = json.loads(path.read_text())
-        entries = [{"law": payload.get("controller", "ploeg"),
-                    "plant": payload.get("plant", "ideal"), **e} for e in payload["entries"]]
-        for e in entries:
-            float(e["h"])
-        return entries
-    except (ValueError, KeyError, TypeError) as exc:
-        raise InputError(f"{path} is not a tuned-gains file of `carl-sumo tune ploeg` "
-                         f"({type(exc).__name__}); run the tuning again") from None
-
-
-def read_tuned(path: Path | None = TUNED_FILE, law: str = "ploeg", plant: str = "ideal"
-               ) -> dict[str, dict]:
-    """The tuned entries of one law and plant, keyed by the time gap as written (``"0.8"``)."""
-    return {f"{float(e['h']):g}": e for e in read_tuned_entries(path)
-            if e.get("law", "ploeg") == law and e.get("plant", "ideal") == plant}
-
-
-def _anti_windup(name: str, opts: dict[str, float]) -> bool:
-    """Whether a name asks for anti-windup (``aw=1``); InputError for another value."""
-    if opts.get("aw", 1.0) != 1.0:
-        raise InputError(f"controller {name!r}: aw takes 1 (each vehicle's state within its own "
-                         "limits) or is left out")
-    return "aw" in opts
-
-
-def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal") -> PloegParams:
-    """The gains a constant-time-gap law's name stands for (``ploeg*``: CACC, ``acc*``: ACC);
-    a ``-tuned`` name reads the gains tuned for ``plant`` (:func:`plant_key`). InputError on a
-    bad name or value, or on a plant the gains were not tuned for."""
-    kind = name.split(":")[0]
-    law = "acc" if kind.startswith("acc") else "ploeg"
-    if kind in ("ploeg", "acc"):
-        opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "ttc"))
-        return PloegParams(opts.get("h", TEXTBOOK.time_gap_s), opts.get("kp", TEXTBOOK.kp),
-                           opts.get("kd", TEXTBOOK.kd), feed_forward=law == "ploeg",
-                           anti_windup=_anti_windup(name, opts), alone_gap_s=opts.get("ha"),
-                           reaction_ttc_s=opts.get("ttc"))
-    if kind in ("ploeg-tuned", "acc-tuned"):
-        opts = _parse_options(name, ("h", "aw", "ha", "ttc"))
-        if "h" not in opts:
-            raise InputError(f"controller {name!r}: name the time gap, e.g. {kind}:h=1")
-        entries = [e for e in read_tuned_entries(tuned_file) if e.get("law", "ploeg") == law]
-        for_plant = {f"{float(e['h']):g}": e for e in entries
-                     if e.get("plant", "ideal") == plant}
-        if not for_plant:
-            plants = sorted({e.get("plant", "ideal") for e in entries})
-            raise InputError(f"controller {name!r}: no gains tuned for the plant {plant!r} (tuned "
-                             f"for: {'; '.join(plants) or 'none'}); run `carl-sumo tune {law}` "
-                             "with this plant's options, or give the gains (kp=..:kd=..)")
-        entry = for_plant.get(f"{opts['h']:g}")
-        if entry is None:
-            raise InputError(f"controller {name!r}: {tuned_file or TUNED_FILE.parent} has tuned "
-                             f"gains for h = "
-                             f"{', '.join(sorted(for_plant, key=float))} s only on this plant")
-        if entry.get("kp") is None:
-            raise InputError(f"controller {name!r}: the tuning found no safe gains for h = "
-                             f"{opts['h']:g} s (see {tuned_file or TUNED_FILE.parent})")
-        return PloegParams(float(entry["h"]), float(entry["kp"]), float(entry["kd"]),
-                           feed_forward=law == "ploeg", anti_windup=_anti_windup(name, opts),
-                           alone_gap_s=opts.get("ha"), reaction_ttc_s=opts.get("ttc"))
-    raise InputError(f"{name!r} is not a Ploeg CACC or ACC controller name")
 
 
 def ploeg_controller(name: str, tuned_file: Path | None = None, plant: str = "ideal"
@@ -453,6 +301,22 @@ class PloegChains:
         self.links = KeyedChannel(1, impairments, impairments.rng(run_id, 1))
         self._k = 0
 
+    def _radar_ahead(self, obs: np.ndarray, chain: list[int], ids: list[str],
+                     ahead: list[tuple[str, float] | None], dv_new: dict) -> np.ndarray | None:
+        """The acceleration of each chain row's vehicle ahead as its radar measures it (m/s²:
+        a + the change of Δv since the last step with the same vehicle ahead, else 0), for a
+        law with ``rb=1`` (else None); each row's (ID ahead, Δv) into ``dv_new``."""
+        if not self.controller.params.reaction_braking_ahead:
+            return None
+        a_ahead = np.zeros(len(chain))
+        for j, i in enumerate(chain):
+            pred = ahead[i][0] if ahead[i] is not None else None
+            prev = self._dv.get(ids[i])
+            if prev is not None and prev[0] == pred:
+                a_ahead[j] = obs[i, 1] + (obs[i, 3] - prev[1]) / DT_S
+            dv_new[ids[i]] = (pred, float(obs[i, 3]))
+        return a_ahead
+
     def acceleration(self, obs: np.ndarray, chains: list[list[int]], ids: list[str],
                      ahead: list[tuple[str, float] | None],
                      last_acc: dict[str, float], adjustment: np.ndarray | None = None,
@@ -482,14 +346,7 @@ class PloegChains:
                     self.links.send(self._k, pairs, np.minimum(u, brake)[:-1, None])
             self._set_limits([ids[i] for i in chain])
             armed = [ids[i] in self.armed for i in chain] if self.armed else None
-            a_ahead = np.zeros(len(chain))
-            for j, i in enumerate(chain):
-                pred = ahead[i][0] if ahead[i] is not None else None
-                prev = self._dv.get(ids[i])
-                if prev is not None and prev[0] == pred:
-                    a_ahead[j] = obs[i, 1] + (obs[i, 3] - prev[1]) / DT_S
-                if commit:
-                    dv_new[ids[i]] = (pred, float(obs[i, 3]))
+            a_ahead = self._radar_ahead(obs, chain, ids, ahead, dv_new)
             out[chain] = self.controller.step(np.ascontiguousarray(obs[chain]), u, a_pred, adj,
                                               mode, held, brake, armed, a_ahead)
             u_new.update(zip((ids[i] for i in chain), u.tolist()))

@@ -351,15 +351,27 @@ def test_an_armed_vehicle_reacts_although_it_hears_a_message():
 
 
 def test_the_reaction_adds_the_braking_of_the_vehicle_ahead_as_the_radar_measures_it():
-    """The reaction stops the closing in while the vehicle ahead brakes: -c²/(2·room) - b_ahead,
-    b_ahead from the change of Δv over the step plus the vehicle's own acceleration."""
-    law = PloegController(parse_ploeg("ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2"))
+    """``rb=1``: the reaction stops the closing in while the vehicle ahead brakes,
+    -c²/(2·room) - b_ahead, b_ahead from the change of Δv over the step plus the vehicle's own
+    acceleration; without it the vehicle ahead counts as keeping its speed."""
+    name = "ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2"
+    params = parse_ploeg(name + ":rb=1")
+    assert params.reaction_braking_ahead and params.name() == name + ":rb=1"
+    assert not parse_ploeg(name).reaction_braking_ahead
+    with pytest.raises(InputError, match="rb takes 1"):
+        parse_ploeg(name + ":rb=2")
+    plain = PloegController(parse_ploeg(name))
+    plain.reset(1)
+    plain.acceleration(np.array([[8.5, 0.0, 4.0, -2.0]]))
+    law = PloegController(params)
     law.reset(1)
     law.acceleration(np.array([[8.5, 0.0, 4.0, -2.0]]))  # Δv -2 m/s; no history yet: b = 0
     need = 2.5 ** 2 / (2.0 * (3.8 - 1.0 - 0.5 * 2.5))
     # a step later Δv is -2.5 and the own acceleration -1: the vehicle ahead braked at 6 m/s²
     a = law.acceleration(np.array([[8.4, -1.0, 3.8, -2.5]]))[0]
     assert math.isclose(a, -(need + 6.0), rel_tol=1e-9)
+    assert math.isclose(plain.acceleration(np.array([[8.4, -1.0, 3.8, -2.5]]))[0], -need,
+                        rel_tol=1e-9)
     law.reset(1)  # without the history the vehicle ahead counts as keeping its speed
     assert math.isclose(law.acceleration(np.array([[8.4, -1.0, 3.8, -2.5]]))[0], -need,
                         rel_tol=1e-9)

@@ -561,6 +561,24 @@ def test_ttc_reaction_stops_a_lagging_follower_running_into_a_cut_in_human():
     assert collisions == {ROBUST_HA: 1, ROBUST_HA + ":ttc=2": 0}
 
 
+def test_a_reaction_that_counts_the_braking_ahead_stops_short_of_a_brake_check():
+    """Real plant, a recorded default event: the human cuts in ahead of follower 4 and brakes
+    hard at once; the reaction that assumes he keeps his speed lets the follower touch him, the
+    one that counts his braking as the radar measures it (``rb=1``) stops it short."""
+    from carl_sumo.sim.vehicle import REAL_PLANT
+
+    event = next(e for e in load_events("default", "test")
+                 if e.event_id == "sumo42_f2591_l2599_fr8959").with_warmup(60.0)
+    imp = Impairments(delay_s=0.1, plant=REAL_PLANT)
+    manoeuvre = parse_scenario("cut-in:k=3:t=70.4:f=0.54").draw(event, 10)
+    collisions = {}
+    for name in (ROBUST_HA + ":ttc=2", ROBUST_HA + ":ttc=2:rb=1"):
+        model, controller = scenario_controller(name, imp.plant_key)
+        trace = run_scenario_event(ScenarioSim(NET, model), event, 10, manoeuvre, controller, imp)
+        collisions[name] = trace.collisions
+    assert collisions == {ROBUST_HA + ":ttc=2": 1, ROBUST_HA + ":ttc=2:rb=1": 0}
+
+
 def test_a_joiner_without_room_reacts_although_it_hears_the_chain():
     """Real plant, a recorded default event: a second after the join the joiner is 1.4 m behind
     the vehicle ahead and closing. It hears that vehicle's message, so only its armed reaction

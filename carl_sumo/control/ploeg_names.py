@@ -1,0 +1,178 @@
+"""The names of the constant-time-gap laws and their parameters: what ``ploeg:h=0.8:kp=0.1:kd=1``,
+``ploeg-tuned:h=0.8``, ``acc:h=2.5`` and their options (``aw``, ``ha``, ``ttc``, ``rb``) stand for
+(:class:`PloegParams`), and the tuned-gains files of ``carl-sumo tune``. The law itself, and what
+each option does, is :mod:`carl_sumo.control.cacc`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from carl_sumo.errors import InputError
+from carl_sumo.sim.sumo import REPO_ROOT
+
+TUNED_FILE = REPO_ROOT / "policies" / "ploeg_tuned.json"
+"""The tuned gains per time gap, written by ``carl-sumo tune ploeg``."""
+
+
+@dataclass(frozen=True)
+class PloegParams:
+    """Gains of the Ploeg CACC (units in the names)."""
+
+    time_gap_s: float = 1.0     # h: desired time gap (s)
+    kp: float = 0.2             # spacing-error gain (1/s²)
+    kd: float = 0.7             # spacing-error-rate gain (1/s)
+    standstill_gap_m: float = 2.0  # s0 (m)
+    feed_forward: bool = True   # the predecessor's V2V state (CACC), or none (ACC, radar only)
+    anti_windup: bool = False   # aw=1: each state stays within its own vehicle's limits
+                                # (PloegController.know_vehicles), so messages are realisable
+    alone_gap_s: float | None = None  # ha: time gap (s) of a CACC vehicle that hears no V2V
+                                # message (the head behind a human, a follower behind a cut-in
+                                # human): degraded to an ACC at a longer gap (None: h)
+    reaction_ttc_s: float | None = None  # ttc: below this time to collision (s) the state brakes
+                                # at least as hard as closing in needs (None: no reaction layer)
+    reaction_braking_ahead: bool = False  # rb=1: the reaction adds the braking of the vehicle
+                                # ahead as the radar measures it (False: assumes it keeps its speed)
+
+    def name(self) -> str:
+        """The controller name that runs these gains."""
+        kind = "ploeg" if self.feed_forward else "acc"
+        return f"{kind}:h={self.time_gap_s:g}:kp={self.kp:g}:kd={self.kd:g}" + \
+            (":aw=1" if self.anti_windup else "") + \
+            (f":ha={self.alone_gap_s:g}" if self.alone_gap_s is not None else "") + \
+            (f":ttc={self.reaction_ttc_s:g}" if self.reaction_ttc_s is not None else "") + \
+            (":rb=1" if self.reaction_braking_ahead else "")
+
+    @property
+    def gap_alone_s(self) -> float:
+        """The time gap of a vehicle without a V2V predecessor (s): ``ha`` on a CACC, else h."""
+        if self.feed_forward and self.alone_gap_s is not None:
+            return self.alone_gap_s
+        return self.time_gap_s
+
+
+TEXTBOOK = PloegParams()
+
+
+# ------------------------------------------------------------------------------------ names
+def _parse_options(name: str, allowed: tuple[str, ...]) -> dict[str, float]:
+    """``{key: value}`` of ``kind:key=value:...``; InputError naming what is wrong."""
+    options: dict[str, float] = {}
+    for part in name.split(":")[1:]:
+        key, sep, text = part.partition("=")
+        if not sep or key not in allowed:
+            raise InputError(f"controller {name!r}: {part!r} is not an option; write "
+                             f"{name.split(':')[0]}:" + ":".join(f"{k}=VALUE" for k in allowed))
+        if key in options:
+            raise InputError(f"controller {name!r}: {key} is given twice")
+        try:
+            value = float(text)
+        except ValueError:
+            raise InputError(f"controller {name!r}: {key}={text!r} is not a number") from None
+        if not (math.isfinite(value) and value > 0):
+            raise InputError(f"controller {name!r}: {key} must be a positive number, got {text}")
+        options[key] = value
+    return options
+
+
+CLASSICAL_KINDS = ("ploeg", "ploeg-tuned", "acc", "acc-tuned")
+"""The names of the constant-time-gap laws: Ploeg's CACC and the same law as a radar-only ACC."""
+
+
+def is_ploeg_name(name: str) -> bool:
+    """Whether ``name`` is one of the constant-time-gap laws (CACC or ACC)."""
+    return name.split(":")[0] in CLASSICAL_KINDS
+
+
+def tuned_file_for(law: str, plant: str) -> Path:
+    """Where ``carl-sumo tune`` writes the gains of a law for a plant: :data:`TUNED_FILE` for the
+    Ploeg CACC on the ideal plant, else ``policies/<law>_tuned_<plant>.json``."""
+    if law == "ploeg" and plant == "ideal":
+        return TUNED_FILE
+    slug = "".join(c if c.isalnum() or c == "." else "_" for c in plant).strip("_")
+    return TUNED_FILE.with_name(f"{law}_tuned_{slug}.json")
+
+
+def read_tuned_entries(path: Path | None = None) -> list[dict]:
+    """Every tuned entry (``h``, ``kp``, ``kd``, ``law`` and ``plant``) of ``path``, or of every
+    tuned-gains file beside :data:`TUNED_FILE` (one per law and plant)."""
+    if path is None:
+        paths = sorted(p for p in TUNED_FILE.parent.glob("*_tuned*.json")
+                       if not p.name.endswith(".partial.json"))
+        if TUNED_FILE not in paths:
+            paths.insert(0, TUNED_FILE)
+        return [e for p in paths for e in read_tuned_entries(p)]
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"no tuned Ploeg gains at {path}; run `carl-sumo tune ploeg` first")
+    try:
+        payload = json.loads(path.read_text())
+        entries = [{"law": payload.get("controller", "ploeg"),
+                    "plant": payload.get("plant", "ideal"), **e} for e in payload["entries"]]
+        for e in entries:
+            float(e["h"])
+        return entries
+    except (ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"{path} is not a tuned-gains file of `carl-sumo tune ploeg` "
+                         f"({type(exc).__name__}); run the tuning again") from None
+
+
+def read_tuned(path: Path | None = TUNED_FILE, law: str = "ploeg", plant: str = "ideal"
+               ) -> dict[str, dict]:
+    """The tuned entries of one law and plant, keyed by the time gap as written (``"0.8"``)."""
+    return {f"{float(e['h']):g}": e for e in read_tuned_entries(path)
+            if e.get("law", "ploeg") == law and e.get("plant", "ideal") == plant}
+
+
+def _flag(name: str, opts: dict[str, float], key: str, what: str) -> bool:
+    """Whether a name sets the switch ``key=1`` (aw, rb); InputError for another value."""
+    if opts.get(key, 1.0) != 1.0:
+        raise InputError(f"controller {name!r}: {key} takes 1 ({what}) or is left out")
+    return key in opts
+
+
+def _switches(name: str, opts: dict[str, float]) -> dict:
+    """The options of a name beyond the gains (PloegParams' keywords)."""
+    return {"anti_windup": _flag(name, opts, "aw", "each vehicle's state within its own limits"),
+            "alone_gap_s": opts.get("ha"), "reaction_ttc_s": opts.get("ttc"),
+            "reaction_braking_ahead": _flag(name, opts, "rb", "the reaction counts the braking "
+                                                              "of the vehicle ahead")}
+
+
+def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal") -> PloegParams:
+    """The gains a constant-time-gap law's name stands for (``ploeg*``: CACC, ``acc*``: ACC);
+    a ``-tuned`` name reads the gains tuned for ``plant`` (:func:`plant_key`). InputError on a
+    bad name or value, or on a plant the gains were not tuned for."""
+    kind = name.split(":")[0]
+    law = "acc" if kind.startswith("acc") else "ploeg"
+    if kind in ("ploeg", "acc"):
+        opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "ttc", "rb"))
+        return PloegParams(opts.get("h", TEXTBOOK.time_gap_s), opts.get("kp", TEXTBOOK.kp),
+                           opts.get("kd", TEXTBOOK.kd), feed_forward=law == "ploeg",
+                           **_switches(name, opts))
+    if kind in ("ploeg-tuned", "acc-tuned"):
+        opts = _parse_options(name, ("h", "aw", "ha", "ttc", "rb"))
+        if "h" not in opts:
+            raise InputError(f"controller {name!r}: name the time gap, e.g. {kind}:h=1")
+        entries = [e for e in read_tuned_entries(tuned_file) if e.get("law", "ploeg") == law]
+        for_plant = {f"{float(e['h']):g}": e for e in entries
+                     if e.get("plant", "ideal") == plant}
+        if not for_plant:
+            plants = sorted({e.get("plant", "ideal") for e in entries})
+            raise InputError(f"controller {name!r}: no gains tuned for the plant {plant!r} (tuned "
+                             f"for: {'; '.join(plants) or 'none'}); run `carl-sumo tune {law}` "
+                             "with this plant's options, or give the gains (kp=..:kd=..)")
+        entry = for_plant.get(f"{opts['h']:g}")
+        if entry is None:
+            raise InputError(f"controller {name!r}: {tuned_file or TUNED_FILE.parent} has tuned "
+                             f"gains for h = "
+                             f"{', '.join(sorted(for_plant, key=float))} s only on this plant")
+        if entry.get("kp") is None:
+            raise InputError(f"controller {name!r}: the tuning found no safe gains for h = "
+                             f"{opts['h']:g} s (see {tuned_file or TUNED_FILE.parent})")
+        return PloegParams(float(entry["h"]), float(entry["kp"]), float(entry["kd"]),
+                           feed_forward=law == "ploeg", **_switches(name, opts))
+    raise InputError(f"{name!r} is not a Ploeg CACC or ACC controller name")
