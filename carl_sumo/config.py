@@ -55,7 +55,7 @@ class RewardConfig:
     spacing_gap_s: float = 0.8     # its time gap h_s (s)
     spacing_head_gap_s: float | None = None  # the head's (first follower's) h_s (s; None: h_s)
     spacing_standstill_m: float = 2.0  # its standstill gap s0 (m; Ploeg's, control/cacc.py)
-    w_critical: float = 0.0        # optional -w_critical per step with 0 < TTC < 1.5 s; not the paper's
+    w_critical: float = 0.0        # optional -w_critical per step with 0 < TTC < 1.5 s
     headway_mu: float = 0.4226     # μ of ln(h), h in s
     headway_sigma: float = 0.4366  # σ of ln(h)
     ttc_threshold_s: float = 4.0   # TTC below which r_safe is negative (s)

@@ -135,6 +135,14 @@ def _no_limits(n: int) -> tuple[np.ndarray, np.ndarray]:
     return low, high
 
 
+@lru_cache(maxsize=64)
+def _no_reaction_inputs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """No vehicle of ``n`` armed and no braking ahead measured, read-only (shared)."""
+    armed, a_ahead = np.zeros(n, dtype=np.bool_), np.zeros(n)
+    armed.flags.writeable = a_ahead.flags.writeable = False
+    return armed, a_ahead
+
+
 class PloegController:
     """The Ploeg CACC of a platoon: a full acceleration per follower, not an adjustment of IDM."""
 
@@ -188,12 +196,13 @@ class PloegController:
         if self.channel is not None:
             mode, held = self.channel.receive(self._k)
             held = held[:, 0]
-        a_ahead = None if self._dv is None or not self.params.reaction_braking_ahead \
-            else obs[:, 1] + (obs[:, 3] - self._dv) / DT_S
+        a_ahead = None if self._dv is None else obs[:, 1] + (obs[:, 3] - self._dv) / DT_S
         if not commit:
             return self.step(obs, self.u.copy(), a_lead, None, mode, held, self.brake.copy(),
                              a_ahead=a_ahead)
-        self._leader_speed, self._dv = leader_speed, np.array(obs[:, 3], dtype=np.float64)
+        self._leader_speed = leader_speed
+        if self.params.reaction_braking_ahead:  # the radar's Δv, for the next step's a_ahead
+            self._dv = np.array(obs[:, 3], dtype=np.float64)
         if self.channel is not None:  # follower j hears j - 1's message of step k: its state,
             sent = np.minimum(self.u, self.brake)  # or its reaction's braking
             messages = np.concatenate([[0.0], sent[:-1]])
@@ -232,10 +241,15 @@ class PloegController:
                            CRUISE_GAIN_PER_S, np.ascontiguousarray(pred_mode, dtype=np.int64),
                            np.ascontiguousarray(pred_held, dtype=np.float64), *self._limits(n),
                            p.reaction_ttc_s or 0.0, REACTION_MARGIN_M, REACTION_LAG_S,
-                           np.zeros(n, dtype=np.bool_) if armed is None else
-                           np.ascontiguousarray(armed, dtype=np.bool_),
-                           np.zeros(n) if a_ahead is None else
-                           np.ascontiguousarray(a_ahead, dtype=np.float64))
+                           *self._reaction_inputs(n, armed, a_ahead))
+
+    @staticmethod
+    def _reaction_inputs(n: int, armed: np.ndarray | None, a_ahead: np.ndarray | None
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        """The kernel's ``armed`` and ``a_ahead`` (none armed, 0 where not given)."""
+        no_armed, zero = _no_reaction_inputs(n)
+        return (no_armed if armed is None else np.ascontiguousarray(armed, dtype=np.bool_),
+                zero if a_ahead is None else np.ascontiguousarray(a_ahead, dtype=np.float64))
 
     def _limits(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """(u_min, u_max) of a chain of ``n`` (m/s²): the known vehicles' limits, else none

@@ -103,8 +103,8 @@ def drawn_positions(kind: str, n_followers: int) -> tuple[int, int]:
 
 @dataclass(frozen=True)
 class ScenarioSpec:
-    """What ``--scenario KIND[:k=K][:t=T][:f=F][:gap=M][:lc=S]`` and ``--scenario-seed`` ask for; the
-    values not given are drawn per event (:meth:`draw`)."""
+    """What ``--scenario KIND[:k=K][:t=T][:f=F][:gap=M][:lc=S]`` and ``--scenario-seed`` ask
+    for; the values not given are drawn per event (:meth:`draw`)."""
 
     kind: str
     position: int | None = None

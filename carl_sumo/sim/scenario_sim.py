@@ -14,9 +14,9 @@ lane change is done (SUMO then drives it in the adjacent lane) and a joiner beco
 lane change into the platoon lane is done. It hears the chain's messages from then on, and it is
 ``joining`` (its reaction layer armed, if its law has one: carl_sumo.control.cacc) until it is
 no longer closing in on the vehicle ahead and its spacing (d - 2 m)/v has reached
-:data:`JOIN_LINK_GAP_S`: it entered at a share of a gap kept for one vehicle. A human who cuts in is never a member: it is driven by
-SUMO's Krauss model (``human_krauss``) from the step it is in the platoon lane, and it sends no
-V2V.
+:data:`JOIN_LINK_GAP_S`: it entered at a share of a gap kept for one vehicle. A human who cuts
+in is never a member: it is driven by SUMO's Krauss model (``human_krauss``) from the step it is
+in the platoon lane, and it sends no V2V.
 """
 
 from __future__ import annotations
@@ -122,6 +122,7 @@ class ScenarioSim(PlatoonSim):
         self.limits: dict[str, tuple[float, float]] = {} if self.powertrains is None else {
             vid: (float(a), float(b)) for vid, a, b in
             zip(self.ids, self.powertrains.a_max, self.powertrains.b_max)}
+        self.crossing: list[str] = []  # tracked vehicles crossing the lane line (_crossing)
         if manoeuvre.kind == "merge":
             head = self.ids[manoeuvre.position]
             self.radar_only.add(head)
@@ -169,11 +170,11 @@ class ScenarioSim(PlatoonSim):
 
     def _sense(self, ls) -> None:
         """The platoon-lane order and every tracked vehicle's predecessor and gap, from SUMO;
-        a vehicle crossing into or out of the lane (:meth:`_crossing`) counts in it."""
+        a vehicle crossing into or out of the lane (:attr:`crossing`) counts in it."""
         lanes = set(self.route.lanes)
-        crossing = self._crossing(ls)
+        crossing = self.crossing
         in_lane = [v for v in self.tracked if ls.vehicle.getLaneID(v) in lanes] + crossing
-        x = {v: self._route_x(ls, v) for v in in_lane + [self.leader_id]}
+        x = {v: self._route_x(ls, v) for v in in_lane}
         self.order = sorted(in_lane, key=lambda v: -x[v])
         self.ahead: dict[str, tuple[str | None, float]] = {}
         for vid in self.order:
@@ -182,18 +183,27 @@ class ScenarioSim(PlatoonSim):
                 self.ahead[vid] = (None, SENSOR_RANGE_M)
             else:
                 self.ahead[vid] = (item[0], item[1] + ls.vehicle.getMinGap(vid))
-            for other in ([self.leader_id] + self.order) if crossing else ():
-                gap = x[other] - ls.vehicle.getLength(other) - x[vid]  # bumper gap (m)
-                if other != vid and x[other] > x[vid] and gap < self.ahead[vid][1] \
-                        and (vid in crossing or other in crossing):
-                    self.ahead[vid] = (other, gap)
+        if crossing:  # SUMO's getLeader does not see them: bumper gaps along the route
+            self._see_crossing(ls, x)
         member_set = set(self.members)
         self.members = [v for v in self.order if v in member_set]
         self._settle_joiner()
 
+    def _see_crossing(self, ls, x: dict[str, float]) -> None:
+        """Each vehicle's predecessor when a crossing vehicle is closer than SUMO's leader, and a
+        crossing vehicle's own (``x``: route coordinates of the vehicles in the lane, m)."""
+        x = {**x, self.leader_id: self._route_x(ls, self.leader_id)}
+        rear = {v: x[v] - ls.vehicle.getLength(v) for v in x}
+        for vid in self.order:
+            for other in x:
+                gap = rear[other] - x[vid]  # bumper gap (m)
+                if x[other] > x[vid] and gap < self.ahead[vid][1] \
+                        and (vid in self.crossing or other in self.crossing):
+                    self.ahead[vid] = (other, gap)
+
     def _settle_joiner(self) -> None:
         """The joiner stops joining once it has room (:data:`JOIN_LINK_GAP_S`)."""
-        joiner = "joiner"
+        joiner = self.entering
         if joiner not in self.joining or joiner not in self.ahead:
             return
         pred, gap = self.ahead[joiner]
@@ -253,8 +263,9 @@ class ScenarioSim(PlatoonSim):
             self.speeds[vid] = v
         self.speeds["leader"] = self._leader_speed[k1]
         self.k = k1
+        self.crossing = self._crossing(ls)
         self._complete(ls)
-        self._untrack_gone(ls)
+        self._untrack_gone()
         self._sense(ls)
 
     def _realised(self, accel: dict[str, float]) -> dict[str, float]:
@@ -351,13 +362,12 @@ class ScenarioSim(PlatoonSim):
             return float(self._joiner_plant.length_m[0])
         return self.scenario.vehicle_length_m
 
-    def _untrack_gone(self, ls) -> None:
+    def _untrack_gone(self) -> None:
         """Stop tracking a vehicle that has left the platoon lane once no part of it is in the
         lane (at once without ``lc=S``)."""
         if self.phase == "left":
             self._gone.add(self.entering)
-        crossing = set(self._crossing(ls))
-        for vid in [v for v in self._gone if v in self.tracked and v not in crossing]:
+        for vid in [v for v in self._gone if v in self.tracked and v not in self.crossing]:
             self.tracked.remove(vid)
 
     def _complete(self, ls) -> None:
@@ -380,7 +390,7 @@ class ScenarioSim(PlatoonSim):
             self.behind = [v for v in self.order[self.order.index(leaver) + 1:]]
         else:  # in the lane from the step its body crosses the line (lc=S: before SUMO has it)
             if ls.vehicle.getLaneID(self.entering) not in lanes \
-                    and self.entering not in self._crossing(ls):
+                    and self.entering not in self.crossing:
                 return
             ls.vehicle.setLaneChangeMode(self.entering, 0)
             if m.kind == "join" and self.follower_model == "external":
