@@ -49,6 +49,17 @@ REAL_REACT="${REAL_SPACING_HA_ALLVAL/--base ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1
 # to collision below 1.5 s, the samples the TTC < 1.5 s bar counts; as much as the spacing term's cap): on REAL_REACT every
 # checkpoint that beat the base's validation reward had more such samples or collisions, so validation kept the base.
 REAL_CRIT="$REAL_REACT --w-critical 1"
+# real_rb_recipe: REAL_CRIT on the reaction layer that counts the braking ahead (rb=1, docs/vehicles.md): on REAL_CRIT's
+# base a human who cuts in close and brakes hard was met as if he kept his speed.
+REAL_RB="${REAL_CRIT/:ttc=2 /:ttc=2:rb=1 }"
+# real_acc_spacing_recipe: the communication test again, now with REAL_CRIT's reward and safety-first selection: the base is
+# the robust CACC's law without its V2V feed-forward (an ACC at h = 0.8 s with its gains and the reaction layer, which
+# every vehicle then has), the actor first copies that CACC (--imitate: a_adj,i = a_{i-1}, which only the CA messages
+# carry), and the spacing term holds the followers at 0.7 s and the head at 1.4 s as on REAL_CRIT, so the learned term
+# cannot buy comfort with a longer gap as it did on REAL_ACC. Only the base differs from REAL_CRIT (and |a_adj| <= 2 m/s^2:
+# it carries a feed-forward).
+REAL_ACC_SPACING="${REAL_CRIT/--base ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2/--base acc:h=0.8:kp=0.0445:kd=1:aw=1:ttc=2 --imitate ploeg:h=0.8:kp=0.0445:kd=1}"
+REAL_ACC_SPACING="${REAL_ACC_SPACING/--adj-max 1/--adj-max 2}"
 PRODUCT="--base ploeg-tuned:h=0.8 --shield-ttc 4 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
 
 train_seeds() {  # STEM "SEEDS" TRAIN_ARGS...
