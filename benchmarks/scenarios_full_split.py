@@ -5,13 +5,19 @@ events in which both did the manoeuvre (as ``evaluate --suite scenarios``). Real
 base ``ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2``; ideal plant (the recorded start):
 ``policies/ca_td3_ploeg_10.pt`` against ``ploeg-tuned:h=0.8``.
 
-Writes ``docs/results_scenarios/full_split_<PLANT>.md`` (a table per manoeuvre) and
-``full_split_<PLANT>.json`` (the aggregates, no per-event rows). About 40 minutes on 2 cores.
+Beside each table, the bar event by event (:mod:`carl_sumo.study.scenario_criterion`): the
+product's collisions and TTC < 1.5 s events where the base has none, and its peak deceleration
+and settle time minus the base's with a paired bootstrap interval.
 
-Usage: python benchmarks/scenarios_full_split.py DATA [real|ideal]
+Writes ``docs/results_scenarios/full_split_<PLANT>.md`` (a table per manoeuvre) and
+``full_split_<PLANT>.json`` (the aggregates, no per-event rows); ``--base``/``--product`` run
+another pair, ``--stem`` names the files. 8 minutes (real) and 3 (ideal) on 2 cores.
+
+Usage: python benchmarks/scenarios_full_split.py DATA [real|ideal] [--base NAME --product PT
+       --stem STEM]
 """
+import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
@@ -22,6 +28,7 @@ from carl_sumo.sim.sumo import DEFAULT_NET
 from carl_sumo.study.scenario_tables import (REAL_WARMUP_S, ROBUST_TTC,
                                              markdown_scenario_table, paired,
                                              plant_impairments, result_of, run_jobs)
+from carl_sumo.study.scenario_criterion import criterion_lines, manoeuvre_criterion
 
 OUT = Path("docs/results_scenarios")
 CONTROLLERS = {"real": (ROBUST_TTC, "policies/ca_td3_real_react_10.pt"),
@@ -29,11 +36,11 @@ CONTROLLERS = {"real": (ROBUST_TTC, "policies/ca_td3_real_react_10.pt"),
 N_FOLLOWERS = 10
 
 
-def main(data: str, plant: str = "real") -> None:
+def main(data: str, plant: str, controllers: tuple[str, str], stem: str) -> None:
     events = load_events(data, "test")
     if plant == "real":
         events = [e.with_warmup(REAL_WARMUP_S) for e in events]
-    imp, controllers = plant_impairments(plant), CONTROLLERS[plant]
+    imp = plant_impairments(plant)
     start = time.perf_counter()
     tables, lines = {}, []
     for kind in KINDS:
@@ -42,18 +49,21 @@ def main(data: str, plant: str = "real") -> None:
                         str(DEFAULT_NET), workers=2, chunks=2)
         results = paired([result_of(name, spec, r, N_FOLLOWERS)
                           for name, r in zip(controllers, rows)])
+        crit = manoeuvre_criterion(results[1], results[0])
         tables[kind] = [{k: v for k, v in r.items() if k != "events"} for r in results]
+        tables[kind].append({"criterion": crit})
         n = results[0]["manoeuvre"].get("paired_events")
         table = markdown_scenario_table(results).replace(
             "the same with its reaction layer ttc=2 s",
             "Ploeg h=0.8 s, aw=1, ha=1.4 s, ttc=2 s (the base)")
-        lines += [f"## {kind}, {plant} plant ({n} paired events)", "", table, ""]
+        lines += [f"## {kind}, {plant} plant ({n} paired events)", "", table, "",
+                  f"{controllers[1]} against {controllers[0]}:", "", *criterion_lines(crit), ""]
         print(f"{kind}: {time.perf_counter() - start:.0f} s", flush=True)
     wall = time.perf_counter() - start
-    stem = f"full_split_{plant}"
     start_text = "60 s settled start" if plant == "real" else "the recorded start"
     head = [f"# Scenarios on the full NGSIM test split, {plant} plant ({len(events)} events)", "",
-            f"`python benchmarks/scenarios_full_split.py {data} {plant}` ({wall:.0f} s), 10 "
+            f"`python benchmarks/scenarios_full_split.py {data} {plant} --base {controllers[0]} "
+            f"--product {controllers[1]} --stem {stem}` ({wall:.0f} s), 10 "
             f"followers, {start_text}, scenario seed 0. Manoeuvre columns are paired over "
             "the events in which both controllers did the manoeuvre; `done` is each one's own "
             "count.", ""]
@@ -64,4 +74,13 @@ def main(data: str, plant: str = "real") -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1], sys.argv[2] if len(sys.argv) > 2 else "real")
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("data")
+    parser.add_argument("plant", nargs="?", default="real", choices=sorted(CONTROLLERS))
+    parser.add_argument("--base", help="the reference controller (default: the plant's base)")
+    parser.add_argument("--product", help="the product policy file (default: the plant's)")
+    parser.add_argument("--stem", help="output file stem (default: full_split_PLANT)")
+    args = parser.parse_args()
+    base, product = CONTROLLERS[args.plant]
+    main(args.data, args.plant, (args.base or base, args.product or product),
+         args.stem or f"full_split_{args.plant}")
