@@ -3,7 +3,8 @@
 # product_recipe: CA-TD3 on the tuned Ploeg CACC (h = 0.8 s), with the safety shield below a 4 s TTC.
 # train_seeds STEM SEEDS... RECIPE_ARGS ({seed} in them: the seed): trains each seed into policies/seeds/STEM_seedK.pt, two at
 # a time (the 2-core machine), then ships the run that validation ranks first (`carl-sumo rank`,
-# the recipe's --select rule: never a test-split number) as policies/STEM.pt with its curve.
+# the recipe's --select rule: never a test-split number) as policies/STEM.pt with its curve; with
+# SHIP_STRING_STABLE=real|ideal the first run in that order that is string stable on that plant (rank --string-stable).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 DATA=${DATA:-../shared/data/ngsim/ngsim_cf_events.csv.gz}
@@ -71,8 +72,9 @@ train_seeds() {  # STEM "SEEDS" TRAIN_ARGS...
   for seed in $seeds; do
     echo "carl-sumo train ${args//\{seed\}/$seed} --seed $seed --out policies/seeds/${stem}_seed$seed.pt"
   done | xargs -P 2 -I{} bash -c '{} > /dev/null'
-  local best
-  best=$(carl-sumo rank --select "$select" --best-only policies/seeds/"${stem}"_seed*.pt)
+  local best stable=()
+  [[ -n ${SHIP_STRING_STABLE:-} ]] && stable=(--string-stable "$SHIP_STRING_STABLE")
+  best=$(carl-sumo rank --select "$select" "${stable[@]}" --best-only policies/seeds/"${stem}"_seed*.pt)
   cp "$best" "policies/$stem.pt"
   cp "${best%.pt}.csv" "policies/$stem.csv"
   echo "shipped $best as policies/$stem.pt"

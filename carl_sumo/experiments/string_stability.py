@@ -416,3 +416,26 @@ def suite_table(suite, out_dir: Path, net: str, workers: int) -> str:
     write_text_atomic(out_dir / "string_stability.json", json.dumps(
         {"frequencies_rad_s": omegas.tolist(), "vehicles": n, "rows": rows}, indent=1))
     return md
+
+
+SELECTION_OMEGAS = log_frequencies(8, 0.05, 3.0)
+"""The frequencies a policy is checked at before it is shipped (rad/s)."""
+
+
+def worst_hinf(policy: str, impairments: Impairments | None, n: int = 5,
+               omegas: Sequence[float] = SELECTION_OMEGAS,
+               amplitudes: Sequence[float] = LEARNED_AMPLITUDES_MPS,
+               net: str = str(DEFAULT_NET), workers: int = 1) -> float:
+    """The largest ‖Γ‖∞ of a policy file over every class of the plant of ``impairments`` (none:
+    the ideal plant) and the leader amplitudes ``amplitudes`` (m/s), n followers; inf where the
+    platoon collides at some frequency. ≤ 1: string stable (``carl-sumo rank --string-stable``)."""
+    plant = impairments.plant if impairments is not None else None
+    worst = 0.0
+    for amp in amplitudes:
+        try:
+            result = string_stability([policy], plant, impairments, n, omegas,
+                                      SineTest(amplitude_mps=amp), net, workers)
+        except InputError:  # a collision at some frequency
+            return math.inf
+        worst = max([worst] + [run["hinf"] for run in result["runs"]])
+    return worst

@@ -1,6 +1,7 @@
 """The command line end to end, and its one-line exit-2 errors on bad input."""
 
 import json
+import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -9,7 +10,7 @@ import pytest
 
 from carl_sumo.cli import main
 
-from conftest import NET
+from conftest import NET, REPO_ROOT
 
 
 def run(capsys, *argv):
@@ -181,6 +182,22 @@ def test_rank_prints_the_seeds_best_first_and_the_best_path(capsys, tmp_path):
     assert code == 0 and out.strip() == str(tmp_path / "s2.pt")
     code, _, err = run(capsys, "rank", str(tmp_path / "missing.pt"))
     assert code == 2 and len(err.strip().splitlines()) == 1
+
+
+def test_rank_string_stable_skips_a_better_validated_run_that_amplifies(capsys):
+    """Two shipped real-plant seeds of REAL_RB: validation ranks seed 4 first, but on the real
+    plant's frequency test it amplifies (‖Γ‖∞ 1.096); seed 0 does not (0.9995)."""
+    seeds = [str(REPO_ROOT / f"policies/seeds/ca_td3_real_rb_10_seed{k}.pt") for k in (4, 0)]
+    code, out, _ = run(capsys, "rank", "--select", "reward", "--best-only", *seeds)
+    assert code == 0 and out.strip() == seeds[0]
+    code, out, err = run(capsys, "rank", "--select", "reward", "--string-stable", "real",
+                         "--best-only", *seeds)
+    assert code == 0 and out.strip() == seeds[1]
+    hinf = {m[1]: float(m[2]) for m in re.finditer(r"(\S+\.pt): worst ‖Γ‖∞ (\S+)", err)}
+    assert hinf["ca_td3_real_rb_10_seed4.pt"] > 1.05 and hinf["ca_td3_real_rb_10_seed0.pt"] <= 1
+    code, _, err = run(capsys, "rank", "--select", "reward", "--string-stable", "real",
+                       seeds[0])
+    assert code == 2 and "no run is string stable" in err.strip().splitlines()[-1]
 
 
 def test_train_rejects_unknown_algorithm(capsys):
