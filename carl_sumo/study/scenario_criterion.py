@@ -6,7 +6,8 @@ tables give means over events; this compares the two runs on each event both did
 in (:func:`manoeuvre_criterion`):
 
 - ``collisions_where_reference_none``: events in which the controller collides and the reference
-  does not (and the converse, ``reference_collisions_where_none``);
+  does not (their IDs: ``collision_events_where_reference_none``; the converse count:
+  ``reference_collisions_where_none``);
 - ``ttc_where_reference_none``: events with a TTC below 1.5 s after the manoeuvre for the
   controller and none for the reference (and the converse);
 - per metric of :data:`PAIRED_MANOEUVRE_KEYS`, the mean per-event difference controller minus
@@ -55,8 +56,9 @@ def manoeuvre_criterion(result: dict, reference: dict, n_boot: int = 2000,
     common = sorted(set(mine) & set(ref))
     out: dict = {"controller": result["controller"], "reference": reference["controller"],
                  "paired_events": len(common)}
-    out["collisions_where_reference_none"] = sum(
-        mine[e]["collisions"] > 0 and ref[e]["collisions"] == 0 for e in common)
+    worse = [e for e in common if mine[e]["collisions"] > 0 and ref[e]["collisions"] == 0]
+    out["collisions_where_reference_none"] = len(worse)
+    out["collision_events_where_reference_none"] = worse
     out["reference_collisions_where_none"] = sum(
         ref[e]["collisions"] > 0 and mine[e]["collisions"] == 0 for e in common)
     out["ttc_where_reference_none"] = sum(
@@ -81,6 +83,9 @@ def criterion_lines(c: dict) -> list[str]:
              f"none {c['collisions_where_reference_none']} (the converse "
              f"{c['reference_collisions_where_none']}); TTC < 1.5 s where the reference has none "
              f"{c['ttc_where_reference_none']} (the converse {c['reference_ttc_where_none']})"]
+    if c["collision_events_where_reference_none"]:
+        lines.append("- its collisions where the reference has none: " +
+                     ", ".join(f"`{e}`" for e in c["collision_events_where_reference_none"]))
     for key in PAIRED_MANOEUVRE_KEYS:
         d = c[key]
         lines.append(f"- {key}, controller minus reference over {d['events']} events: "

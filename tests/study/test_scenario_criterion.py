@@ -70,5 +70,6 @@ def test_collisions_and_close_calls_count_only_where_the_reference_has_none():
     c = manoeuvre_criterion(mine, ref)
     assert c["paired_events"] == 3
     assert (c["collisions_where_reference_none"], c["reference_collisions_where_none"]) == (1, 0)
+    assert c["collision_events_where_reference_none"] == [0]
     assert (c["ttc_where_reference_none"], c["reference_ttc_where_none"]) == (1, 1)
     assert c["settle_s"]["events"] == 0 and math.isnan(c["settle_s"]["difference"])
