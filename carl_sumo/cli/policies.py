@@ -471,7 +471,9 @@ def cmd_rank(args: argparse.Namespace) -> None:
 
     rows = rank_runs(args.paths, args.select)
     if args.string_stable:
-        rows = _string_stable_first(rows, args.string_stable)
+        from carl_sumo.experiments.string_stability import string_stable_first
+
+        rows = string_stable_first(rows, args.string_stable)
     if args.best_only:
         print(rows[0]["path"])
         return
@@ -485,22 +487,4 @@ def cmd_rank(args: argparse.Namespace) -> None:
         print(f"| {i} | `{Path(r['path']).name}` | {r['seed']} | {r['score']:.3f} | "
               f"{'yes' if r['unsafe'] else 'no'} | " + " | ".join(cells) + " |")
     print(f"best: {rows[0]['path']}")
-
-
-def _string_stable_first(rows: list[dict], plant: str) -> list[dict]:
-    """``rows`` with the first string-stable run (in rank order) moved to the front, each checked
-    run given its worst ‖Γ‖∞ (``hinf``); InputError when none is string stable."""
-    from carl_sumo.control.channel import Impairments
-    from carl_sumo.experiments.string_stability import worst_hinf
-    from carl_sumo.sim.vehicle import REAL_COMM_DELAY_S, REAL_PLANT
-
-    imp = Impairments(delay_s=REAL_COMM_DELAY_S, plant=REAL_PLANT) if plant == "real" else None
-    for i, row in enumerate(rows):
-        row["hinf"] = worst_hinf(row["path"], imp)
-        print(f"{Path(row['path']).name}: worst ‖Γ‖∞ {row['hinf']:.4f} on the {plant} plant",
-              file=sys.stderr)
-        if row["hinf"] <= 1.0:
-            return [row] + rows[:i] + rows[i + 1:]
-    raise InputError(f"no run is string stable on the {plant} plant (worst ‖Γ‖∞: " +
-                     ", ".join(f"{r['hinf']:.4f}" for r in rows) + "); ship none of them")
 

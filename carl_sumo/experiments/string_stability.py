@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Sequence
@@ -35,7 +36,7 @@ from carl_sumo.control.transfer import gamma_continuous, gamma_discrete, log_fre
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
 from carl_sumo.sim.sumo import DEFAULT_NET, lane_route, check_fits
-from carl_sumo.sim.vehicle import Plant
+from carl_sumo.sim.vehicle import REAL_COMM_DELAY_S, REAL_PLANT, Plant
 
 SINE_SOURCE = "carl_sumo_sine"
 
@@ -439,3 +440,18 @@ def worst_hinf(policy: str, impairments: Impairments | None, n: int = 5,
             return math.inf
         worst = max([worst] + [run["hinf"] for run in result["runs"]])
     return worst
+
+
+def string_stable_first(rows: list[dict], plant: str) -> list[dict]:
+    """Ranked runs (``carl-sumo rank`` rows, best first, each with its ``path``) with the first
+    that is string stable on the ``plant`` ("ideal" or "real") moved to the front; every run
+    checked until then gets its :func:`worst_hinf` (``hinf``). InputError when none is."""
+    imp = Impairments(delay_s=REAL_COMM_DELAY_S, plant=REAL_PLANT) if plant == "real" else None
+    for i, row in enumerate(rows):
+        row["hinf"] = worst_hinf(row["path"], imp)
+        print(f"{Path(row['path']).name}: worst ‖Γ‖∞ {row['hinf']:.4f} on the {plant} plant",
+              file=sys.stderr)
+        if row["hinf"] <= 1.0:
+            return [row] + rows[:i] + rows[i + 1:]
+    raise InputError(f"no run is string stable on the {plant} plant (worst ‖Γ‖∞: " +
+                     ", ".join(f"{r['hinf']:.4f}" for r in rows) + "); ship none of them")
