@@ -74,6 +74,13 @@ def cmd_sweep(args: argparse.Namespace) -> None:
     written = write_report(spec.results, spec.path, spec.select, rows, configs, wall,
                            "carl-sumo " + " ".join(sys.argv[1:]))
     best = best_run(rows, configs)
+    if spec.ship is not None and best is not None and spec.ship_string_stable:
+        from carl_sumo.experiments.string_stability import string_stable_first
+
+        runs = sorted((r for r in rows if r["config"] == configs[0]["config"]
+                       and r["status"] == "ok"), key=lambda r: (-r["score"], r["seed"]))
+        best = string_stable_first([{"path": r["policy"]} for r in runs],
+                                   spec.ship_string_stable)[0]["path"]
     if spec.ship is not None and best is not None:
         from carl_sumo.cli.sweep_trials import ship
 

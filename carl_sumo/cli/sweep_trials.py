@@ -9,6 +9,8 @@ A spec (TOML) names fixed ``train`` options and the options searched over::
     cpus_per_trial = 1            # Ray CPUs a trial holds (its --envs processes come on top)
     max_failures = 3              # times a trial whose worker or node died resumes
     ship = "policies/ca_td3_10.pt"  # optional: the best run is copied here (with its curve)
+    ship_string_stable = "real"   # optional: ship the best-scoring run of the best configuration
+                                  # that is string stable on this plant (rank --string-stable)
 
     [train]                       # anything `carl-sumo train` takes, without the dashes
     algo = "ca-td3"
@@ -45,7 +47,7 @@ from carl_sumo.errors import InputError
 from carl_sumo.files import atomic_path, check_output_dir
 
 SPEC_KEYS = {"name", "out", "results", "search", "samples", "random_seed", "cpus_per_trial",
-             "max_failures", "ship", "train", "grid", "random"}
+             "max_failures", "ship", "ship_string_stable", "train", "grid", "random"}
 NOT_SWEPT = {"out", "resume", "ray"}
 """``train`` options a spec may not set: the sweep names the files and runs the trials."""
 DISTRIBUTIONS = ("uniform", "loguniform", "randint", "choice")
@@ -76,6 +78,7 @@ class SweepSpec:
     cpus_per_trial: float = 1.0
     max_failures: int = 3
     ship: Path | None = None
+    ship_string_stable: str | None = None  # "ideal" or "real" (see the module docstring)
     train: dict[str, Any] = field(default_factory=dict)
     grid: dict[str, list] = field(default_factory=dict)
     random: dict[str, dict] = field(default_factory=dict)
@@ -119,6 +122,10 @@ def load_spec(path: Path, out: Path | None = None, results: Path | None = None) 
                 raise _fail(path, f"{key} has the wrong type ({type(raw[key]).__name__})")
             setattr(spec, key, raw[key])
     spec.ship = Path(raw["ship"]) if "ship" in raw else None
+    spec.ship_string_stable = raw.get("ship_string_stable")
+    if spec.ship_string_stable not in (None, "ideal", "real"):
+        raise _fail(path, f"ship_string_stable = {spec.ship_string_stable!r}: give \"ideal\" or "
+                          "\"real\" (the plant of the frequency test), or leave it out")
     _check_search(spec)
     return spec
 

@@ -172,6 +172,7 @@ def test_configurations_are_compared_across_seeds_and_the_best_comes_first():
      "uniform needs [lo, hi] with lo < hi"),
     ("name = \"x\"\n[train]\ndata = \"/nonexistent/events.csv\"\n", "trial x_seed0"),
     ("name = \"x\"\nout = \"/proc/nope\"\n", "cannot write out /proc/nope"),
+    ("name = \"x\"\nship_string_stable = \"mars\"\n", "give \"ideal\" or \"real\""),
 ])
 def test_a_bad_spec_is_one_line_exit_2_and_nothing_is_written(tmp_path, capsys, text, needle):
     spec = tmp_path / "bad.toml"
