@@ -142,6 +142,8 @@ def check_train_args(args: argparse.Namespace) -> Path:
         from carl_sumo.learn.policy import read_policy_payload
 
         read_policy_payload(args.init)
+    if args.imitate_target is not None and (args.imitate is None or (args.base or "idm") == "idm"):
+        raise InputError("--imitate-target is for --imitate on an ACC base (--base acc:...)")
     if args.imitate is not None:
         from carl_sumo.learn.imitation import check_teacher_base, teacher
 
@@ -285,6 +287,9 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
                         "e.g. ploeg:h=1.1:kp=2.278:kd=10.6313 on the IDM base, or on an ACC base "
                         "the CACC with its gains (--base acc:h=0.8:kp=0.3:kd=1.5 --imitate "
                         "ploeg:h=0.8:kp=0.3:kd=1.5)")
+    p.add_argument("--imitate-target", choices=("realised", "command"), default=None,
+                   help="on an ACC base, what the copied feed-forward carries: the predecessor's "
+                        "realised acceleration (default) or its command a_base")
     p.add_argument("--imitate-updates", type=int, default=None,
                    help="behaviour-cloning gradient steps of --imitate (default 4000)")
     p.add_argument("--init", default=None, metavar="POLICY.pt",
@@ -313,8 +318,9 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "w_spaci
                    "noise_correlation", "smooth_jerk", "smooth_accel", "adj_l2", "eval_events",
                    "val_seed", "val_source", "gamma", "adj_max", "base", "critic_burn_in",
                    "braking_events", "update_every", "scale_rates", "lr_decay", "batch_size",
-                   "imitate", "imitate_updates", "init", "observe_ahead", "shield_ttc",
-                   "comm_fallback", "comm_randomize", "randomize_sensors", "val_impaired",
+                   "imitate", "imitate_target", "imitate_updates", "init", "observe_ahead",
+                   "shield_ttc", "comm_fallback", "comm_randomize", "randomize_sensors",
+                   "val_impaired",
                    "comm_delay", "comm_loss", "comm_burst", "comm_timeout", "comm_fade", "warmup",
                    "sensor_noise", "sensor_filter", "impairment_seed", "plant", "fleet",
                    "vehicle_lag", "actuation_delay", "plant_randomize", "comm_off")

@@ -30,6 +30,9 @@ With the same h, kp and kd the CACC is therefore the ACC with a_adj,i = a_{i-1},
 predecessor's acceleration (0 for the first follower, behind the human leader), and that is the
 target. Only the V2V messages carry a_{i-1} to vehicle i: a communication-aware actor can copy the
 teacher, an actor that hears nothing (CA-off, TD3) only its mean given o_i.
+``--imitate-target command`` feeds forward the predecessor's command instead (its base's
+a_base, the fifth column of o), which its actuator follows with its lag, as the CACC's own message
+does; the default ``realised`` is the acceleration it achieved.
 
 **Fit.** At ``--learning-starts`` the actor is fitted to the targets by mean squared error
 (:meth:`carl_sumo.learn.agents.Agent.imitate`); its target network is set to it; the cloned actor is
@@ -74,14 +77,23 @@ def check_teacher_base(name: str, base: str) -> None:
                          "(ploeg:h=H:kp=KP:kd=KD), whose adjustment is the predecessor's message")
 
 
-def predecessor_adjustment(obs: np.ndarray, adj_max: float) -> np.ndarray:
-    """The target a_adj (m/s², shape (..., n)) on an ACC base: a_{i-1}, the predecessor's
-    acceleration (o's second column; 0 for the head), clipped to ``TARGET_FRACTION``·``adj_max``."""
+IMITATE_TARGETS = ("realised", "command")
+"""What the target on an ACC base feeds forward: the predecessor's realised acceleration (o's
+second column) or its command (the base's a_base, o's fifth column, which its actuator then
+follows with its lag)."""
+
+
+def predecessor_adjustment(obs: np.ndarray, adj_max: float, target: str = "realised"
+                           ) -> np.ndarray:
+    """The target a_adj (m/s², shape (..., n)) on an ACC base: the predecessor's realised
+    acceleration a_{i-1} or, with ``target="command"``, its command a_base,i-1 (0 for the head),
+    clipped to ``TARGET_FRACTION``·``adj_max``."""
     obs = np.asarray(obs, dtype=np.float64)
-    target = np.zeros(obs.shape[:-1])
-    target[..., 1:] = obs[..., :-1, 1]
+    column = 4 if target == "command" else 1
+    target_a = np.zeros(obs.shape[:-1])
+    target_a[..., 1:] = obs[..., :-1, column]
     bound = TARGET_FRACTION * min(adj_max, BOUNDS.adj_max_mps2)
-    return np.clip(target, -bound, bound)
+    return np.clip(target_a, -bound, bound)
 
 
 def teacher_acceleration(controller: PloegController, obs: np.ndarray,
@@ -115,15 +127,18 @@ def teacher_adjustment(controller: PloegController, obs: np.ndarray, adj_max: fl
 
 
 def target_adjustment(controller: PloegController, obs: np.ndarray, adj_max: float,
-                      with_ahead: bool = False, base: str = "idm") -> np.ndarray:
-    """The teacher's target a_adj (m/s², shape (..., n)) on ``base``: IDM or an ACC."""
+                      with_ahead: bool = False, base: str = "idm", target: str = "realised"
+                      ) -> np.ndarray:
+    """The teacher's target a_adj (m/s², shape (..., n)) on ``base``: IDM or an ACC (``target``:
+    see :data:`IMITATE_TARGETS`)."""
     if base != "idm":
-        return predecessor_adjustment(obs, adj_max)
+        return predecessor_adjustment(obs, adj_max, target)
     return teacher_adjustment(controller, obs, adj_max, with_ahead)
 
 
 def dataset(controller: PloegController, obs: torch.Tensor, adj_max: float,
-            with_ahead: bool = False, base: str = "idm") -> tuple[torch.Tensor, torch.Tensor]:
+            with_ahead: bool = False, base: str = "idm", target: str = "realised"
+            ) -> tuple[torch.Tensor, torch.Tensor]:
     """(observations, target a_adj) of stored platoon observations (batch, n, 4 or 5)."""
-    target = target_adjustment(controller, obs.numpy(), adj_max, with_ahead, base)
+    target = target_adjustment(controller, obs.numpy(), adj_max, with_ahead, base, target)
     return obs, torch.as_tensor(target, dtype=torch.float32)

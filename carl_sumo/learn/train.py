@@ -359,7 +359,7 @@ def _choose_action(cfg: TrainConfig, agent: Agent, obs: np.ndarray, links, chann
         action = noise.sample()
         if teacher is not None:
             action = action + target_adjustment(teacher, obs, agent.cfg.adj_max,
-                                                cfg.observe_ahead, cfg.base)
+                                                cfg.observe_ahead, cfg.base, cfg.imitate_target)
         action = np.clip(action, -agent.cfg.adj_max, agent.cfg.adj_max)
     elif links is None:
         action = agent.act(obs, noise.sample())
@@ -409,7 +409,7 @@ def _clone_teacher(cfg: TrainConfig, agent: Agent, teacher, buffer: ReplayBuffer
     """Fit the actor to the teacher on every stored state, validate it and keep it as the first
     candidate; returns its selection score (see :mod:`carl_sumo.learn.imitation`)."""
     obs, target = imitation.dataset(teacher, buffer.obs[:buffer.size], agent.cfg.adj_max,
-                                    cfg.observe_ahead, cfg.base)
+                                    cfg.observe_ahead, cfg.base, cfg.imitate_target)
     mse = agent.imitate(obs, target, cfg.imitate_updates, cfg.imitate_lr, 256, rng)
     score, val = _validate_and_keep(cfg, agent, val_env, val_events, baseline, baseline_events,
                                     out)

@@ -94,6 +94,7 @@ class TrainConfig:
     init: str | None = None        # a policy file whose actor starts the run (a warm start)
     imitate: str | None = None     # a Ploeg CACC the actor copies first (carl_sumo.learn.imitation)
     imitate_updates: int = 4_000   # behaviour-cloning gradient steps at learning_starts
+    imitate_target: str = "realised"  # on an ACC base: the predecessor's realised a or its command
     imitate_lr: float = 1e-3       # their Adam learning rate
 
     def agent_config(self) -> AgentConfig:

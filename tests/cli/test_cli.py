@@ -293,6 +293,7 @@ def test_a_shipped_network_is_found_by_name_from_any_folder(tmp_path, monkeypatc
     (["--gamma", "1.5"], "--gamma is a discount"),
     (["--vehicles", "100000"], "--vehicles 100000 is more than"),
     (["--steps", "500", "--learning-starts", "1000"], "leaves no training step"),
+    (["--imitate-target", "command"], "--imitate-target is for --imitate on an ACC base"),
 ])
 def test_bad_learning_options_are_one_line_and_exit_2(capsys, tmp_path, options, message):
     code, _, err = run(capsys, "train", "--out", str(tmp_path / "x.pt"), *options)

@@ -145,3 +145,18 @@ def test_on_an_acc_base_the_predecessors_acceleration_makes_it_the_cacc_with_its
         np.testing.assert_allclose(accel, expected, atol=1e-9)
         done, k = term or trunc, k + 1
     assert k > 50
+
+
+def test_on_an_acc_base_the_command_target_feeds_forward_the_predecessors_a_base():
+    """--imitate-target command: the target of follower i is o_{i-1}'s fifth column (its base's
+    command), not its realised acceleration; the head gets 0; both clipped alike."""
+    rng = np.random.default_rng(0)
+    obs = rng.normal(size=(3, 4, 5))
+    obs[1, 2, 4] = 9.0  # beyond the bound: clipped
+    command = predecessor_adjustment(obs, adj_max=2.0, target="command")
+    realised = predecessor_adjustment(obs, adj_max=2.0)
+    bound = 0.95 * 2.0
+    assert np.array_equal(command[..., 0], np.zeros(3))
+    np.testing.assert_array_equal(command[..., 1:], np.clip(obs[..., :-1, 4], -bound, bound))
+    np.testing.assert_array_equal(realised[..., 1:], np.clip(obs[..., :-1, 1], -bound, bound))
+    assert command[1, 3] == bound
