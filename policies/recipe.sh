@@ -61,6 +61,10 @@ REAL_RB="${REAL_CRIT/:ttc=2 /:ttc=2:rb=1 }"
 # it carries a feed-forward).
 REAL_ACC_SPACING="${REAL_CRIT/--base ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2/--base acc:h=0.8:kp=0.0445:kd=1:aw=1:ttc=2 --imitate ploeg:h=0.8:kp=0.0445:kd=1}"
 REAL_ACC_SPACING="${REAL_ACC_SPACING/--adj-max 1/--adj-max 2}"
+# real_acc_cmd_recipe: REAL_ACC_SPACING with the copied feed-forward carrying the predecessor's command (its a_base) in
+# place of its realised acceleration (--imitate-target command): the CACC's own message is its command, which the
+# predecessor's actuator then follows with its lag.
+REAL_ACC_CMD="$REAL_ACC_SPACING --imitate-target command"
 PRODUCT="--base ploeg-tuned:h=0.8 --shield-ttc 4 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
 
 train_seeds() {  # STEM "SEEDS" TRAIN_ARGS...
