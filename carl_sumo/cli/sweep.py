@@ -53,7 +53,8 @@ def cmd_sweep(args: argparse.Namespace) -> None:
     import time
 
     from carl_sumo.cli.sweep_trials import check_trials, load_spec, plan_trials, run_sweep
-    from carl_sumo.cli.sweep_report import best_run, config_rows, trial_rows, write_report
+    from carl_sumo.cli.sweep_report import (best_config_runs, best_run, config_rows, trial_rows,
+                                            write_report)
 
     if args.workers is not None:
         positive(args.workers, "--workers")
@@ -77,10 +78,8 @@ def cmd_sweep(args: argparse.Namespace) -> None:
     if spec.ship is not None and best is not None and spec.ship_string_stable:
         from carl_sumo.experiments.string_stability import string_stable_first
 
-        runs = sorted((r for r in rows if r["config"] == configs[0]["config"]
-                       and r["status"] == "ok"), key=lambda r: (-r["score"], r["seed"]))
-        best = string_stable_first([{"path": r["policy"]} for r in runs],
-                                   spec.ship_string_stable)[0]["path"]
+        runs = [{"path": r["policy"]} for r in best_config_runs(rows, configs)]
+        best = string_stable_first(runs, spec.ship_string_stable)[0]["path"]
     if spec.ship is not None and best is not None:
         from carl_sumo.cli.sweep_trials import ship
 

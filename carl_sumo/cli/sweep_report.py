@@ -151,12 +151,18 @@ def markdown(spec_path: Path, select: str, trials: list[dict], configs: list[dic
     return "\n".join(lines) + "\n"
 
 
+def best_config_runs(trials: list[dict], configs: list[dict]) -> list[dict]:
+    """The finished runs of the best configuration, highest score first (ties: lower seed)."""
+    if not configs:
+        return []
+    runs = [r for r in trials if r["config"] == configs[0]["config"] and r["status"] == "ok"]
+    return sorted(runs, key=lambda r: (-r["score"], r["seed"]))
+
+
 def best_run(trials: list[dict], configs: list[dict]) -> str | None:
     """The policy file of the best configuration's highest-scoring run (ties: lower seed)."""
-    if not configs:
-        return None
-    runs = [r for r in trials if r["config"] == configs[0]["config"] and r["status"] == "ok"]
-    return min(runs, key=lambda r: (-r["score"], r["seed"]))["policy"]
+    runs = best_config_runs(trials, configs)
+    return runs[0]["policy"] if runs else None
 
 
 def write_report(results: Path, spec_path: Path, select: str, trials: list[dict],

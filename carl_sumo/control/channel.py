@@ -163,6 +163,11 @@ class Impairments:
         return np.random.default_rng([self.seed, zlib.crc32(event_id.encode()), stream])
 
 
+def plant_impairments(plant: str) -> Impairments | None:
+    """``--plant real``'s impairments (the default fleet, 0.1 s V2V delay), None for ideal."""
+    return Impairments(delay_s=REAL_COMM_DELAY_S, plant=REAL_PLANT) if plant == "real" else None
+
+
 def plant_key(plant: Plant | None, delay_s: float) -> str:
     """See :attr:`Impairments.plant_key`."""
     return "ideal" if plant is None else f"{plant.describe()} v2v={delay_s:g}s"

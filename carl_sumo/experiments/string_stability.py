@@ -31,12 +31,12 @@ import numpy as np
 
 from carl_sumo.config import DT_S
 from carl_sumo.control.cacc import TEXTBOOK, is_ploeg_name, parse_ploeg
-from carl_sumo.control.channel import Impairments
+from carl_sumo.control.channel import Impairments, plant_impairments
 from carl_sumo.control.transfer import gamma_continuous, gamma_discrete, log_frequencies
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
 from carl_sumo.sim.sumo import DEFAULT_NET, lane_route, check_fits
-from carl_sumo.sim.vehicle import REAL_COMM_DELAY_S, REAL_PLANT, Plant
+from carl_sumo.sim.vehicle import Plant
 
 SINE_SOURCE = "carl_sumo_sine"
 
@@ -446,7 +446,7 @@ def string_stable_first(rows: list[dict], plant: str) -> list[dict]:
     """Ranked runs (``carl-sumo rank`` rows, best first, each with its ``path``) with the first
     that is string stable on the ``plant`` ("ideal" or "real") moved to the front; every run
     checked until then gets its :func:`worst_hinf` (``hinf``). InputError when none is."""
-    imp = Impairments(delay_s=REAL_COMM_DELAY_S, plant=REAL_PLANT) if plant == "real" else None
+    imp = plant_impairments(plant)
     for i, row in enumerate(rows):
         row["hinf"] = worst_hinf(row["path"], imp)
         print(f"{Path(row['path']).name}: worst ‖Γ‖∞ {row['hinf']:.4f} on the {plant} plant",

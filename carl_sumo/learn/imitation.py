@@ -88,6 +88,8 @@ def predecessor_adjustment(obs: np.ndarray, adj_max: float, target: str = "reali
     """The target a_adj (m/s², shape (..., n)) on an ACC base: the predecessor's realised
     acceleration a_{i-1} or, with ``target="command"``, its command a_base,i-1 (0 for the head),
     clipped to ``TARGET_FRACTION``·``adj_max``."""
+    if target not in IMITATE_TARGETS:
+        raise InputError(f"imitation target {target!r}: choose {' or '.join(IMITATE_TARGETS)}")
     obs = np.asarray(obs, dtype=np.float64)
     column = 4 if target == "command" else 1
     target_a = np.zeros(obs.shape[:-1])

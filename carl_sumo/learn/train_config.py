@@ -9,13 +9,12 @@ from typing import Sequence
 import numpy as np
 
 from carl_sumo.config import REWARD, RewardConfig
-from carl_sumo.control.channel import Impairments
+from carl_sumo.control.channel import Impairments, plant_impairments
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
 from carl_sumo.learn.agents import AgentConfig
 from carl_sumo.learn.selection import VALIDATION_IMPAIRMENTS
 from carl_sumo.sim.sumo import DEFAULT_NET
-from carl_sumo.sim.vehicle import REAL_COMM_DELAY_S, REAL_PLANT
 
 
 @dataclass
@@ -177,7 +176,7 @@ def validation_conditions(cfg: TrainConfig) -> tuple:
     has its vehicle dynamics and V2V delay."""
     fixed = cfg.fixed_impairments
     if cfg.plant_randomize:  # randomised plants: validate on the real plant
-        return (Impairments(delay_s=REAL_COMM_DELAY_S, plant=REAL_PLANT),)
+        return (plant_impairments("real"),)
     if fixed is not None and fixed.plant is not None:  # validation runs on the training plant
         plain = Impairments(delay_s=fixed.delay_s, plant=fixed.plant)
         return (plain,) if not cfg.val_impaired else (plain, replace(fixed, seed=0))

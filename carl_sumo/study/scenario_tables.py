@@ -16,14 +16,14 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from carl_sumo.control.channel import Impairments
+from carl_sumo.control.channel import (  # noqa: F401 (plant_impairments is read from here too)
+    Impairments, plant_impairments)
 from carl_sumo.data.events import Event
 from carl_sumo.files import write_text_atomic
 from carl_sumo.scale.workers import run_parallel
 from carl_sumo.sim.manoeuvre_metrics import aggregate_manoeuvres
 from carl_sumo.sim.metrics import aggregate
 from carl_sumo.sim.scenario import KINDS, ScenarioSpec
-from carl_sumo.sim.vehicle import REAL_COMM_DELAY_S, REAL_PLANT
 from carl_sumo.study.scenarios import NotApplicable, check_scenario, scenario_scores
 
 ROBUST_AW = "ploeg:h=0.8:kp=0.0445:kd=1:aw=1"
@@ -76,11 +76,6 @@ TABLE_COLUMNS = (
 RUN_COLUMNS = (("headway (s)", "headway_s", "{:.3f}"), ("jerk (m/s³)", "jerk_mps3", "{:.3f}"),
                ("dampening", "dampening_ratio", "{:.3f}"), ("run collisions", "collisions", "{}"))
 """Whole-run columns beside them."""
-
-
-def plant_impairments(plant: str) -> Impairments | None:
-    """``--plant real``'s impairments (the default fleet, 0.1 s V2V delay), None for ideal."""
-    return Impairments(delay_s=REAL_COMM_DELAY_S, plant=REAL_PLANT) if plant == "real" else None
 
 
 def check_controllers(names: Sequence[str], spec: ScenarioSpec, events: Sequence[Event],

@@ -160,3 +160,8 @@ def test_on_an_acc_base_the_command_target_feeds_forward_the_predecessors_a_base
     np.testing.assert_array_equal(command[..., 1:], np.clip(obs[..., :-1, 4], -bound, bound))
     np.testing.assert_array_equal(realised[..., 1:], np.clip(obs[..., :-1, 1], -bound, bound))
     assert command[1, 3] == bound
+
+
+def test_an_unknown_imitation_target_is_refused():
+    with pytest.raises(InputError, match="imitation target 'comand'"):
+        predecessor_adjustment(np.zeros((1, 3, 5)), adj_max=2.0, target="comand")
