@@ -65,6 +65,12 @@ REAL_ACC_SPACING="${REAL_ACC_SPACING/--adj-max 1/--adj-max 2}"
 # place of its realised acceleration (--imitate-target command): the CACC's own message is its command, which the
 # predecessor's actuator then follows with its lag.
 REAL_ACC_CMD="$REAL_ACC_SPACING --imitate-target command"
+# real_gap_recipe: REAL_RB on the robust CACC at h = 0.7 s (the same kp = 0.0445, kd = 1 are string stable and
+# collision-free there on the fleet: docs/string_stability/ploeg_tuned_real_h0.7.json), the spacing term's own gap, so the
+# base itself drives where the headway bar is; validated also on the 32 training events hardest for that base
+# (policies/val_hard_real.txt, benchmarks/hard_events.py), where REAL_RB's seeds spent their TTC < 1.5 s samples and which
+# 64 random validation events never met.
+REAL_GAP="${REAL_RB/--base ploeg:h=0.8:/--base ploeg:h=0.7:} --val-events policies/val_hard_real.txt"
 PRODUCT="--base ploeg-tuned:h=0.8 --shield-ttc 4 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
 
 train_seeds() {  # STEM "SEEDS" TRAIN_ARGS...

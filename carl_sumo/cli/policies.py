@@ -310,13 +310,16 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--val-source", default=None,
                    help="hold the validation events out of this event source only (the data "
                         "file's `source` column), e.g. the one most like the test set")
+    p.add_argument("--val-events", default=None, metavar="FILE",
+                   help="a file of training event IDs (one per line) held out and validated "
+                        "on too, e.g. the hardest (benchmarks/hard_events.py)")
 
 
 TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "w_spacing",
                    "w_critical", "spacing_gap", "spacing_head_gap", "jerk_scale",
                    "message_dim", "hidden", "actor_lr", "critic_lr", "tau", "noise",
                    "noise_correlation", "smooth_jerk", "smooth_accel", "adj_l2", "eval_events",
-                   "val_seed", "val_source", "gamma", "adj_max", "base", "critic_burn_in",
+                   "val_seed", "val_source", "val_events", "gamma", "adj_max", "base", "critic_burn_in",
                    "braking_events", "update_every", "scale_rates", "lr_decay", "batch_size",
                    "imitate", "imitate_target", "imitate_updates", "init", "observe_ahead",
                    "shield_ttc", "comm_fallback", "comm_randomize", "randomize_sensors",

@@ -258,3 +258,18 @@ def events_from_table(table: pd.DataFrame, name: str = "event table") -> list[Ev
             lane=None if pd.isna(lane_value) else int(lane_value),
         ))
     return events
+
+
+def read_event_ids(path: str | Path) -> list[str]:
+    """Event IDs listed in a text file, one per line (blank lines and ``#`` comments skipped);
+    InputError for a file that cannot be read or lists none."""
+    try:
+        lines = Path(path).read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read the event ID list {path}: {exc}; give a text file with "
+                         "one event ID per line") from None
+    ids = [line.split("#", 1)[0].strip() for line in lines]
+    ids = [i for i in ids if i]
+    if not ids:
+        raise InputError(f"the event ID list {path} names no event; give one event ID per line")
+    return ids

@@ -10,7 +10,7 @@ import numpy as np
 
 from carl_sumo.config import REWARD, RewardConfig
 from carl_sumo.control.channel import Impairments, plant_impairments
-from carl_sumo.data.events import Event
+from carl_sumo.data.events import Event, read_event_ids
 from carl_sumo.errors import InputError
 from carl_sumo.learn.agents import AgentConfig
 from carl_sumo.learn.selection import VALIDATION_IMPAIRMENTS
@@ -38,6 +38,7 @@ class TrainConfig:
     eval_events: int = 8           # held-out training events used for validation
     val_seed: int | None = None    # seed choosing those events (None: the training seed)
     val_source: str | None = None  # draw them from this event source only (None: any)
+    val_events: str | None = None  # file of training event IDs also validated on (held out)
     braking_events: int = 0        # synthetic hard-braking leaders added (a quarter validates)
     warmup: float = 0.0            # s of settling before every event (Event.with_warmup)
     checkpoint_every: int = 5_000  # vector steps between checkpoints
@@ -149,13 +150,30 @@ def split_validation(events: Sequence[Event], k: int, seed: int, source: str | N
             [e for i, e in enumerate(events) if i in held])
 
 
+def hold_out_named(train: Sequence[Event], val: Sequence[Event], ids: Sequence[str]
+                   ) -> tuple[list[Event], list[Event]]:
+    """(training, validation) with the events named by ``ids`` moved from training to
+    validation (those already held out stay); InputError naming an ID that no event has."""
+    known = {e.event_id for e in [*train, *val]}
+    missing = [i for i in ids if i not in known]
+    if missing:
+        raise InputError(f"--val-events: {len(missing)} event ID(s) not in the training events, "
+                         f"e.g. {missing[0]!r}; list IDs of the --data file's training split")
+    named = set(ids)
+    return ([e for e in train if e.event_id not in named],
+            [*val, *(e for e in train if e.event_id in named)])
+
+
 def held_out_split(events: Sequence[Event], cfg: TrainConfig) -> tuple[list[Event], list[Event]]:
     """(training, validation) events of a run: ``cfg.eval_events`` held out with ``cfg.val_seed``
     (the training seed when None), so runs of several seeds can share one validation set, from
-    the events of ``cfg.val_source`` when given (e.g. the source most like the test set); with
+    the events of ``cfg.val_source`` when given (e.g. the source most like the test set), plus
+    the events named in ``cfg.val_events`` (e.g. the hardest training events); with
     ``cfg.warmup`` every event starts with that many seconds of settling."""
     val_seed = cfg.seed if cfg.val_seed is None else cfg.val_seed
     train, val = split_validation(events, cfg.eval_events, val_seed, cfg.val_source)
+    if cfg.val_events is not None:  # named events (e.g. the hardest ones) validate too
+        train, val = hold_out_named(train, val, read_event_ids(cfg.val_events))
     if cfg.braking_events > 0:  # hard braking in training, and in the validation's safety check
         from carl_sumo.data.synthetic import braking_events
 

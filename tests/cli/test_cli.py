@@ -205,6 +205,16 @@ def test_train_rejects_unknown_algorithm(capsys):
     assert code == 2 and "unknown algorithm" in err
 
 
+def test_train_with_an_unknown_validation_event_is_one_line_exit_2(capsys, tmp_path):
+    ids = tmp_path / "hard.txt"
+    ids.write_text("not_an_event\n")
+    out = tmp_path / "p.pt"
+    code, _, err = run(capsys, "train", "--algo", "td3", "--vehicles", "1", "--steps", "20",
+                       "--learning-starts", "10", "--val-events", str(ids), "--out", str(out))
+    assert code == 2 and "--val-events: 1 event ID" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists() and not out.with_suffix(".csv").exists()
+
+
 def test_each_subcommand_has_a_small_parser_function_beside_its_command():
     import argparse
     import ast

@@ -61,6 +61,27 @@ def test_runs_of_several_seeds_share_one_validation_set_with_val_seed():
         held(val_source="nope")
 
 
+def test_named_hardest_events_are_held_out_and_validated_too(tmp_path):
+    events = [dataclasses.replace(cruise_event(50), event_id=f"e{i}") for i in range(40)]
+    ids = tmp_path / "hard.txt"
+    ids.write_text("# the hardest\ne3  # 1, 2, 3\n\ne7\n")
+    random_train, random_val = held_out_split(events, TrainConfig(eval_events=8, seed=0))
+    train_ev, val_ev = held_out_split(events, TrainConfig(eval_events=8, seed=0,
+                                                          val_events=str(ids)))
+    named = {"e3", "e7"}
+    assert {e.event_id for e in val_ev} == {e.event_id for e in random_val} | named
+    assert not named & {e.event_id for e in train_ev}
+    assert len(train_ev) + len(val_ev) == 40
+    ids.write_text("e3\nnope\n")
+    with pytest.raises(InputError, match="--val-events: 1 event ID.*'nope'"):
+        held_out_split(events, TrainConfig(val_events=str(ids)))
+    ids.write_text("# nothing\n")
+    with pytest.raises(InputError, match="names no event"):
+        held_out_split(events, TrainConfig(val_events=str(ids)))
+    with pytest.raises(InputError, match="cannot read the event ID list"):
+        held_out_split(events, TrainConfig(val_events=str(tmp_path / "missing.txt")))
+
+
 def test_selection_prefers_safe_smooth_policies():
     base = {"val_reward": 0.5, "collisions": 0, "ttc_lt_1_5s_count": 0, "headway_s": 1.5,
             "dampening_ratio": 0.9, "jerk_mps3": 0.3}
