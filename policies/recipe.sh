@@ -71,6 +71,11 @@ REAL_ACC_CMD="$REAL_ACC_SPACING --imitate-target command"
 # (policies/val_hard_real.txt, benchmarks/hard_events.py), where REAL_RB's seeds spent their TTC < 1.5 s samples and which
 # 64 random validation events never met.
 REAL_GAP="${REAL_RB/--base ploeg:h=0.8:/--base ploeg:h=0.7:} --val-events policies/val_hard_real.txt"
+# real_gap06_recipe: REAL_GAP on the same CACC at h = 0.6 s, the spacing term at that gap too: with the degraded head,
+# the reaction layer and anti-windup those gains are string stable there (0.9997 on every link of cars and trucks) and
+# have the h = 0.8 s base's two collisions and two TTC < 1.5 s samples on the 773 training events (docs/results.md).
+REAL_GAP06="${REAL_GAP/--base ploeg:h=0.7:/--base ploeg:h=0.6:}"
+REAL_GAP06="${REAL_GAP06/--spacing-gap 0.7/--spacing-gap 0.6}"
 PRODUCT="--base ploeg-tuned:h=0.8 --shield-ttc 4 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
 
 train_seeds() {  # STEM "SEEDS" TRAIN_ARGS...

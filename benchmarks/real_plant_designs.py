@@ -1,0 +1,88 @@
+"""Every real-plant recipe of issue 34 in one table, from the test-split files that
+``benchmarks/real_plant_seeds.py`` wrote (``docs/results_real/learned_test*.json``; no simulation
+here): per recipe the CA seeds' mean ± std (NGSIM test split, 10 followers, ``--plant real
+--warmup 60``), the worst ‖Γ‖∞ over its seeds (every class, 0.5 and 2 m/s), and CA against its
+CA-off ablation paired by seed (relative difference of the means, paired t-test p).
+
+Usage: python benchmarks/real_plant_designs.py   (prints a markdown table)
+"""
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+OUT = Path("docs/results_real")
+DESIGNS = (  # (label, CA file stem, CA-off file stem or None)
+    ("`REAL`: the robust CACC h = 0.8 s", "learned_test", "learned_test_nocomm"),
+    ("`REAL_AW`: + anti-windup `aw=1`", "learned_test_ca_td3_real_aw_10",
+     "learned_test_ca_td3_real_aw_nocomm_10"),
+    ("`REAL_SPACING`: + a spacing term at 0.7 s", "learned_test_ca_td3_real_spacing_10", None),
+    ("`REAL_SPACING_HA`: + the degraded head `ha=1.4`", "learned_test_ca_td3_real_ha_10",
+     "learned_test_ca_td3_real_ha_nocomm_10"),
+    ("`REAL_REACT`: + the reaction layer `ttc=2`, validated on every source",
+     "learned_test_ca_td3_real_react_10", "learned_test_ca_td3_real_react_nocomm_10"),
+    ("`REAL_CRIT`: + a critical-TTC reward term", "learned_test_ca_td3_real_crit_10",
+     "learned_test_ca_td3_real_crit_nocomm_10"),
+    ("`REAL_RB`: + braking ahead in the reaction `rb=1`", "learned_test_ca_td3_real_rb_10", None),
+    ("`REAL_GAP`: base at h = 0.7 s, + validation on the 32 hardest training events",
+     "learned_test_ca_td3_real_gap_10", "learned_test_ca_td3_real_gap_nocomm_10"),
+    ("`REAL_GAP06`: base at h = 0.6 s", "learned_test_ca_td3_real_gap06_10",
+     "learned_test_ca_td3_real_gap06_nocomm_10"),
+    ("`REAL_ACC_SPACING`: radar-only ACC base, CA copies the CACC",
+     "learned_test_ca_td3_real_accsp_10", "learned_test_ca_td3_real_accsp_nocomm_10"),
+    ("`REAL_ACC_CMD`: the same, copying the predecessor's command",
+     "learned_test_ca_td3_real_acccmd_10", "learned_test_ca_td3_real_acccmd_nocomm_10"),
+)
+KEYS = ("headway_s", "jerk_mps3", "dampening_ratio", "ttc_lt_1_5s_count", "collisions")
+
+
+def seeds(stem: str) -> list[dict]:
+    """Per-seed rows of one file, in seed order (empty when the file is absent)."""
+    path = OUT / f"{stem}.json"
+    return [] if not path.exists() else [v for _, v in sorted(json.loads(path.read_text()).items())]
+
+
+def mean_std(rows: list[dict], key: str, form: str) -> str:
+    x = np.array([r[key] for r in rows], float)
+    return f"{x.mean():{form}} ± {x.std(ddof=1):{form}}" if x.size > 1 else f"{x.mean():{form}}"
+
+
+def worst_hinf(rows: list[dict]) -> str:
+    """The largest ‖Γ‖∞ over seeds, classes and amplitudes (a test that collided is noted)."""
+    values = [v for r in rows for k, v in r.items() if k.startswith("hinf_") and "inner" not in k]
+    numbers = [v for v in values if isinstance(v, (int, float))]
+    text = f"{max(numbers):.4f}" if numbers else ""
+    return text + (" (a test collides)" if len(numbers) < len(values) else "")
+
+
+def paired(ca: list[dict], off: list[dict], key: str) -> str:
+    """CA relative to CA-off (%) and the paired t-test p, over the seeds both have."""
+    a = np.array([r[key] for r in ca], float)
+    b = np.array([r[key] for r in off], float)
+    if not off or a.size != b.size:
+        return "n/a"
+    p = stats.ttest_rel(a, b).pvalue
+    p_text = "n/a" if not math.isfinite(p) else f"{p:.2f}" if p >= 0.01 else "< 0.01"
+    return f"{100 * (a.mean() / b.mean() - 1):+.1f} % (p {p_text})"
+
+
+def main() -> None:
+    print("| recipe | headway (s) | jerk (m/s³) | dampening | TTC < 1.5 s | collisions | worst ‖Γ‖∞ "
+          "| CA vs CA-off: jerk | dampening |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for label, ca_stem, off_stem in DESIGNS:
+        ca = seeds(ca_stem)
+        if not ca:
+            continue
+        off = seeds(off_stem) if off_stem else []
+        cells = [mean_std(ca, "headway_s", ".3f"), mean_std(ca, "jerk_mps3", ".3f"),
+                 mean_std(ca, "dampening_ratio", ".3f"), mean_std(ca, "ttc_lt_1_5s_count", ".1f"),
+                 mean_std(ca, "collisions", ".1f"), worst_hinf(ca),
+                 paired(ca, off, "jerk_mps3"), paired(ca, off, "dampening_ratio")]
+        print(f"| {label} | " + " | ".join(cells) + " |")
+
+
+if __name__ == "__main__":
+    main()
