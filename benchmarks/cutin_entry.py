@@ -13,10 +13,11 @@ import sys
 
 import numpy as np
 
+from carl_sumo.control.channel import plant_impairments
 from carl_sumo.data import load_events
 from carl_sumo.sim.scenario import ScenarioSpec
 from carl_sumo.sim.sumo import DEFAULT_NET
-from carl_sumo.study.scenario_tables import REAL_WARMUP_S, plant_impairments
+from carl_sumo.experiments.suite import REAL_WARMUP_S
 from carl_sumo.study.scenarios import run_scenario_event, scenario_controller, scenario_sim
 
 

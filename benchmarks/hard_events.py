@@ -19,9 +19,9 @@ from pathlib import Path
 from carl_sumo.control.channel import plant_impairments
 from carl_sumo.data import load_events
 from carl_sumo.experiments.simulate import simulate
+from carl_sumo.experiments.suite import REAL_WARMUP_S
 from carl_sumo.files import check_output_file, write_text_atomic
 
-REAL_WARMUP_S = 60.0
 RANK_KEYS = ("collisions", "ttc_lt_1_5s_count", "ttc_lt_4s_count")
 
 

@@ -35,7 +35,6 @@ DESIGNS = (  # (label, CA file stem, CA-off file stem or None)
     ("`REAL_ACC_CMD`: the same, copying the predecessor's command",
      "learned_test_ca_td3_real_acccmd_10", "learned_test_ca_td3_real_acccmd_nocomm_10"),
 )
-KEYS = ("headway_s", "jerk_mps3", "dampening_ratio", "ttc_lt_1_5s_count", "collisions")
 
 
 def seeds(stem: str) -> list[dict]:

@@ -21,13 +21,14 @@ import json
 import time
 from pathlib import Path
 
+from carl_sumo.control.channel import plant_impairments
 from carl_sumo.data import load_events
 from carl_sumo.files import write_text_atomic
 from carl_sumo.sim.scenario import KINDS, ScenarioSpec
 from carl_sumo.sim.sumo import DEFAULT_NET
-from carl_sumo.study.scenario_tables import (REAL_WARMUP_S, ROBUST_TTC,
-                                             markdown_scenario_table, paired,
-                                             plant_impairments, result_of, run_jobs)
+from carl_sumo.experiments.suite import REAL_WARMUP_S
+from carl_sumo.study.scenario_tables import (ROBUST_TTC, markdown_scenario_table, paired,
+                                             result_of, run_jobs)
 from carl_sumo.study.scenario_criterion import criterion_lines, manoeuvre_criterion
 
 OUT = Path("docs/results_scenarios")

@@ -88,7 +88,8 @@ def evaluate_scenarios(args: argparse.Namespace, workers: int) -> None:
     from carl_sumo.data import load_events
     from carl_sumo.errors import InputError
     from carl_sumo.sim.scenario import KINDS, parse_scenario
-    from carl_sumo.study.scenario_tables import REAL_WARMUP_S, run_scenario_tables
+    from carl_sumo.experiments.suite import REAL_WARMUP_S
+    from carl_sumo.study.scenario_tables import run_scenario_tables
 
     if args.plant != "ideal" or args.fleet or args.vehicle_lag is not None \
             or args.actuation_delay is not None or args.comm_delay is not None \

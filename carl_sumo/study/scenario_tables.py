@@ -16,9 +16,12 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from carl_sumo.control.channel import (  # noqa: F401 (plant_impairments is read from here too)
-    Impairments, plant_impairments)
+from carl_sumo.control.channel import Impairments, plant_impairments
 from carl_sumo.data.events import Event
+# The real plant's tables start settled, as ``evaluate --suite real``: from the recorded gap,
+# plain runs (no manoeuvre) of the tuned CACC on the real fleet have 16 collisions in the 53
+# default test events, on the ideal plant none.
+from carl_sumo.experiments.suite import REAL_WARMUP_S
 from carl_sumo.files import write_text_atomic
 from carl_sumo.scale.workers import run_parallel
 from carl_sumo.sim.manoeuvre_metrics import aggregate_manoeuvres
@@ -185,12 +188,6 @@ def markdown_scenario_table(results: list[dict]) -> str:
     header, rows = scenario_rows(results, LABELS)
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in rows])
-
-
-REAL_WARMUP_S = 60.0
-"""The real plant's tables start settled (s of warm-up, as ``evaluate --suite real``): from the
-recorded gap, plain runs (no manoeuvre) of the tuned CACC on the real fleet have 16 collisions
-in the 53 default test events, on the ideal plant none."""
 
 
 def run_scenario_tables(out: Path, events: Sequence[Event], n_followers: int, net: str,
