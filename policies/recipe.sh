@@ -76,6 +76,13 @@ REAL_GAP="${REAL_RB/--base ploeg:h=0.8:/--base ploeg:h=0.7:} --val-events polici
 # have the h = 0.8 s base's two collisions and two TTC < 1.5 s samples on the 773 training events (docs/results.md).
 REAL_GAP06="${REAL_GAP/--base ploeg:h=0.7:/--base ploeg:h=0.6:}"
 REAL_GAP06="${REAL_GAP06/--spacing-gap 0.7/--spacing-gap 0.6}"
+# real_wo_recipe: REAL_GAP06 with the learned term washed out (wo=5 in the base's name, docs/vehicles.md): a_adj enters the
+# law less its own running mean over 5 s, so it cannot move the steady gap. On REAL_GAP06's learned seed a mean a_adj of
+# -0.071 m/s^2 opened the gap by 0.19 s (1/kp = 22 m per m/s^2 at kp = 0.0445): the learned term bought comfort with a
+# longer gap through a bias that the spacing term priced at almost nothing. Here the base alone holds the time gap and the
+# learned term can only shape transients, the one place where a vehicle that knows its own lag and hears its neighbours
+# can do better than the linear law.
+REAL_WO="${REAL_GAP06/:ttc=2:rb=1 /:ttc=2:rb=1:wo=5 }"
 PRODUCT="--base ploeg-tuned:h=0.8 --shield-ttc 4 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
 
 train_seeds() {  # STEM "SEEDS" TRAIN_ARGS...

@@ -44,7 +44,12 @@ a_adj,i (m/s²) enters the law as one more feed-forward input beside the predece
 u_i(k+1) = u_i(k) + (dt/h)·(-u_i(k) + kp·e_i + kd·ė_i + u_{i-1}(k) + a_adj,i). So it passes
 through the controller's own first-order filter (time constant h), is part of the state u_i the
 follower hears, and shifts the steady state by a_adj,i; an adjustment added after the law instead
-is undone by it (measured: a low-pass adjustment added after the law raises jerk).
+is undone by it (measured: a low-pass adjustment added after the law raises jerk). Because
+kp is small on the real plant (0.0445 1/s²), a bias of -0.07 m/s² in a_adj opens the gap by
+1.6 m. With ``wo=T`` in the base's name (washout, e.g. ``ploeg:h=0.6:kp=0.0445:kd=1:wo=5``) the
+term enters the law less its own running mean m_i (m_i(k+1) = m_i(k) + (dt/T)·(a_adj,i - m_i(k)),
+T in s): a_adj,i - m_i(k) has no steady part, so the base alone holds the time gap and the learned
+term only shapes transients (its effect on a constant input decays with time constant T).
 
 Names (accepted wherever a controller name is): ``ploeg`` (h = 1.0 s, textbook gains),
 ``ploeg:h=0.8``, ``ploeg:h=0.8:kp=0.1:kd=1.5``, and ``ploeg-tuned:h=0.8`` (the gains
@@ -161,9 +166,11 @@ class PloegController:
         self._dv: np.ndarray | None = None  # each follower's Δv of the last step (m/s)
         self.channel: Channel | None = None
         self._k = 0
+        self.adj_mean = np.zeros(0)  # each follower's running mean of a_adj (m/s², ``wo=T``)
 
     def reset(self, n_followers: int) -> None:
         self.u, self.brake = np.zeros(n_followers), np.full(n_followers, np.inf)
+        self.adj_mean = np.zeros(n_followers)
         self.u_min, self.u_max = np.full(n_followers, -np.inf), np.full(n_followers, np.inf)
         self._leader_speed, self._dv = None, None
         self.channel, self._k = None, 0
@@ -197,9 +204,14 @@ class PloegController:
             mode, held = self.channel.receive(self._k)
             held = held[:, 0]
         a_ahead = None if self._dv is None else obs[:, 1] + (obs[:, 3] - self._dv) / DT_S
+        if self.params.washout_s is not None:
+            adjustment, adj_mean = washed_adjustment(adjustment, self.adj_mean,
+                                                     self.params.washout_s)
         if not commit:
-            return self.step(obs, self.u.copy(), a_lead, None, mode, held, self.brake.copy(),
-                             a_ahead=a_ahead)
+            return self.step(obs, self.u.copy(), a_lead, adjustment, mode, held,
+                             self.brake.copy(), a_ahead=a_ahead)
+        if self.params.washout_s is not None:
+            self.adj_mean = adj_mean
         self._leader_speed = leader_speed
         if self.params.reaction_braking_ahead:  # the radar's Δv, for the next step's a_ahead
             self._dv = np.array(obs[:, 3], dtype=np.float64)
@@ -259,6 +271,15 @@ class PloegController:
         return _no_limits(n)
 
 
+def washed_adjustment(adjustment: np.ndarray | None, mean: np.ndarray, washout_s: float
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """(a_adj - m, m updated with a_adj) for the washout ``wo=T`` (module docstring): the learned
+    term (m/s², shape (n,); None: 0) less its running mean ``mean`` (m/s²), and the new mean."""
+    adj = np.zeros_like(mean) if adjustment is None else \
+        np.asarray(adjustment, dtype=np.float64)
+    return adj - mean, mean + (DT_S / washout_s) * (adj - mean)
+
+
 def ploeg_controller(name: str, tuned_file: Path | None = None, plant: str = "ideal"
                      ) -> PloegController:
     """A :class:`PloegController` from a name such as ``ploeg:h=0.8``, ``ploeg-tuned:h=1`` or
@@ -286,10 +307,12 @@ class PloegChains:
         self.armed: set[str] = set()  # IDs whose reaction acts although they hear a message
         self._dv: dict[str, tuple[str | None, float]] = {}
         self._k = 0
+        self.adj_mean: dict[str, float] = {}  # ID: its running mean of a_adj (m/s², ``wo=T``)
 
     def reset(self) -> None:
         """Forget every state, limit and link: a new run starts (every vehicle's u at 0)."""
         self.u, self.brake, self.limits, self.links, self._k = {}, {}, {}, None, 0
+        self.adj_mean = {}
         self.armed, self._dv = set(), {}
 
     def arm(self, vehicle_ids: set[str]) -> None:
@@ -341,6 +364,12 @@ class PloegChains:
         (m/s², shape (m,)): a learned feed-forward term in the law; ``commit=False``: a preview
         that leaves the states as they are."""
         out = np.empty(obs.shape[0])
+        washout_s = self.controller.params.washout_s
+        if washout_s is not None:
+            mean = np.array([self.adj_mean.get(v, 0.0) for v in ids])
+            adjustment, mean = washed_adjustment(adjustment, mean, washout_s)
+            if commit:
+                self.adj_mean = dict(zip(ids, mean.tolist()))
         u_new: dict[str, float] = {}
         brake_new: dict[str, float] = {}
         dv_new: dict[str, tuple[str | None, float]] = {}

@@ -36,6 +36,9 @@ class PloegParams:
                                 # at least as hard as closing in needs (None: no reaction layer)
     reaction_braking_ahead: bool = False  # rb=1: the reaction adds the braking of the vehicle
                                 # ahead as the radar measures it (False: assumes it keeps its speed)
+    washout_s: float | None = None  # wo: a learned term enters the law less its own running mean
+                                # over this time constant (s), so it cannot move the steady gap
+                                # (None: it enters as it is)
 
     def name(self) -> str:
         """The controller name that runs these gains."""
@@ -44,7 +47,8 @@ class PloegParams:
             (":aw=1" if self.anti_windup else "") + \
             (f":ha={self.alone_gap_s:g}" if self.alone_gap_s is not None else "") + \
             (f":ttc={self.reaction_ttc_s:g}" if self.reaction_ttc_s is not None else "") + \
-            (":rb=1" if self.reaction_braking_ahead else "")
+            (":rb=1" if self.reaction_braking_ahead else "") + \
+            (f":wo={self.washout_s:g}" if self.washout_s is not None else "")
 
     @property
     def gap_alone_s(self) -> float:
@@ -139,7 +143,8 @@ def _switches(name: str, opts: dict[str, float]) -> dict:
     return {"anti_windup": _flag(name, opts, "aw", "each vehicle's state within its own limits"),
             "alone_gap_s": opts.get("ha"), "reaction_ttc_s": opts.get("ttc"),
             "reaction_braking_ahead": _flag(name, opts, "rb", "the reaction counts the braking "
-                                                              "of the vehicle ahead")}
+                                                              "of the vehicle ahead"),
+            "washout_s": opts.get("wo")}
 
 
 def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal") -> PloegParams:
@@ -149,12 +154,12 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
     kind = name.split(":")[0]
     law = "acc" if kind.startswith("acc") else "ploeg"
     if kind in ("ploeg", "acc"):
-        opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "ttc", "rb"))
+        opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "ttc", "rb", "wo"))
         return PloegParams(opts.get("h", TEXTBOOK.time_gap_s), opts.get("kp", TEXTBOOK.kp),
                            opts.get("kd", TEXTBOOK.kd), feed_forward=law == "ploeg",
                            **_switches(name, opts))
     if kind in ("ploeg-tuned", "acc-tuned"):
-        opts = _parse_options(name, ("h", "aw", "ha", "ttc", "rb"))
+        opts = _parse_options(name, ("h", "aw", "ha", "ttc", "rb", "wo"))
         if "h" not in opts:
             raise InputError(f"controller {name!r}: name the time gap, e.g. {kind}:h=1")
         entries = [e for e in read_tuned_entries(tuned_file) if e.get("law", "ploeg") == law]

@@ -394,3 +394,53 @@ def test_ttc_reaction_keeps_the_platoon_of_a_close_start_apart_in_sumo():
             for name in (base, base + ":ttc=2")}
     assert runs[base].collisions > 0
     assert runs[base + ":ttc=2"].collisions == 0
+
+
+class _BiasedLaw:
+    """A law with a constant learned term a_adj on every follower (m/s²)."""
+
+    def __init__(self, name: str, bias: float):
+        self.law, self.bias = ploeg_controller(name), bias
+
+    def reset(self, n: int) -> None:
+        self.law.reset(n)
+
+    def acceleration(self, obs: np.ndarray) -> np.ndarray:
+        return self.law.acceleration(obs, np.full(obs.shape[0], self.bias))
+
+
+@pytest.mark.parametrize("washout, gap_change", [(None, 0.4 / 0.2), (5.0, 0.0)])
+def test_washout_keeps_a_biased_learned_term_from_moving_the_steady_gap_in_sumo(washout,
+                                                                                  gap_change):
+    """A constant a_adj of -0.4 m/s² shifts Ploeg's steady spacing error by a_adj/kp (2 m at
+    kp = 0.2); with ``wo=5`` it enters less its running mean and the gap returns to 2 + h·v."""
+    v, h = 15.0, 1.0
+    name = "ploeg:h=1:kp=0.2:kd=0.7" + ("" if washout is None else f":wo={washout:g}")
+    assert parse_ploeg(name).washout_s == washout and parse_ploeg(name).name() == name
+    traj = run_event(cached_sim(NET, "external"), _cruise(1500, v, 2.0 + h * v), 3,
+                     _BiasedLaw(name, -0.4))
+    assert traj.collisions == 0
+    assert np.allclose(traj.gap[-1], 2.0 + h * v + gap_change, atol=0.05)
+
+
+def test_washout_preview_and_chains_carry_the_running_mean():
+    """The preview (commit=False) applies a_adj = 0 less the running mean and leaves the mean;
+    the chains keep the mean by vehicle ID and forget a vehicle that left."""
+    from carl_sumo.control.cacc import PloegChains
+
+    law = ploeg_controller("ploeg:h=1:wo=2")
+    law.reset(1)
+    eq = np.array([[10.0, 0.0, 12.0, 0.0]])
+    law.acceleration(eq, np.array([1.0]))  # applied 1 - 0; the mean becomes 0.05
+    assert math.isclose(law.adj_mean[0], DT_S / 2.0)
+    preview = law.acceleration(eq, commit=False)
+    assert math.isclose(law.adj_mean[0], DT_S / 2.0)
+    assert preview[0] < law.u[0]  # the law moves toward -0.05 + its other inputs (0)
+    chains = PloegChains(parse_ploeg("ploeg:h=1:wo=2"))
+    for _ in range(3):
+        chains.acceleration(np.vstack([eq, eq]), [[0], [1]], ["a", "b"], [None, None], {},
+                            np.array([1.0, 0.0]))
+    assert math.isclose(chains.adj_mean["a"], 1 - (1 - DT_S / 2.0) ** 3) and \
+        chains.adj_mean["b"] == 0.0
+    chains.acceleration(eq, [[0]], ["b"], [None], {}, np.array([0.0]))
+    assert set(chains.adj_mean) == {"b"}
