@@ -11,10 +11,13 @@ and settle time minus the base's with a paired bootstrap interval.
 
 Writes ``docs/results_scenarios/full_split_<PLANT>.md`` (a table per manoeuvre) and
 ``full_split_<PLANT>.json`` (the aggregates, no per-event rows); ``--base``/``--product`` run
-another pair, ``--stem`` names the files. 8 minutes (real) and 3 (ideal) on 2 cores.
+another pair, ``--stem`` names the files, ``--kinds`` runs some manoeuvres only, and ``--wait S``
+lets an entering vehicle (cut-in, join) wait at most S s after its drawn time for room
+(``--wait 0``: both controllers meet it at the same moment or not at all). 8 minutes (real) and
+3 (ideal) on 2 cores.
 
 Usage: python benchmarks/scenarios_full_split.py DATA [real|ideal] [--base NAME --product PT
-       --stem STEM]
+       --stem STEM --kinds cut-in,join --wait S]
 """
 import argparse
 import json
@@ -37,15 +40,17 @@ CONTROLLERS = {"real": (ROBUST_TTC, "policies/ca_td3_real_react_10.pt"),
 N_FOLLOWERS = 10
 
 
-def main(data: str, plant: str, controllers: tuple[str, str], stem: str) -> None:
+def main(data: str, plant: str, controllers: tuple[str, str], stem: str,
+         kinds: tuple[str, ...] = KINDS, wait_s: float | None = None) -> None:
     events = load_events(data, "test")
     if plant == "real":
         events = [e.with_warmup(REAL_WARMUP_S) for e in events]
     imp = plant_impairments(plant)
     start = time.perf_counter()
     tables, lines = {}, []
-    for kind in KINDS:
-        spec = ScenarioSpec(kind, seed=0)
+    for kind in kinds:
+        spec = ScenarioSpec(kind, seed=0,
+                            wait_s=wait_s if kind in ("cut-in", "join") else None)
         rows = run_jobs([(name, spec, imp, events) for name in controllers], N_FOLLOWERS,
                         str(DEFAULT_NET), workers=2, chunks=2)
         results = paired([result_of(name, spec, r, N_FOLLOWERS)
@@ -64,14 +69,16 @@ def main(data: str, plant: str, controllers: tuple[str, str], stem: str) -> None
     start_text = "60 s settled start" if plant == "real" else "the recorded start"
     head = [f"# Scenarios on the full NGSIM test split, {plant} plant ({len(events)} events)", "",
             f"`python benchmarks/scenarios_full_split.py {data} {plant} --base {controllers[0]} "
-            f"--product {controllers[1]} --stem {stem}` ({wall:.0f} s), 10 "
+            f"--product {controllers[1]} --stem {stem}"
+            + (f" --kinds {','.join(kinds)}" if kinds != KINDS else "")
+            + (f" --wait {wait_s:g}" if wait_s is not None else "") + f"` ({wall:.0f} s), 10 "
             f"followers, {start_text}, scenario seed 0. Manoeuvre columns are paired over "
             "the events in which both controllers did the manoeuvre; `done` is each one's own "
             "count.", ""]
     write_text_atomic(OUT / f"{stem}.md", "\n".join(head + lines))
     write_text_atomic(OUT / f"{stem}.json", json.dumps(
         {"data": data, "plant": plant, "events": len(events),
-         "wall_time_s": wall, "tables": tables}, indent=2, allow_nan=True, default=float))
+         "wait_s": wait_s, "wall_time_s": wall, "tables": tables}, indent=2, allow_nan=True, default=float))
 
 
 if __name__ == "__main__":
@@ -81,7 +88,13 @@ if __name__ == "__main__":
     parser.add_argument("--base", help="the reference controller (default: the plant's base)")
     parser.add_argument("--product", help="the product policy file (default: the plant's)")
     parser.add_argument("--stem", help="output file stem (default: full_split_PLANT)")
+    parser.add_argument("--kinds", default=",".join(KINDS), help="manoeuvres, comma-separated")
+    parser.add_argument("--wait", type=float, default=None, metavar="S",
+                        help="an entering vehicle waits at most S s after its time for room")
     args = parser.parse_args()
+    kinds = tuple(args.kinds.split(","))
+    if not set(kinds) <= set(KINDS) or (args.wait is not None and args.wait < 0):
+        parser.error(f"--kinds takes {', '.join(KINDS)}; --wait takes 0 s or more")
     base, product = CONTROLLERS[args.plant]
     main(args.data, args.plant, (args.base or base, args.product or product),
-         args.stem or f"full_split_{args.plant}")
+         args.stem or f"full_split_{args.plant}", kinds, args.wait)

@@ -18,7 +18,9 @@ Positions count vehicles from the front: 0 is the NGSIM leader, 1 the first foll
 An entering vehicle of length L takes a share of the gap g between vehicle k and follower k+1:
 the gap behind it is ``gap_fraction``·(g - L), the gap ahead (1 - ``gap_fraction``)·(g - L). It
 starts at the first step from ``time_s`` on at which g - L is at least :data:`MIN_ROOM_M`
-(drivers cut into a gap that has room), beside the gap in the adjacent lane at the mean speed of
+(drivers cut into a gap that has room), or, with ``wait=S`` (cut-in, join), only within S seconds
+of ``time_s`` (``wait=0``: at ``time_s`` or not at all, so that every controller meets the
+manoeuvre at the same moment of the event, at the same leader speed), beside the gap in the adjacent lane at the mean speed of
 the two vehicles, and changes lanes with SUMO's own ``vehicle.changeLane``. At the tail a joiner
 enters at the gap the tail keeps. A lane change is done in one 0.1 s step, or, with ``lc=S``
 (cut-in, cut-out, join), gradually over S seconds (SUMO's ``--lanechange.duration``: the vehicle
@@ -70,6 +72,8 @@ class Manoeuvre:
     extra_gap_m: float = 0.0
     leave_s: float | None = None  # cut-in: the human leaves again this long after (s)
     lane_change_s: float = 0.0    # how long a lane change takes (s; 0: one step)
+    wait_s: float | None = None   # cut-in, join: the longest it waits for room after time_s
+                                  # (s; None: to the end of the event)
 
     @property
     def step(self) -> int:
@@ -86,7 +90,13 @@ class Manoeuvre:
             text += f" leave={self.leave_s:g}s"
         if self.lane_change_s > 0:
             text += f" lc={self.lane_change_s:g}s"
+        if self.wait_s is not None:
+            text += f" wait={self.wait_s:g}s"
         return text
+
+    def gives_up(self, step: int) -> bool:
+        """Whether an entering vehicle that has found no room by ``step`` stops waiting."""
+        return self.wait_s is not None and step >= self.step + int(round(self.wait_s / DT_S))
 
 
 def position_range(kind: str, n_followers: int) -> tuple[int, int]:
@@ -113,6 +123,7 @@ class ScenarioSpec:
     extra_gap_m: float | None = None
     leave_s: float | None = None
     lane_change_s: float = 0.0
+    wait_s: float | None = None
     seed: int = 0
 
     def check(self, n_followers: int) -> None:
@@ -153,7 +164,7 @@ class ScenarioSpec:
             self.time_s if self.time_s is not None else float(time_s),
             self.gap_fraction if self.gap_fraction is not None else fraction,
             (self.extra_gap_m if self.extra_gap_m is not None else extra)
-            if self.kind == "merge" else 0.0, self.leave_s, self.lane_change_s)
+            if self.kind == "merge" else 0.0, self.leave_s, self.lane_change_s, self.wait_s)
 
 
 def _number(spec: str, key: str, text: str) -> float:
@@ -177,6 +188,7 @@ def parse_scenario(text: str, seed: int = 0) -> ScenarioSpec:
     allowed = {"k": "position", "t": "time_s"}
     if kind in ("cut-in", "join"):
         allowed["f"] = "gap_fraction"
+        allowed["wait"] = "wait_s"
     if kind == "cut-in":
         allowed["leave"] = "leave_s"
     if kind == "merge":
@@ -205,6 +217,9 @@ def parse_scenario(text: str, seed: int = 0) -> ScenarioSpec:
                                 and abs(value / DT_S - round(value / DT_S)) < 1e-6):
             raise InputError(f"--scenario {text!r}: lc is the lane change's duration, 0 to "
                              f"{MAX_LANE_CHANGE_S:g} s in multiples of {DT_S} s, got {value_text}")
+        if key == "wait" and (value < 0 or abs(value / DT_S - round(value / DT_S)) > 1e-6):
+            raise InputError(f"--scenario {text!r}: wait is how long the entering vehicle waits "
+                             f"for room, 0 s or more in multiples of {DT_S} s, got {value_text}")
         if key == "gap" and value <= 0:
             raise InputError(f"--scenario {text!r}: the merge gap must be positive (m), got "
                              f"{value_text}")

@@ -339,6 +339,8 @@ class ScenarioSim(PlatoonSim):
             length = self._entering_length()
             room = gap + (v_pred - v_behind) * DT_S - length
             if room < MIN_ROOM_M:
+                if m.gives_up(self.k):
+                    self.phase = "no room"  # it stays in its own lane: no manoeuvre
                 return
             front = self._route_x(ls, behind) + v_behind * DT_S + m.gap_fraction * room + length
             speed = 0.5 * (v_behind + v_pred)

@@ -367,6 +367,8 @@ def test_a_manoeuvre_that_did_not_happen_has_nan_metrics():
 # ------------------------------------------------------------------------------ bad input
 @pytest.mark.parametrize("text, message", [
     ("cut-in:f=0", "gap fraction"), ("cut-in:f=1", "gap fraction"), ("join:f=1.5", "gap fraction"),
+    ("cut-in:wait=-1", "wait is how long"), ("join:wait=0.05", "wait is how long"),
+    ("cut-out:wait=0", "not an option"),
     ("overtake", "unknown manoeuvre"), ("cut-out:f=0.5", "not an option"),
     ("cut-in:k=1.5", "whole vehicle position"), ("cut-in:t=-1", "multiple"),
     ("merge:gap=0", "positive"), ("cut-in:leave=0", "positive time"),
@@ -720,3 +722,21 @@ def test_an_entering_vehicle_takes_its_share_of_the_gap_as_the_step_leaves_it(ev
     gaps = [g for g in _drive(sim, controller, watch) if g is not None]
     behind, ahead = gaps[0]
     assert behind == pytest.approx(fraction * (behind + ahead), abs=0.05)
+
+
+@pytest.mark.parametrize("name, wait, phase, inserted", [
+    ("ploeg:h=0.6", None, "waiting", None), ("ploeg:h=0.6", 0.0, "no room", None),
+    ("ploeg:h=1.5", None, "done", 181), ("ploeg:h=1.5", 0.0, "done", 181)])
+def test_with_wait_0_a_cut_in_starts_at_its_time_or_not_at_all(event, name, wait, phase,
+                                                                 inserted):
+    """``wait=0``: the human enters at t (step 180, in SUMO from the next) if the gap has room
+    then, whatever the controller; at h = 0.6 s the gap has no room at t = 18 s, and he stays in
+    his lane instead of taking the first room that comes later (none comes in this event)."""
+    assert parse_scenario("cut-in:wait=0").wait_s == 0.0
+    _, controller = scenario_controller(name)
+    sim = ScenarioSim(NET, "external")
+    sim.start(event, N, Manoeuvre("cut-in", 3, 18.0, 0.5, wait_s=wait))
+    seen = [k for k in _drive(sim, controller, lambda s, ls: s.k if s.phase == "inserted"
+                              else None) if k is not None]
+    assert sim.phase == phase and (seen[0] if seen else None) == inserted
+    assert (sim.done_step is None) == (inserted is None)
