@@ -7,7 +7,11 @@ Validation on 64 random training events never met the few events on which learne
 spend their close calls; validating on these as well lets safety-first selection see them.
 Only training events are run, so the test split stays unseen.
 
+``--exclude POLICY.pt``: leave out the events a training run validated on (its metadata's
+``validation_events``), for a list of hard events to train on (``train --oversample``).
+
 Usage: python benchmarks/hard_events.py DATA BASE OUT [--plant real|ideal] [--top K]
+       [--exclude POLICY.pt]
 e.g.   python benchmarks/hard_events.py ../shared/data/ngsim/ngsim_cf_events.csv.gz \\
            ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1 policies/val_hard_real.txt --top 32
 About 1 minute on 2 cores for the 773 training events on the real plant (57 s measured).
@@ -21,6 +25,7 @@ from carl_sumo.data import load_events
 from carl_sumo.experiments.simulate import simulate
 from carl_sumo.experiments.suite import REAL_WARMUP_S
 from carl_sumo.files import check_output_file, write_text_atomic
+from carl_sumo.learn.policy import read_policy_payload
 
 RANK_KEYS = ("collisions", "ttc_lt_1_5s_count", "ttc_lt_4s_count")
 
@@ -37,9 +42,14 @@ def main() -> None:
     p.add_argument("out")
     p.add_argument("--plant", choices=("real", "ideal"), default="real")
     p.add_argument("--top", type=int, default=32)
+    p.add_argument("--exclude", default=None, metavar="POLICY.pt",
+                   help="leave out the events this training run validated on")
     args = p.parse_args()
     check_output_file(args.out, "OUT")
     events = load_events(args.data, "train")
+    if args.exclude:
+        held = set(read_policy_payload(Path(args.exclude))["metadata"]["validation_events"])
+        events = [e for e in events if e.event_id not in held]
     if args.plant == "real":
         events = [e.with_warmup(REAL_WARMUP_S) for e in events]
     start = time.perf_counter()
@@ -47,7 +57,8 @@ def main() -> None:
     lines = [f"# the {args.top} hardest of {len(events)} training events for {args.base} on the "
              f"{args.plant} plant (10 followers): collisions, TTC < 1.5 s, TTC < 4 s samples",
              f"# python benchmarks/hard_events.py {args.data} {args.base} {args.out} "
-             f"--plant {args.plant} --top {args.top}"]
+             f"--plant {args.plant} --top {args.top}"
+             + (f" --exclude {args.exclude}" if args.exclude else "")]
     lines += [f"{m['event_id']}  # " + ", ".join(str(m[k]) for k in RANK_KEYS)
               for m in hardest(result["events"], args.top)]
     write_text_atomic(Path(args.out), "\n".join(lines) + "\n")

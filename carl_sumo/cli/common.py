@@ -95,6 +95,27 @@ def add_plant(p: argparse.ArgumentParser) -> None:
                    help="actuation dead time of every follower (s; a multiple of 0.1 s)")
 
 
+def add_event_choice(p: argparse.ArgumentParser) -> None:
+    """train's options that choose its validation events and weight its training events."""
+    p.add_argument("--eval-events", type=int, default=None,
+                   help="held-out training events used for validation (default 8)")
+    p.add_argument("--val-seed", type=int, default=None,
+                   help="seed choosing the held-out events (default: --seed); give runs of "
+                        "several seeds one --val-seed to compare them on the same events")
+    p.add_argument("--val-source", default=None,
+                   help="hold the validation events out of this event source only (the data "
+                        "file's `source` column), e.g. the one most like the test set")
+    p.add_argument("--val-events", default=None, metavar="FILE",
+                   help="a file of training event IDs (one per line) held out and validated "
+                        "on too, e.g. the hardest (benchmarks/hard_events.py)")
+    p.add_argument("--oversample", default=None, metavar="FILE",
+                   help="a file of training event IDs (one per line) drawn --oversample-times "
+                        "as often as the others in training, e.g. the hardest ones that "
+                        "validation does not hold out (benchmarks/hard_events.py)")
+    p.add_argument("--oversample-times", type=int, default=None, metavar="K",
+                   help="how many times as often the --oversample events are drawn (default 4)")
+
+
 def add_warmup(p: argparse.ArgumentParser) -> None:
     """``--warmup S``: a settling run before every event (:meth:`Event.with_warmup`)."""
     p.add_argument("--warmup", type=float, default=0.0, metavar="S",

@@ -12,7 +12,7 @@ import os
 import sys
 from pathlib import Path
 
-from carl_sumo.cli.common import (add_common, add_impairments, add_ray, add_warmup, check_ray,
+from carl_sumo.cli.common import (add_common, add_event_choice, add_impairments, add_ray, add_warmup, check_ray,
                                  fmt, impairments_from, positive, ray_session, warmup_from)
 from carl_sumo.errors import InputError
 from carl_sumo.files import check_output_dir, check_output_file
@@ -72,7 +72,7 @@ _RANGES = {  # option: (lowest, highest, whether the bounds are allowed), finite
     "braking_events": (0, math.inf, True), "seed": (0, math.inf, True),
     "val_seed": (0, math.inf, True), "impairment_seed": (0, math.inf, True),
     "hidden": (1, math.inf, True), "message_dim": (1, math.inf, True),
-    "eval_events": (1, math.inf, True)}
+    "eval_events": (1, math.inf, True), "oversample_times": (1, math.inf, True)}
 """The ranges of train's numeric options (None: the lowest bound is allowed, not the highest)."""
 
 
@@ -302,24 +302,14 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
                         "a classical CACC such as ploeg-tuned:h=0.8 (the actor starts at a_adj = 0)")
     _add_reward_options(p)
     _add_learning_options(p)
-    p.add_argument("--eval-events", type=int, default=None,
-                   help="held-out training events used for validation (default 8)")
-    p.add_argument("--val-seed", type=int, default=None,
-                   help="seed choosing the held-out events (default: --seed); give runs of "
-                        "several seeds one --val-seed to compare them on the same events")
-    p.add_argument("--val-source", default=None,
-                   help="hold the validation events out of this event source only (the data "
-                        "file's `source` column), e.g. the one most like the test set")
-    p.add_argument("--val-events", default=None, metavar="FILE",
-                   help="a file of training event IDs (one per line) held out and validated "
-                        "on too, e.g. the hardest (benchmarks/hard_events.py)")
+    add_event_choice(p)
 
 
 TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "w_spacing",
                    "w_critical", "spacing_gap", "spacing_head_gap", "jerk_scale",
                    "message_dim", "hidden", "actor_lr", "critic_lr", "tau", "noise",
                    "noise_correlation", "smooth_jerk", "smooth_accel", "adj_l2", "eval_events",
-                   "val_seed", "val_source", "val_events", "gamma", "adj_max", "base",
+                   "val_seed", "val_source", "val_events", "oversample", "oversample_times", "gamma", "adj_max", "base",
                    "critic_burn_in", "braking_events", "update_every", "scale_rates", "lr_decay", "batch_size",
                    "imitate", "imitate_target", "imitate_updates", "init", "observe_ahead",
                    "shield_ttc", "comm_fallback", "comm_randomize", "randomize_sensors",

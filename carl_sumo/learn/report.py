@@ -153,7 +153,8 @@ class Report:
                            *(f"{val[k]:.4f}" for k in ("headway_s", "jerk_mps3", "speed_mps",
                                                         "dampening_ratio")),
                            val["collisions"],
-                           *(f"{val[name]:.3f}" for name, _ in MARGIN_KEYS.values())])
+                           *(f"{val[name]:.3f}" for name, _ in MARGIN_KEYS.values()),
+                           val.get("ttc_lt_1_5s_count", "")])
         plot_curve(self.curve.rows, self.png, self.title)
         if self.board is not None:
             for key, value in val.items():

@@ -39,6 +39,8 @@ class TrainConfig:
     val_seed: int | None = None    # seed choosing those events (None: the training seed)
     val_source: str | None = None  # draw them from this event source only (None: any)
     val_events: str | None = None  # file of training event IDs also validated on (held out)
+    oversample: str | None = None  # file of training event IDs drawn more often in training
+    oversample_times: int = 4      # ... this many times as often as the others
     braking_events: int = 0        # synthetic hard-braking leaders added (a quarter validates)
     warmup: float = 0.0            # s of settling before every event (Event.with_warmup)
     checkpoint_every: int = 5_000  # vector steps between checkpoints
@@ -164,16 +166,38 @@ def hold_out_named(train: Sequence[Event], val: Sequence[Event], ids: Sequence[s
             [*val, *(e for e in train if e.event_id in named)])
 
 
+def oversampled(train: Sequence[Event], val: Sequence[Event], ids: Sequence[str], times: int
+                ) -> list[Event]:
+    """The training events with each event named by ``ids`` in it ``times`` times (an episode
+    draws an event uniformly from the list); InputError naming an ID that is not a training
+    event, or one that validation holds out."""
+    held = {e.event_id for e in val}
+    if any(i in held for i in ids):
+        first = next(i for i in ids if i in held)
+        raise InputError(f"--oversample: {first!r} is held out for validation; list training "
+                         "events that --val-events and --eval-events do not hold out")
+    known = {e.event_id for e in train}
+    missing = [i for i in ids if i not in known]
+    if missing:
+        raise InputError(f"--oversample: {len(missing)} event ID(s) not in the training events, "
+                         f"e.g. {missing[0]!r}; list IDs of the --data file's training split")
+    named = set(ids)
+    return [*train, *(e for e in train if e.event_id in named for _ in range(times - 1))]
+
+
 def held_out_split(events: Sequence[Event], cfg: TrainConfig) -> tuple[list[Event], list[Event]]:
     """(training, validation) events of a run: ``cfg.eval_events`` held out with ``cfg.val_seed``
     (the training seed when None), so runs of several seeds can share one validation set, from
     the events of ``cfg.val_source`` when given (e.g. the source most like the test set), plus
-    the events named in ``cfg.val_events`` (e.g. the hardest training events); with
+    the events named in ``cfg.val_events`` (e.g. the hardest training events); those named in
+    ``cfg.oversample`` appear ``cfg.oversample_times`` times among the training events; with
     ``cfg.warmup`` every event starts with that many seconds of settling."""
     val_seed = cfg.seed if cfg.val_seed is None else cfg.val_seed
     train, val = split_validation(events, cfg.eval_events, val_seed, cfg.val_source)
     if cfg.val_events is not None:  # named events (e.g. the hardest ones) validate too
         train, val = hold_out_named(train, val, read_event_ids(cfg.val_events))
+    if cfg.oversample is not None:  # named training events (e.g. hard ones) drawn more often
+        train = oversampled(train, val, read_event_ids(cfg.oversample), cfg.oversample_times)
     if cfg.braking_events > 0:  # hard braking in training, and in the validation's safety check
         from carl_sumo.data.synthetic import braking_events
 

@@ -205,13 +205,18 @@ def test_train_rejects_unknown_algorithm(capsys):
     assert code == 2 and "unknown algorithm" in err
 
 
-def test_train_with_an_unknown_validation_event_is_one_line_exit_2(capsys, tmp_path):
+@pytest.mark.parametrize("option, extra, needle", [
+    ("--val-events", [], "--val-events: 1 event ID"),
+    ("--oversample", [], "--oversample: 1 event ID"),
+    ("--oversample", ["--oversample-times", "0"], "--oversample-times")])
+def test_train_with_an_unknown_named_event_is_one_line_exit_2(capsys, tmp_path, option, extra,
+                                                                needle):
     ids = tmp_path / "hard.txt"
     ids.write_text("not_an_event\n")
     out = tmp_path / "p.pt"
     code, _, err = run(capsys, "train", "--algo", "td3", "--vehicles", "1", "--steps", "20",
-                       "--learning-starts", "10", "--val-events", str(ids), "--out", str(out))
-    assert code == 2 and "--val-events: 1 event ID" in err and len(err.strip().splitlines()) == 1
+                       "--learning-starts", "10", option, str(ids), *extra, "--out", str(out))
+    assert code == 2 and needle in err and len(err.strip().splitlines()) == 1, err
     assert not out.exists() and not out.with_suffix(".csv").exists()
 
 

@@ -82,6 +82,26 @@ def test_named_hardest_events_are_held_out_and_validated_too(tmp_path):
         held_out_split(events, TrainConfig(val_events=str(tmp_path / "missing.txt")))
 
 
+def test_oversampled_events_are_drawn_k_times_as_often_and_never_validation_events(tmp_path):
+    events = [dataclasses.replace(cruise_event(50), event_id=f"e{i}") for i in range(40)]
+    val_ids = {e.event_id for e in held_out_split(events, TrainConfig(eval_events=8, seed=0))[1]}
+    hard = sorted({f"e{i}" for i in range(40)} - val_ids)[:2]
+    ids = tmp_path / "hard.txt"
+    ids.write_text("\n".join(hard) + "\n")
+    train_ev, val_ev = held_out_split(events, TrainConfig(eval_events=8, seed=0,
+                                                          oversample=str(ids), oversample_times=5))
+    counts = {i: sum(e.event_id == i for e in train_ev) for i in {e.event_id for e in train_ev}}
+    assert {i: counts[i] for i in hard} == dict.fromkeys(hard, 5)
+    assert set(counts.values()) == {1, 5} and len(train_ev) == 32 + 2 * 4
+    assert {e.event_id for e in val_ev} == val_ids  # validation is unchanged
+    ids.write_text(sorted(val_ids)[0] + "\n")
+    with pytest.raises(InputError, match="--oversample: .* is held out for validation"):
+        held_out_split(events, TrainConfig(eval_events=8, seed=0, oversample=str(ids)))
+    ids.write_text("nope\n")
+    with pytest.raises(InputError, match="--oversample: 1 event ID.*'nope'"):
+        held_out_split(events, TrainConfig(eval_events=8, seed=0, oversample=str(ids)))
+
+
 def test_selection_prefers_safe_smooth_policies():
     base = {"val_reward": 0.5, "collisions": 0, "ttc_lt_1_5s_count": 0, "headway_s": 1.5,
             "dampening_ratio": 0.9, "jerk_mps3": 0.3}
