@@ -87,8 +87,7 @@ REAL_WO="${REAL_GAP06/:ttc=2:rb=1 /:ttc=2:rb=1:wo=5 }"
 # (--oversample policies/train_hard_real.txt: benchmarks/hard_events.py --top 64 --exclude <a REAL_GAP06 seed file>, so
 # none is a validation event; 29 % of episodes). REAL_WO's seeds all kept their base: their last actors had 4-12 times the
 # base's TTC < 1.5 s samples on the 32 hardest validation events (178-479 against 41) and none on the 64 others, and the
-# hardest events were rare in training. Gating the learned term to 0 below a 4 s TTC left those counts where they were
-# (168-442), so the close calls come from what the term does before a close call, which only training on such events teaches.
+# hardest events were rare in training (benchmarks/close_calls.py).
 REAL_HARD="$REAL_WO --oversample policies/train_hard_real.txt --oversample-times 4"
 PRODUCT="--base ploeg-tuned:h=0.8 --shield-ttc 4 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
 
