@@ -5,7 +5,10 @@ command runs: SIGINT, SIGTERM and SIGHUP raise :class:`Interrupted` (a KeyboardI
 main thread, so every ``finally`` runs: temporary output files are removed
 (:mod:`carl_sumo.files`), worker pools, Ray runtimes and sumo-gui are stopped, and the command
 exits with status 128 + the signal's number, writing nothing. A second signal while that clean-up
-runs is ignored (SIGKILL still stops the process at once).
+runs is ignored (SIGKILL still stops the process at once). A signal that arrives while C code
+runs a Python callback (numba's compiler, through llvmlite and ctypes) raises in the callback,
+where C drops the exception and Python reports it to ``sys.unraisablehook``: that hook here
+delivers the signal again 0.05 s later, once the callback has returned, and prints nothing.
 
 Worker processes call :func:`die_with_parent`: they leave Ctrl-C to their command (no traceback
 of theirs on the terminal), and on Linux they are killed when the process that started them
@@ -61,6 +64,31 @@ def _raise(signum: int, frame: Any) -> None:
     raise Interrupted(signum)
 
 
+def _lost_in_callback(unraisable: Any) -> None:
+    """``sys.unraisablehook``: an :class:`Interrupted` raised inside a C callback is lost there;
+    deliver its signal again from a timer thread (the handler then raises in Python code).
+    Anything else goes to the hook that was there before."""
+    global _stopping
+    exc = unraisable.exc_value
+    if not isinstance(exc, Interrupted):
+        _previous_unraisable(unraisable)
+        return
+    _stopping = False
+    timer = threading.Timer(0.05, os.kill, (os.getpid(), exc.signum))
+    timer.daemon = True
+    timer.start()
+
+
+_previous_unraisable = sys.unraisablehook
+
+
+def _catch_lost_interrupts() -> None:
+    """Install :func:`_lost_in_callback` as ``sys.unraisablehook`` (once)."""
+    global _previous_unraisable
+    if sys.unraisablehook is not _lost_in_callback:
+        _previous_unraisable, sys.unraisablehook = sys.unraisablehook, _lost_in_callback
+
+
 def stop_on_signals() -> Callable[[], None]:
     """Make SIGINT, SIGTERM and SIGHUP raise :class:`Interrupted` (main thread only; elsewhere
     nothing changes); returns the function that puts the previous handlers back."""
@@ -69,10 +97,13 @@ def stop_on_signals() -> Callable[[], None]:
         return lambda: None
     _stopping, _received = False, 0
     previous = {s: signal.signal(s, _raise) for s in STOP_SIGNALS}
+    _catch_lost_interrupts()
 
     def restore() -> None:
         for s, handler in previous.items():
             signal.signal(s, handler if handler is not None else signal.SIG_DFL)
+        if sys.unraisablehook is _lost_in_callback:
+            sys.unraisablehook = _previous_unraisable
 
     return restore
 
@@ -121,6 +152,7 @@ def die_with_parent() -> None:
             signal.signal(s, signal.SIG_IGN)
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, _stop_worker)  # a task cleans up (see run_task)
+        _catch_lost_interrupts()
     if not sys.platform.startswith("linux"):
         return
     import ctypes

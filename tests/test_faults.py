@@ -300,6 +300,28 @@ def test_sigterm_to_study_leaves_no_temporary_run_folder(tmp_path, workers):
     assert not [p for p in tmp_path.rglob("*") if p.is_file() or p.name.endswith(".tmp")]
 
 
+def test_a_signal_that_lands_in_a_c_callback_is_delivered_again(capsys):
+    """A signal raised inside a ctypes callback (as numba's compiler runs through llvmlite) is
+    dropped by C and reported to sys.unraisablehook: the command's hook delivers it again, so the
+    command still stops, and nothing is printed about it."""
+    import ctypes
+    import threading
+
+    from carl_sumo.interrupts import Interrupted, stop_on_signals
+
+    callback = ctypes.CFUNCTYPE(None)(lambda: time.sleep(0.5))  # the signal lands in here
+    restore = stop_on_signals()
+    try:
+        threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGTERM)).start()
+        with pytest.raises(Interrupted) as stopped:
+            callback()
+            time.sleep(2.0)  # the second delivery interrupts this
+    finally:
+        restore()
+    assert stopped.value.signum == signal.SIGTERM
+    assert "Exception ignored" not in capsys.readouterr().err
+
+
 def test_sigterm_to_replay_leaves_no_fcd_and_no_temporary_file(tmp_path):
     fcd = tmp_path / "f.xml"
     code, err, _ = run_and_signal(
