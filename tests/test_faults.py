@@ -141,7 +141,10 @@ def test_train_on_a_full_disk_leaves_no_partial_curve_or_policy(small_disk, tiny
     assert not [n for n in left_on(small_disk) if n.endswith(".tmp")]
     if (small_disk / "p.csv").exists():  # whole: a header and complete rows
         lines = (small_disk / "p.csv").read_text().splitlines()
-        assert lines[0].startswith("step,") and all(len(x.split(",")) == 13 for x in lines)
+        from carl_sumo.learn.curve import LOG_COLUMNS
+
+        assert lines[0].startswith("step,") and \
+            all(len(x.split(",")) == len(LOG_COLUMNS) for x in lines)
 
 
 def test_an_os_error_while_writing_removes_the_temporary_file(tmp_path):
