@@ -10,7 +10,8 @@ actor (``carl-sumo export policies/seeds/STEM_seedK.ckpt --out last_seedK.pt``).
 
 Usage: python benchmarks/close_calls.py DATA SEED_FILE.pt POLICY.pt [POLICY.pt ...]
        [--warmup 10] [--hard FILE] [--all-train]
-About 15 s per policy on 1 core at --warmup 10 (94 validation events); 268 s for two controllers on the 773 training events at --warmup 60.
+About 15 s per policy on 1 core at --warmup 10 (94 validation events); 268 s for two
+controllers on the 773 training events at --warmup 60.
 """
 import argparse
 import time
@@ -40,7 +41,8 @@ def main() -> None:
     runs = {name: {e.event_id: score_event(traj) for e, traj in event_trajectories(
         name, events, 10, impairments=plant_impairments("real"))}
         for name in [meta["base"], *args.policies]}
-    print(f"{len(events)} {'training' if args.all_train else 'validation'} events of {args.seed_file} ({len(hard & set(runs[meta['base']]))}"
+    which = "training" if args.all_train else "validation"
+    print(f"{len(events)} {which} events of {args.seed_file} ({len(hard & set(runs[meta['base']]))}"
           f" of them in {args.hard}), --warmup {args.warmup:g}, real plant, 10 followers, "
           f"{time.perf_counter() - start:.0f} s")
     print("| controller | TTC < 1.5 s: hard events | others | collisions |\n|---|---|---|---|")

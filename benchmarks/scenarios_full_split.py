@@ -78,7 +78,8 @@ def main(data: str, plant: str, controllers: tuple[str, str], stem: str,
     write_text_atomic(OUT / f"{stem}.md", "\n".join(head + lines))
     write_text_atomic(OUT / f"{stem}.json", json.dumps(
         {"data": data, "plant": plant, "events": len(events),
-         "wait_s": wait_s, "wall_time_s": wall, "tables": tables}, indent=2, allow_nan=True, default=float))
+         "wait_s": wait_s, "wall_time_s": wall, "tables": tables},
+        indent=2, allow_nan=True, default=float))
 
 
 if __name__ == "__main__":

@@ -64,6 +64,9 @@ def _raise(signum: int, frame: Any) -> None:
     raise Interrupted(signum)
 
 
+_previous_unraisable = sys.unraisablehook  # the hook :func:`_lost_in_callback` passes the rest to
+
+
 def _lost_in_callback(unraisable: Any) -> None:
     """``sys.unraisablehook``: an :class:`Interrupted` raised inside a C callback is lost there;
     deliver its signal again from a timer thread (the handler then raises in Python code).
@@ -77,9 +80,6 @@ def _lost_in_callback(unraisable: Any) -> None:
     timer = threading.Timer(0.05, os.kill, (os.getpid(), exc.signum))
     timer.daemon = True
     timer.start()
-
-
-_previous_unraisable = sys.unraisablehook
 
 
 def _catch_lost_interrupts() -> None:

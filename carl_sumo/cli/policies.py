@@ -12,8 +12,9 @@ import os
 import sys
 from pathlib import Path
 
-from carl_sumo.cli.common import (add_common, add_event_choice, add_impairments, add_ray, add_warmup, check_ray,
-                                 fmt, impairments_from, positive, ray_session, warmup_from)
+from carl_sumo.cli.common import (add_common, add_event_choice, add_impairments, add_ray,
+                                 add_warmup, check_ray, fmt, impairments_from, positive,
+                                 ray_session, warmup_from)
 from carl_sumo.errors import InputError
 from carl_sumo.files import check_output_dir, check_output_file
 
@@ -309,8 +310,9 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "w_spaci
                    "w_critical", "spacing_gap", "spacing_head_gap", "jerk_scale",
                    "message_dim", "hidden", "actor_lr", "critic_lr", "tau", "noise",
                    "noise_correlation", "smooth_jerk", "smooth_accel", "adj_l2", "eval_events",
-                   "val_seed", "val_source", "val_events", "oversample", "oversample_times", "gamma", "adj_max", "base",
-                   "critic_burn_in", "braking_events", "update_every", "scale_rates", "lr_decay", "batch_size",
+                   "val_seed", "val_source", "val_events", "oversample", "oversample_times",
+                   "gamma", "adj_max", "base", "critic_burn_in", "braking_events", "update_every",
+                   "scale_rates", "lr_decay", "batch_size",
                    "imitate", "imitate_target", "imitate_updates", "init", "observe_ahead",
                    "shield_ttc", "comm_fallback", "comm_randomize", "randomize_sensors",
                    "val_impaired",

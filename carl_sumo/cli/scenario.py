@@ -22,8 +22,9 @@ SCENARIO_HELP = ("a manoeuvre in every event: cut-in | cut-out | join | merge, o
                  "its values fixed, e.g. cut-in:k=3:t=8:f=0.5 (k: position, 0 = the leader; "
                  "t: time, s; f: share of the gap behind an entering vehicle, in (0, 1); merge:"
                  "gap=M, m; cut-in:leave=S: the human leaves again S s later; lc=S: lane "
-                 "changes take S s, 0 = one step, the default; cut-in/join:wait=S: the entering vehicle waits "
-                 "at most S s after t for room, wait=0: at t or not at all); what is not fixed "
+                 "changes take S s, 0 = one step, the default; cut-in/join:wait=S: the "
+                 "entering vehicle waits at most S s after t for room, wait=0: at t or not at "
+                 "all); what is not fixed "
                  "is drawn per event (docs/scenarios.md)")
 
 

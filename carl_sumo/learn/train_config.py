@@ -152,15 +152,20 @@ def split_validation(events: Sequence[Event], k: int, seed: int, source: str | N
             [e for i, e in enumerate(events) if i in held])
 
 
+def _check_known(option: str, ids: Sequence[str], events: Sequence[Event]) -> None:
+    """InputError naming the IDs of an ``option``'s file that no event of ``events`` has."""
+    known = {e.event_id for e in events}
+    missing = [i for i in ids if i not in known]
+    if missing:
+        raise InputError(f"{option}: {len(missing)} event ID(s) not in the training events, "
+                         f"e.g. {missing[0]!r}; list IDs of the --data file's training split")
+
+
 def hold_out_named(train: Sequence[Event], val: Sequence[Event], ids: Sequence[str]
                    ) -> tuple[list[Event], list[Event]]:
     """(training, validation) with the events named by ``ids`` moved from training to
     validation (those already held out stay); InputError naming an ID that no event has."""
-    known = {e.event_id for e in [*train, *val]}
-    missing = [i for i in ids if i not in known]
-    if missing:
-        raise InputError(f"--val-events: {len(missing)} event ID(s) not in the training events, "
-                         f"e.g. {missing[0]!r}; list IDs of the --data file's training split")
+    _check_known("--val-events", ids, [*train, *val])
     named = set(ids)
     return ([e for e in train if e.event_id not in named],
             [*val, *(e for e in train if e.event_id in named)])
@@ -172,15 +177,11 @@ def oversampled(train: Sequence[Event], val: Sequence[Event], ids: Sequence[str]
     draws an event uniformly from the list); InputError naming an ID that is not a training
     event, or one that validation holds out."""
     held = {e.event_id for e in val}
-    if any(i in held for i in ids):
-        first = next(i for i in ids if i in held)
-        raise InputError(f"--oversample: {first!r} is held out for validation; list training "
+    clash = [i for i in ids if i in held]
+    if clash:
+        raise InputError(f"--oversample: {clash[0]!r} is held out for validation; list training "
                          "events that --val-events and --eval-events do not hold out")
-    known = {e.event_id for e in train}
-    missing = [i for i in ids if i not in known]
-    if missing:
-        raise InputError(f"--oversample: {len(missing)} event ID(s) not in the training events, "
-                         f"e.g. {missing[0]!r}; list IDs of the --data file's training split")
+    _check_known("--oversample", ids, train)
     named = set(ids)
     return [*train, *(e for e in train if e.event_id in named for _ in range(times - 1))]
 

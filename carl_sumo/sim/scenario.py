@@ -18,10 +18,10 @@ Positions count vehicles from the front: 0 is the NGSIM leader, 1 the first foll
 An entering vehicle of length L takes a share of the gap g between vehicle k and follower k+1:
 the gap behind it is ``gap_fraction``·(g - L), the gap ahead (1 - ``gap_fraction``)·(g - L). It
 starts at the first step from ``time_s`` on at which g - L is at least :data:`MIN_ROOM_M`
-(drivers cut into a gap that has room), or, with ``wait=S`` (cut-in, join), only within S seconds
-of ``time_s`` (``wait=0``: at ``time_s`` or not at all, so that every controller meets the
-manoeuvre at the same moment of the event, at the same leader speed), beside the gap in the adjacent lane at the mean speed of
-the two vehicles, and changes lanes with SUMO's own ``vehicle.changeLane``. At the tail a joiner
+(drivers cut into a gap that has room), or, with ``wait=S`` (cut-in, join), only within S
+seconds of ``time_s`` (``wait=0``: at ``time_s`` or not at all, so that every controller meets
+the manoeuvre at the same moment of the event, at the same leader speed), beside the gap in the
+adjacent lane at the mean speed of the two vehicles, and changes lanes with SUMO's own ``vehicle.changeLane``. At the tail a joiner
 enters at the gap the tail keeps. A lane change is done in one 0.1 s step, or, with ``lc=S``
 (cut-in, cut-out, join), gradually over S seconds (SUMO's ``--lanechange.duration``: the vehicle
 moves sideways over S and SUMO counts it in its new lane from halfway, when the vehicles there
