@@ -13,11 +13,12 @@ Writes ``docs/results_scenarios/full_split_<PLANT>.md`` (a table per manoeuvre) 
 ``full_split_<PLANT>.json`` (the aggregates, no per-event rows); ``--base``/``--product`` run
 another pair, ``--stem`` names the files, ``--kinds`` runs some manoeuvres only, and ``--wait S``
 lets an entering vehicle (cut-in, join) wait at most S s after its drawn time for room
-(``--wait 0``: both controllers meet it at the same moment or not at all). 8 minutes (real) and
-3 (ideal) on 2 cores.
+(``--wait 0``: both controllers meet it at the same moment or not at all); ``--options`` adds
+``--scenario`` keys to every manoeuvre (``--options signal=2:lc=3``: a signalled, gradual
+cut-in). 8 minutes (real) and 3 (ideal) on 2 cores.
 
 Usage: python benchmarks/scenarios_full_split.py DATA [real|ideal] [--base NAME --product PT
-       --stem STEM --kinds cut-in,join --wait S]
+       --stem STEM --kinds cut-in,join --wait S --options KEY=VALUE[:KEY=VALUE]]
 """
 import argparse
 import json
@@ -27,7 +28,10 @@ from pathlib import Path
 from carl_sumo.control.channel import plant_impairments
 from carl_sumo.data import load_events
 from carl_sumo.files import write_text_atomic
-from carl_sumo.sim.scenario import KINDS, ScenarioSpec
+from dataclasses import replace
+
+from carl_sumo.errors import InputError
+from carl_sumo.sim.scenario import KINDS, parse_scenario
 from carl_sumo.sim.sumo import DEFAULT_NET
 from carl_sumo.experiments.suite import REAL_WARMUP_S
 from carl_sumo.study.scenario_tables import (ROBUST_TTC, markdown_scenario_table, paired,
@@ -41,7 +45,7 @@ N_FOLLOWERS = 10
 
 
 def main(data: str, plant: str, controllers: tuple[str, str], stem: str,
-         kinds: tuple[str, ...] = KINDS, wait_s: float | None = None) -> None:
+         kinds: tuple[str, ...] = KINDS, wait_s: float | None = None, options: str = "") -> None:
     events = load_events(data, "test")
     if plant == "real":
         events = [e.with_warmup(REAL_WARMUP_S) for e in events]
@@ -49,8 +53,9 @@ def main(data: str, plant: str, controllers: tuple[str, str], stem: str,
     start = time.perf_counter()
     tables, lines = {}, []
     for kind in kinds:
-        spec = ScenarioSpec(kind, seed=0,
-                            wait_s=wait_s if kind in ("cut-in", "join") else None)
+        spec = parse_scenario(f"{kind}:{options}" if options else kind)
+        if wait_s is not None and kind in ("cut-in", "join"):
+            spec = replace(spec, wait_s=wait_s)
         rows = run_jobs([(name, spec, imp, events) for name in controllers], N_FOLLOWERS,
                         str(DEFAULT_NET), workers=2, chunks=2)
         results = paired([result_of(name, spec, r, N_FOLLOWERS)
@@ -71,14 +76,15 @@ def main(data: str, plant: str, controllers: tuple[str, str], stem: str,
             f"`python benchmarks/scenarios_full_split.py {data} {plant} --base {controllers[0]} "
             f"--product {controllers[1]} --stem {stem}"
             + (f" --kinds {','.join(kinds)}" if kinds != KINDS else "")
-            + (f" --wait {wait_s:g}" if wait_s is not None else "") + f"` ({wall:.0f} s), 10 "
+            + (f" --wait {wait_s:g}" if wait_s is not None else "")
+            + (f" --options {options}" if options else "") + f"` ({wall:.0f} s), 10 "
             f"followers, {start_text}, scenario seed 0. Manoeuvre columns are paired over "
             "the events in which both controllers did the manoeuvre; `done` is each one's own "
             "count.", ""]
     write_text_atomic(OUT / f"{stem}.md", "\n".join(head + lines))
     write_text_atomic(OUT / f"{stem}.json", json.dumps(
         {"data": data, "plant": plant, "events": len(events),
-         "wait_s": wait_s, "wall_time_s": wall, "tables": tables},
+         "wait_s": wait_s, "options": options, "wall_time_s": wall, "tables": tables},
         indent=2, allow_nan=True, default=float))
 
 
@@ -92,10 +98,17 @@ if __name__ == "__main__":
     parser.add_argument("--kinds", default=",".join(KINDS), help="manoeuvres, comma-separated")
     parser.add_argument("--wait", type=float, default=None, metavar="S",
                         help="an entering vehicle waits at most S s after its time for room")
+    parser.add_argument("--options", default="", metavar="KEY=VALUE[:KEY=VALUE]",
+                        help="--scenario keys for every manoeuvre, e.g. signal=2:lc=3")
     args = parser.parse_args()
     kinds = tuple(args.kinds.split(","))
     if not set(kinds) <= set(KINDS) or (args.wait is not None and args.wait < 0):
         parser.error(f"--kinds takes {', '.join(KINDS)}; --wait takes 0 s or more")
+    for kind in kinds:
+        try:
+            parse_scenario(f"{kind}:{args.options}" if args.options else kind)
+        except InputError as exc:
+            parser.error(str(exc))
     base, product = CONTROLLERS[args.plant]
     main(args.data, args.plant, (args.base or base, args.product or product),
-         args.stem or f"full_split_{args.plant}", kinds, args.wait)
+         args.stem or f"full_split_{args.plant}", kinds, args.wait, args.options)

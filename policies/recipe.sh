@@ -89,6 +89,12 @@ REAL_WO="${REAL_GAP06/:ttc=2:rb=1 /:ttc=2:rb=1:wo=5 }"
 # base's TTC < 1.5 s samples on the 32 hardest validation events (178-479 against 41) and none on the 64 others, and the
 # hardest events were rare in training (benchmarks/close_calls.py).
 REAL_HARD="$REAL_WO --oversample policies/train_hard_real.txt --oversample-times 4"
+# real_rcpo_recipe: REAL_HARD with close calls as a constraint, not only a price (RCPO, --lagrange-lr 1,
+# carl_sumo/learn/constraint.py): the reward's critical-TTC term gets a Lagrange multiplier that rises while the learning
+# policy's close calls (TTC < 1.5 s or a collision, per vehicle and step) are more frequent than the base's with the same
+# exploration before learning starts, and falls back once they are not. On REAL_HARD nine of ten seeds kept their base:
+# every later checkpoint had more TTC < 1.5 s samples than the base on the hard validation events, at the fixed price of 1.
+REAL_RCPO="$REAL_HARD --lagrange-lr 1"
 PRODUCT="--base ploeg-tuned:h=0.8 --shield-ttc 4 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
 
 train_seeds() {  # STEM "SEEDS" TRAIN_ARGS...

@@ -32,6 +32,9 @@ def _add_reward_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--w-critical", type=float, default=None,
                    help="penalty per follower and step with a time to collision below 1.5 s, "
                         "the metric's bar (default 0: off)")
+    p.add_argument("--lagrange-lr", type=float, default=None,
+                   help="RCPO: price close calls at a learned multiplier that rises while they "
+                        "are more frequent than the base's (learn/constraint.py; default 0: off)")
     p.add_argument("--spacing-gap", type=float, default=None,
                    help="time gap h_s of the spacing term (s; default 0.8)")
     p.add_argument("--spacing-head-gap", type=float, default=None,
@@ -64,7 +67,7 @@ _RANGES = {  # option: (lowest, highest, whether the bounds are allowed), finite
     "noise": (0.0, math.inf, True), "w_gap": (0.0, math.inf, True),
     "w_safe": (0.0, math.inf, True), "w_comfort": (0.0, math.inf, True),
     "w_accel": (0.0, math.inf, True), "w_spacing": (0.0, math.inf, True),
-    "w_critical": (0.0, math.inf, True),
+    "w_critical": (0.0, math.inf, True), "lagrange_lr": (0.0, math.inf, True),
     "spacing_gap": (0.0, 5.0, True), "spacing_head_gap": (0.0, 5.0, True),
     "smooth_jerk": (0.0, math.inf, True),
     "smooth_accel": (0.0, math.inf, True), "adj_l2": (0.0, math.inf, True),
@@ -307,7 +310,7 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
 
 
 TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "w_spacing",
-                   "w_critical", "spacing_gap", "spacing_head_gap", "jerk_scale",
+                   "w_critical", "lagrange_lr", "spacing_gap", "spacing_head_gap", "jerk_scale",
                    "message_dim", "hidden", "actor_lr", "critic_lr", "tau", "noise",
                    "noise_correlation", "smooth_jerk", "smooth_accel", "adj_l2", "eval_events",
                    "val_seed", "val_source", "val_events", "oversample", "oversample_times",

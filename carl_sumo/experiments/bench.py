@@ -147,7 +147,7 @@ def _training_rates(algo: str, n: int, num_envs: int, steps: int, net_path, smoo
             n_updates = 0
             for k in range(min(steps, 20) if phase == "warm-up" else steps):
                 action = agent.act(obs, noise.sample())
-                next_obs, reward, term, _, final = vec.step(action)
+                next_obs, reward, term, _, final, _ = vec.step(action)
                 buffer.add(obs, action, reward, final, term.astype(np.float32))
                 obs = next_obs
                 if updates and k % update_every == 0:

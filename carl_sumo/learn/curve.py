@@ -15,7 +15,7 @@ from carl_sumo.learn.selection import MARGIN_KEYS
 
 LOG_COLUMNS = ["step", "transitions", "wall_s", "train_reward", "val_reward", "headway_s",
                "jerk_mps3", "speed_mps", "dampening_ratio", "collisions",
-               *(name for name, _ in MARGIN_KEYS.values()), "ttc_lt_1_5s_count"]
+               *(name for name, _ in MARGIN_KEYS.values()), "ttc_lt_1_5s_count", "lagrange"]
 """Columns of the learning-curve CSV written beside the policy."""
 
 

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import torch
 
-FIELDS = ("obs", "action", "reward", "next_obs", "done")
+FIELDS = ("obs", "action", "reward", "next_obs", "done", "cost")
 LINK_FIELDS = ("link_mode", "link_held", "next_link_mode", "next_link_held")
 """With impaired training links: how each CA message arrived at o and at o' (modes (2, n) of
 the forward and backward link, held messages (2, n, M))."""
@@ -20,7 +20,7 @@ the forward and backward link, held messages (2, n, M))."""
 
 class ReplayBuffer:
     """Joint platoon transitions: obs (n, obs_dim), action (n,) (m/s²), reward (n,), next_obs,
-    done; obs_dim 4, or 5 on a classical base (a_base). ``message_dim`` > 0: also how the CA
+    done, cost (n,) (the safety cost, :func:`carl_sumo.learn.reward.critical_cost`); obs_dim 4, or 5 on a classical base (a_base). ``message_dim`` > 0: also how the CA
     messages of width ``message_dim`` arrived (:data:`LINK_FIELDS`)."""
 
     def __init__(self, capacity: int, n: int, obs_dim: int = 4, message_dim: int = 0):
@@ -31,6 +31,7 @@ class ReplayBuffer:
         self.action = torch.zeros((capacity, n))
         self.reward = torch.zeros((capacity, n))
         self.done = torch.zeros(capacity)
+        self.cost = torch.zeros((capacity, n))
         if message_dim:
             for prefix in ("", "next_"):
                 setattr(self, prefix + "link_mode", torch.zeros((capacity, 2, n), dtype=torch.uint8))
@@ -41,12 +42,15 @@ class ReplayBuffer:
     def fields(self) -> tuple[str, ...]:
         return FIELDS + LINK_FIELDS if self.message_dim else FIELDS
 
-    def add(self, obs, action, reward, next_obs, done, links=None, next_links=None) -> None:
-        """Append one transition per environment (arrays stacked over environments); with link
+    def add(self, obs, action, reward, next_obs, done, links=None, next_links=None,
+            cost=None) -> None:
+        """Append one transition per environment (arrays stacked over environments; ``cost``
+        None: 0); with link
         fields, ``links`` / ``next_links`` = (forward modes (k, n), forward held (k, n, M),
         backward modes, backward held) at o and o'."""
         k, p = len(obs), self.pos
-        values = [obs, action, reward, next_obs, done]
+        values = [obs, action, reward, next_obs, done,
+                  np.zeros(np.shape(reward)) if cost is None else cost]
         if self.message_dim:
             for pair in (links, next_links):
                 values += [np.stack([pair[0], pair[2]], 1), np.stack([pair[1], pair[3]], 1)]
@@ -87,6 +91,7 @@ class ReplayBuffer:
                   int(state.get("message_dim", 0)))
         s = int(state["size"])
         for k in buf.fields:
-            getattr(buf, k)[:s] = torch.as_tensor(state[k])
+            if k in state:  # a checkpoint of an older carl-sumo has no cost: 0
+                getattr(buf, k)[:s] = torch.as_tensor(state[k])
         buf.size, buf.pos = s, int(state["pos"])
         return buf

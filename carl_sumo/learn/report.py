@@ -154,7 +154,8 @@ class Report:
                                                         "dampening_ratio")),
                            val["collisions"],
                            *(f"{val[name]:.3f}" for name, _ in MARGIN_KEYS.values()),
-                           val.get("ttc_lt_1_5s_count", "")])
+                           val.get("ttc_lt_1_5s_count", ""),
+                           f"{val['lagrange']:.4f}" if "lagrange" in val else ""])
         plot_curve(self.curve.rows, self.png, self.title)
         if self.board is not None:
             for key, value in val.items():

@@ -78,6 +78,15 @@ def _params(cfg: RewardConfig) -> tuple[float, ...]:
             cfg.w_critical, CRITICAL_TTC_S)
 
 
+def critical_cost(obs: np.ndarray) -> np.ndarray:
+    """The safety cost of each follower's step (-): 1 for a close call, 0 < TTC < 1.5 s (the
+    samples the critical-TTC term prices and ``ttc_lt_1_5s_count`` counts), or a collision
+    (d ≤ 0), else 0; ``obs`` rows [v, a, d, Δv] as they are (the true ones, shape (..., 4))."""
+    d, dv = obs[..., 2], obs[..., 3]
+    close = (d > 0.0) & (dv < 0.0) & (np.maximum(d, 1e-3) < -dv * CRITICAL_TTC_S)
+    return (close | (d <= 0.0)).astype(np.float64)
+
+
 def headway_reward(headway_s: float, cfg: RewardConfig = REWARD) -> float:
     """Lognormal pdf of the time headway h (s)."""
     return _headway_reward(float(headway_s), cfg.headway_mu, cfg.headway_sigma)

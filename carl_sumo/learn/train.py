@@ -22,6 +22,7 @@ from carl_sumo import __version__
 from carl_sumo.learn import imitation
 from carl_sumo.learn.agents import Agent, AgentConfig, ColoredNoise
 from carl_sumo.learn.ca_scan import keep_heap_memory
+from carl_sumo.learn.constraint import CostMultiplier
 from carl_sumo.data.events import Event
 from carl_sumo.control.controllers import adjustment_bounds
 from carl_sumo.learn.env import PlatoonEnv
@@ -127,6 +128,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     recent = [float(r) for r in saved.get("recent", ())]
     val: dict[str, float] = {}
     noise = _noise(cfg, agent, rng, saved)
+    lagrange = _multiplier(cfg, saved)
     try:
         for step in range(start_step, cfg.steps):
             if step == cfg.learning_starts and teacher is not None:
@@ -135,26 +137,28 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
             # a warm-started actor drives from the first step, others after learning_starts
             acting = step >= cfg.learning_starts or init_actor is not None
             action = _choose_action(cfg, agent, obs, links, channels, noise, teacher, acting)
-            next_obs, reward, term, trunc, final = vec.step(
+            next_obs, reward, term, trunc, final, cost = vec.step(
                 action, channels.upcoming if channels is not None else None)
             if history is not None:  # what a resumed run replays its environments with
                 history.append(np.asarray(action, dtype=np.float64))
             noise.reset(term | trunc)
-            links = _store(buffer, channels, agent, obs, action, reward, final, term, trunc, links)
+            links = _store(buffer, channels, agent, obs, action, reward, final, term, trunc, links,
+                           cost)
             recent.append(float(reward.mean()))
+            lagrange.observe(step, cost)
             obs = next_obs
-            report.updated(step, _update(cfg, agent, buffer, rng, step))
+            report.updated(step, _update(cfg, agent, buffer, rng, step, lagrange))
             done_steps = step + 1
             if done_steps % cfg.eval_every == 0 or done_steps == cfg.steps:
                 wall = wall_before + time.perf_counter() - t0
                 train_reward = float(np.mean(recent[-cfg.eval_every:])) if recent else float("nan")
                 val, best = _validate_and_select(cfg, agent, val_env, val_events, baseline,
                                                  baseline_events, out, wall, best)
-                report.validation(done_steps, wall, train_reward, val)
+                report.validation(done_steps, wall, train_reward, val | lagrange.logged())
             if done_steps % cfg.checkpoint_every == 0 or done_steps == cfg.steps:
                 save_checkpoint(out.with_suffix(".ckpt"), cfg, agent, buffer, rng, done_steps,
                                 best, wall_before + time.perf_counter() - t0,
-                                _rollout_state(history, noise, recent, cfg.eval_every))
+                                _rollout_state(history, noise, recent, cfg.eval_every, lagrange))
                 if on_checkpoint is not None:
                     report.flush()
                     on_checkpoint(done_steps)
@@ -208,10 +212,12 @@ def _noise(cfg: TrainConfig, agent: Agent, rng: np.random.Generator, saved: dict
 
 
 def _rollout_state(history: list[np.ndarray] | None, noise: ColoredNoise, recent: list[float],
-                   eval_every: int) -> dict[str, torch.Tensor]:
-    """The rollouts' state a checkpoint stores (see :func:`_start_rollouts`)."""
+                   eval_every: int, lagrange: CostMultiplier) -> dict[str, torch.Tensor]:
+    """The rollouts' state a checkpoint stores (see :func:`_start_rollouts`) and the safety
+    constraint's multiplier."""
     state = {"noise": torch.from_numpy(noise.value.copy()),
-             "recent": torch.tensor(recent[-eval_every:], dtype=torch.float64)}
+             "recent": torch.tensor(recent[-eval_every:], dtype=torch.float64),
+             "lagrange": torch.tensor(list(lagrange.state().values()), dtype=torch.float64)}
     if history:
         state["actions"] = torch.from_numpy(np.stack(history))
     return state
@@ -253,12 +259,12 @@ def _validation_env(cfg: TrainConfig, train_events: Sequence[Event], val_events:
 
 def _store(buffer: ReplayBuffer, channels: RandomisedChannels | None, agent: Agent,
            obs: np.ndarray, action: np.ndarray, reward: np.ndarray, final: np.ndarray,
-           term: np.ndarray, trunc: np.ndarray, links):
+           term: np.ndarray, trunc: np.ndarray, links, cost: np.ndarray):
     """Store one vector step's transitions with the links heard at o and at o'; returns the
     links of the next step (a new episode's where one ended, else this step's preview)."""
     fallbacks = _boundaries(agent) if channels is not None else None
     next_links = channels.receive(fallbacks) if channels is not None else None  # at o'
-    buffer.add(obs, action, reward, final, term.astype(np.float32), links, next_links)
+    buffer.add(obs, action, reward, final, term.astype(np.float32), links, next_links, cost)
     if channels is None:
         return links
     channels.episodes_ended(term | trunc)
@@ -366,11 +372,20 @@ def _choose_action(cfg: TrainConfig, agent: Agent, obs: np.ndarray, links, chann
     return action
 
 
+def _multiplier(cfg: TrainConfig, saved: dict) -> CostMultiplier:
+    """The safety constraint's λ (``--lagrange-lr``), from a resumed run's checkpoint."""
+    state = saved.get("lagrange")
+    keys = ("value", "target", "sum", "count")
+    return CostMultiplier(cfg.lagrange_lr, cfg.learning_starts,
+                          None if state is None else dict(zip(keys, state.tolist())))
+
+
 def _update(cfg: TrainConfig, agent: Agent, buffer: ReplayBuffer, rng: np.random.Generator,
-            step: int) -> dict[str, float] | None:
+            step: int, lagrange: CostMultiplier) -> dict[str, float] | None:
     """The gradient updates after vector step ``step``: every ``update_every`` steps from
-    ``learning_starts`` on, the critics alone during ``critic_burn_in``; the last update's
-    statistics (None without an update)."""
+    ``learning_starts`` on, the critics alone during ``critic_burn_in``, on the reward less
+    λ·cost (:mod:`carl_sumo.learn.constraint`); the last update's statistics (None without an
+    update)."""
     if step < cfg.learning_starts or (step - cfg.learning_starts) % cfg.update_every != 0:
         return None
     train_actor = step >= cfg.learning_starts + cfg.critic_burn_in
@@ -379,7 +394,8 @@ def _update(cfg: TrainConfig, agent: Agent, buffer: ReplayBuffer, rng: np.random
                                    / max(1, cfg.steps - cfg.learning_starts))
     stats = None
     for _ in range(cfg.updates_per_step):
-        stats = agent.update(buffer.sample(agent.cfg.batch_size, rng), train_actor)
+        stats = agent.update(lagrange.penalise(buffer.sample(agent.cfg.batch_size, rng)),
+                             train_actor)
     return stats
 
 

@@ -57,6 +57,7 @@ class TrainConfig:
     spacing_gap: float = REWARD.spacing_gap_s
     spacing_head_gap: float | None = REWARD.spacing_head_gap_s  # the head's h_s (s; None: h_s)
     w_critical: float = REWARD.w_critical  # penalty per step with 0 < TTC < 1.5 s (reward.py)
+    lagrange_lr: float = 0.0               # RCPO multiplier step on the close-call cost (0: off)
     jerk_scale: float = REWARD.jerk_scale_mps3
     message_dim: int = AgentConfig.message_dim            # V2V message width (CA models)
     hidden: int = AgentConfig.hidden                      # hidden layer width

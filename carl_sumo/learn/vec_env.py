@@ -36,14 +36,17 @@ class EnvRunner:
         self.env.reset_array(seed=seed)
 
     def step(self, data: tuple[np.ndarray, Impairments | None]) -> tuple:
-        """(next obs, reward, terminated, truncated, final obs) of one step of ``data`` =
-        (action, the impairments of the next episode if this one ends)."""
+        """(next obs, reward, terminated, truncated, final obs, safety cost) of one step of
+        ``data`` = (action, the impairments of the next episode if this one ends); the cost is
+        :func:`carl_sumo.learn.reward.critical_cost` of the true state after the step."""
+        from carl_sumo.learn.reward import critical_cost
+
         action, next_impairments = data
         next_obs, reward, terminated, truncated, _ = self.env.step_array(action)
-        final = next_obs
+        final, cost = next_obs, critical_cost(self.env.true_observation)
         if terminated or truncated:
             next_obs = self.env.reset_array(impairments=next_impairments)
-        return next_obs, reward, terminated, truncated, final
+        return next_obs, reward, terminated, truncated, final, cost
 
     def reset(self, data: tuple[int, Impairments | None]) -> np.ndarray:
         """Start an episode: ``data`` = (seed, its impairments)."""
@@ -113,14 +116,15 @@ class VecPlatoon:
 
     def step(self, actions: np.ndarray,
              next_impairments: Sequence[Impairments | None] | None = None):
-        """Step every env; (obs, rewards, terminated, truncated, final_obs) stacked over envs.
-        An env whose episode ends starts the next one at once, with its ``next_impairments``."""
+        """Step every env; (obs, rewards, terminated, truncated, final_obs, costs) stacked over
+        envs (costs: each vehicle's safety cost, :meth:`EnvRunner.step`). An env whose episode
+        ends starts the next one at once, with its ``next_impairments``."""
         next_impairments = next_impairments or [None] * self.num_envs
         results = self._exchange([("step", (np.asarray(action, dtype=np.float64), imp))
                                   for action, imp in zip(actions, next_impairments)])
-        obs, reward, term, trunc, final = zip(*results)
+        obs, reward, term, trunc, final, cost = zip(*results)
         return (np.stack(obs), np.stack(reward), np.array(term), np.array(trunc),
-                np.stack(final))
+                np.stack(final), np.stack(cost))
 
     def close(self) -> None:
         """Stop the worker processes."""

@@ -16,7 +16,9 @@ Per manoeuvre (:func:`manoeuvre_metrics`), over the samples from t_m on:
   (v > v_pred) (s; inf if none closes in);
 - ``peak_decel_mps2`` / ``peak_jerk_mps3``: the largest deceleration max(-a) and |jerk| of the
   vehicles behind it (per vehicle in ``peak_decel_by_vehicle`` / ``peak_jerk_by_vehicle``), with
-  a_k = (v_{k+1} - v_k)/dt and j_k = (a_{k+1} - a_k)/dt as :mod:`carl_sumo.sim.metrics`;
+  a_k = (v_{k+1} - v_k)/dt and j_k = (a_{k+1} - a_k)/dt as :mod:`carl_sumo.sim.metrics`; from
+  ``start_step`` on where the manoeuvre has one (a signalled cut-in: the human's first signal,
+  from when the follower behind may brake for him), else from t_m;
 - ``settle_s``: how long after t_m the first vehicle's bumper gap d stays within 10 % of its
   steady state d_ss, the mean gap over the run's last 2 s (s; NaN when less than 4 s follow t_m).
   The gap, not the time gap d/v: a follower that brakes to a near stop behind a cut-in has a time
@@ -67,6 +69,7 @@ class ScenarioTrace:
     collisions: int = 0
     scored_from: int = 0
     dt: float = DT_S
+    start_step: int | None = None
 
     def column(self, vid: str) -> int:
         return self.vehicles.index(vid)
@@ -113,8 +116,9 @@ def manoeuvre_metrics(trace: ScenarioTrace) -> dict:
     closing = trace.speed[t:, behind] - trace.pred_speed[t:, behind]
     with np.errstate(divide="ignore", invalid="ignore"):
         ttc = np.where(closing > 0, gap / closing, np.inf)
-    acc = _acc(trace.speed[:, behind], trace.dt)[t:]
-    jerk = np.abs(np.diff(_acc(trace.speed[:, behind], trace.dt), axis=0))[t:] / trace.dt
+    t0 = t if trace.start_step is None else min(trace.start_step, t)
+    acc = _acc(trace.speed[:, behind], trace.dt)[t0:]
+    jerk = np.abs(np.diff(_acc(trace.speed[:, behind], trace.dt), axis=0))[t0:] / trace.dt
     decel = {trace.vehicles[c]: _finite_max(-acc[:, j], floor=0.0) for j, c in enumerate(behind)}
     jerks = {trace.vehicles[c]: _finite_max(jerk[:, j]) for j, c in enumerate(behind)}
     settle, overshoot = settle_and_overshoot(trace.gap[t:, behind[0]], trace.dt)

@@ -25,7 +25,10 @@ adjacent lane at the mean speed of the two vehicles, and changes lanes with SUMO
 enters at the gap the tail keeps. A lane change is done in one 0.1 s step, or, with ``lc=S``
 (cut-in, cut-out, join), gradually over S seconds (SUMO's ``--lanechange.duration``: the vehicle
 moves sideways over S and SUMO counts it in its new lane from halfway, when the vehicles there
-see it as their leader).
+see it as their leader). With ``signal=S`` (cut-in) the human shows his turn signal for S seconds
+beside the gap before he moves over, and the follower behind the gap takes him as its
+predecessor from his first signal on (a cut-in prediction from the indicator, as an ACC's camera
+makes it), so it can open room before he lands.
 
 Drawn per event (what the spec leaves open), from ``seed`` and the event's ID:
 ``time_s`` uniform in :data:`TIME_SHARE` of the scored part of the event (after a warm-up),
@@ -57,6 +60,8 @@ MIN_ROOM_M = 4.0
 """An entering vehicle needs g - L at least this (m): 1.6-2.4 m behind it at the drawn shares."""
 MAX_LANE_CHANGE_S = 10.0
 """The longest lane change ``lc=S`` takes (s)."""
+MAX_SIGNAL_S = 10.0
+"""The longest turn signal ``signal=S`` before a cut-in (s)."""
 SETTLE_AFTER_S = 5.0
 """A manoeuvre time must leave at least this much of the event after it (s)."""
 
@@ -74,6 +79,7 @@ class Manoeuvre:
     lane_change_s: float = 0.0    # how long a lane change takes (s; 0: one step)
     wait_s: float | None = None   # cut-in, join: the longest it waits for room after time_s
                                   # (s; None: to the end of the event)
+    signal_s: float = 0.0         # cut-in: how long the human signals before he moves over (s)
 
     @property
     def step(self) -> int:
@@ -92,6 +98,8 @@ class Manoeuvre:
             text += f" lc={self.lane_change_s:g}s"
         if self.wait_s is not None:
             text += f" wait={self.wait_s:g}s"
+        if self.signal_s > 0:
+            text += f" signal={self.signal_s:g}s"
         return text
 
     def gives_up(self, step: int) -> bool:
@@ -113,7 +121,7 @@ def drawn_positions(kind: str, n_followers: int) -> tuple[int, int]:
 
 @dataclass(frozen=True)
 class ScenarioSpec:
-    """What ``--scenario KIND[:k=K][:t=T][:f=F][:gap=M][:lc=S]`` and ``--scenario-seed`` ask
+    """What ``--scenario KIND[:k=K][:t=T][:f=F][:gap=M][:lc=S][:signal=S]`` and ``--scenario-seed`` ask
     for; the values not given are drawn per event (:meth:`draw`)."""
 
     kind: str
@@ -124,6 +132,7 @@ class ScenarioSpec:
     leave_s: float | None = None
     lane_change_s: float = 0.0
     wait_s: float | None = None
+    signal_s: float = 0.0
     seed: int = 0
 
     def check(self, n_followers: int) -> None:
@@ -164,7 +173,8 @@ class ScenarioSpec:
             self.time_s if self.time_s is not None else float(time_s),
             self.gap_fraction if self.gap_fraction is not None else fraction,
             (self.extra_gap_m if self.extra_gap_m is not None else extra)
-            if self.kind == "merge" else 0.0, self.leave_s, self.lane_change_s, self.wait_s)
+            if self.kind == "merge" else 0.0, self.leave_s, self.lane_change_s, self.wait_s,
+            self.signal_s)
 
 
 def _number(spec: str, key: str, text: str) -> float:
@@ -191,6 +201,7 @@ def parse_scenario(text: str, seed: int = 0) -> ScenarioSpec:
         allowed["wait"] = "wait_s"
     if kind == "cut-in":
         allowed["leave"] = "leave_s"
+        allowed["signal"] = "signal_s"
     if kind == "merge":
         allowed["gap"] = "extra_gap_m"
     else:
@@ -217,6 +228,11 @@ def parse_scenario(text: str, seed: int = 0) -> ScenarioSpec:
                                 and abs(value / DT_S - round(value / DT_S)) < 1e-6):
             raise InputError(f"--scenario {text!r}: lc is the lane change's duration, 0 to "
                              f"{MAX_LANE_CHANGE_S:g} s in multiples of {DT_S} s, got {value_text}")
+        if key == "signal" and not (0 <= value <= MAX_SIGNAL_S
+                                    and abs(value / DT_S - round(value / DT_S)) < 1e-6):
+            raise InputError(f"--scenario {text!r}: signal is how long the human signals before "
+                             f"he moves over, 0 to {MAX_SIGNAL_S:g} s in multiples of {DT_S} s, "
+                             f"got {value_text}")
         if key == "wait" and (value < 0 or abs(value / DT_S - round(value / DT_S)) > 1e-6):
             raise InputError(f"--scenario {text!r}: wait is how long the entering vehicle waits "
                              f"for room, 0 s or more in multiples of {DT_S} s, got {value_text}")

@@ -43,6 +43,8 @@ the paper's T = 1.5 s brakes at its emergency 9 m/s² behind a 12 m gap at 17 m/
 LANE_CHANGE_S = 5.0
 """How long a ``changeLane`` request holds (s), beyond a gradual lane change's duration."""
 ENTERING_ID = {"cut-in": "human", "join": "joiner"}
+SIGNAL_TOWARD_PLATOON = 2
+"""SUMO's VEH_SIGNAL_BLINKER_LEFT: the platoon lane is left of the adjacent lane."""
 JOIN_LINK_GAP_S = 0.8
 """A joiner is joining until its spacing (d - 2 m)/v reaches this (s; the product's time gap)
 and it is not closing in (the module docstring)."""
@@ -67,7 +69,9 @@ class ScenarioSim(PlatoonSim):
     After :meth:`start` and every :meth:`advance`: ``members`` (CACC followers in the platoon
     lane, front first), ``order`` (every tracked vehicle in the platoon lane, front first),
     ``ahead[vid]`` = (predecessor ID or None, bumper gap m), ``speeds`` / ``accels`` (m/s, m/s²),
-    ``done_step`` (the step the manoeuvre was complete, None before), ``joining`` (a joiner
+    ``done_step`` (the step the manoeuvre was complete, None before), ``start_step`` (with
+    ``signal=S``: the human's first signal step, when the follower behind first sees him; None
+    without), ``joining`` (a joiner
     that has no room yet, module docstring), ``behind`` (the vehicles
     behind the manoeuvre, from then on) and, on the real plant, ``limits[vid]`` = (a_max, b_max)
     (m/s², positive) of every CACC vehicle carl-sumo drives that exists so far: the followers from
@@ -110,6 +114,7 @@ class ScenarioSim(PlatoonSim):
         self.entering: str | None = ENTERING_ID.get(manoeuvre.kind)
         self.phase = "waiting"
         self.done_step: int | None = None
+        self.start_step: int | None = None  # signal=S: the human's first signal step
         self.left_step: int | None = None  # cut-in with leave: the step the human was out
         self.behind: list[str] = []
         self.radar_only: set[str] = set()
@@ -122,7 +127,8 @@ class ScenarioSim(PlatoonSim):
         self.limits: dict[str, tuple[float, float]] = {} if self.powertrains is None else {
             vid: (float(a), float(b)) for vid, a, b in
             zip(self.ids, self.powertrains.a_max, self.powertrains.b_max)}
-        self.crossing: list[str] = []  # tracked vehicles crossing the lane line (_crossing)
+        self.crossing: list[str] = []  # tracked vehicles seen in the lane from beside it
+        self._body_crossing: list[str] = []  # those whose body crosses the line (_crossing)
         if manoeuvre.kind == "merge":
             head = self.ids[manoeuvre.position]
             self.radar_only.add(head)
@@ -167,6 +173,14 @@ class ScenarioSim(PlatoonSim):
                     0.5 * (ls.lane.getWidth(lane) - ls.vehicle.getWidth(vid)):
                 out.append(vid)  # the platoon lane is the adjacent lane's left neighbour
         return out
+
+    def _announced(self) -> list[str]:
+        """The human who signals a cut-in (``signal=S``), from his first signal until he is in
+        the lane: the follower behind the gap takes him as its predecessor."""
+        if self.manoeuvre.signal_s > 0 and self.phase in ("signalling", "changing") \
+                and self.entering in self.tracked and self.entering not in self._body_crossing:
+            return [self.entering]
+        return []
 
     def _sense(self, ls) -> None:
         """The platoon-lane order and every tracked vehicle's predecessor and gap, from SUMO;
@@ -244,8 +258,9 @@ class ScenarioSim(PlatoonSim):
             for vid, a in self._realised(accel).items():
                 v = self.speeds[vid] + a * DT_S
                 set_speed(vid, v if v > 0.0 else 0.0)
-        if self.entering in self.tracked and self.phase in ("inserted", "changing"):
-            set_speed(self.entering, self._enter_speed)  # keeps pace beside the gap
+        if self.entering in self.tracked and self.phase in ("inserted", "signalling",
+                                                             "changing"):
+            set_speed(self.entering, self._pace())  # keeps pace beside the gap
         k1 = self.k + 1
         set_speed(self.leader_id, self._leader_speed[k1])
         ls.simulationStep()
@@ -263,10 +278,22 @@ class ScenarioSim(PlatoonSim):
             self.speeds[vid] = v
         self.speeds["leader"] = self._leader_speed[k1]
         self.k = k1
-        self.crossing = self._crossing(ls)
+        self._body_crossing = self._crossing(ls)
+        self.crossing = self._body_crossing + self._announced()
         self._complete(ls)
         self._untrack_gone()
         self._sense(ls)
+
+    def _pace(self) -> float:
+        """The entering vehicle's speed beside its gap (m/s): the speed it entered with for a
+        one-step lane change; over a signal or a gradual change (``signal=S``, ``lc=S``) that of
+        the vehicle ahead of its gap, as a driver moving in behind it keeps pace with it (a
+        constant speed would run into a vehicle ahead that brakes)."""
+        m = self.manoeuvre
+        if m.signal_s <= 0 and m.lane_change_s <= 0:
+            return self._enter_speed
+        ahead = "leader" if m.position == 0 else self.ids[m.position - 1]
+        return self.speeds.get(ahead, self._enter_speed)
 
     def _realised(self, accel: dict[str, float]) -> dict[str, float]:
         """The accelerations the members realise this step (m/s²): the commands themselves on
@@ -286,6 +313,16 @@ class ScenarioSim(PlatoonSim):
     def _act(self, ls) -> None:
         """What the manoeuvre does before this step's SUMO step."""
         m = self.manoeuvre
+        if self.phase == "inserted" and m.signal_s > 0 and self.start_step is None:
+            ls.vehicle.setLaneChangeMode(self.entering, 0)
+            ls.vehicle.setSpeedMode(self.entering, 0)  # it keeps pace beside its gap
+            self.start_step, self.phase = self.k, "signalling"
+        if self.phase == "signalling":
+            if self.k < self.start_step + int(round(m.signal_s / DT_S)):
+                ls.vehicle.setSignals(self.entering, SIGNAL_TOWARD_PLATOON)  # SUMO clears it
+            else:
+                ls.vehicle.setSignals(self.entering, -1)  # SUMO shows the lane change's own
+                self.phase = "inserted"
         if self.phase == "inserted":
             ls.vehicle.setLaneChangeMode(self.entering, 0)
             if m.lane_change_s > 0:  # it keeps pace with its gap while it moves over
@@ -392,7 +429,7 @@ class ScenarioSim(PlatoonSim):
             self.behind = [v for v in self.order[self.order.index(leaver) + 1:]]
         else:  # in the lane from the step its body crosses the line (lc=S: before SUMO has it)
             if ls.vehicle.getLaneID(self.entering) not in lanes \
-                    and self.entering not in self.crossing:
+                    and self.entering not in self._body_crossing:
                 return
             ls.vehicle.setLaneChangeMode(self.entering, 0)
             if m.kind == "join" and self.follower_model == "external":

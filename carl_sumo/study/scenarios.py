@@ -172,7 +172,8 @@ class _Recorder:
         members = list(sim.ids) + (["joiner"] if sim.manoeuvre.kind == "join" else [])
         return ScenarioTrace(event.event_id, sim.manoeuvre.describe(), self.leader[:last], vids,
                              members, *stack, done_step=sim.done_step, behind=list(sim.behind),
-                             collisions=collisions, scored_from=event.scored_from)
+                             collisions=collisions, scored_from=event.scored_from,
+                             start_step=sim.start_step)
 
 
 def tell_limits(controller, sim: ScenarioSim, known: set[str]) -> None:

@@ -175,6 +175,45 @@ def test_a_gradual_cut_in_is_seen_from_the_step_the_human_crosses_the_line(event
     assert np.all(np.diff(lateral) > 0)  # it moves over gradually
 
 
+def _signal_run(event, text: str) -> tuple[ScenarioSim, list]:
+    _, controller = scenario_controller("ploeg-tuned:h=0.8")
+    sim = ScenarioSim(NET, "external")
+    sim.start(event, N, parse_scenario(text).draw(event, N))
+
+    def watch(s, ls):
+        if "human" not in s.tracked:
+            return None
+        return (s.k, s.phase, s.ahead["f3"][0], s.ahead["f3"][1], ls.vehicle.getSignals("human"),
+                ls.vehicle.getLaneIndex("human"))
+
+    return sim, [w for w in _drive(sim, controller, watch) if w is not None]
+
+
+def test_a_signalled_cut_in_is_seen_from_the_first_signal_and_gets_room(event):
+    """``signal=2``: the human shows his left indicator beside the gap for 2 s, keeping pace,
+    and the follower behind takes him as its predecessor from then on (a cut-in prediction); he
+    moves over after it, keeping pace with the vehicle ahead of his gap. The follower brakes
+    before he lands, so it comes less close behind him than in the same cut-in without the
+    signal, and the peak deceleration counts from the signal."""
+    plain, plain_seen = _signal_run(event, "cut-in:k=3:t=6:f=0.5")
+    sim, seen = _signal_run(event, "cut-in:k=3:t=6:f=0.5:signal=2")
+    signalling = [w for w in seen if w[1] == "signalling"]
+    assert len(signalling) == round(2.0 / DT_S)
+    assert all(w[2] == "human" and w[4] & 2 and w[5] == PLATOON_INDEX - 1 for w in signalling)
+    assert sim.start_step == signalling[0][0] - 1 == plain.done_step - 1
+    assert sim.done_step == sim.start_step + round(2.0 / DT_S) + 1
+    assert all(w[2] == "human" for w in seen if w[0] >= signalling[0][0])
+    closest = min(w[3] for w in seen if w[0] >= sim.done_step)
+    plain_closest = min(w[3] for w in plain_seen if w[0] >= plain.done_step)
+    assert closest > plain_closest + 0.2  # m: room opened while he signalled (7.0 against 6.7)
+    trace = ScenarioTrace("e", "cut-in", np.zeros(4), ["f3"], ["f3"],
+                          np.array([[20.0], [19.0], [19.0], [19.0]]), np.full((4, 1), 10.0),
+                          np.full((4, 1), 19.0), done_step=2, behind=["f3"])
+    assert manoeuvre_metrics(trace)["peak_decel_mps2"] == 0.0
+    trace.start_step = 0
+    assert manoeuvre_metrics(trace)["peak_decel_mps2"] == pytest.approx(10.0)
+
+
 def test_a_gradual_cut_out_is_seen_until_the_leaver_is_out_of_the_lane(event):
     """``cut-out:lc=3``: the follower behind keeps the leaver as its predecessor after SUMO has
     moved it to the adjacent lane, while part of it is still in the platoon lane."""
@@ -373,7 +412,9 @@ def test_a_manoeuvre_that_did_not_happen_has_nan_metrics():
     ("cut-in:k=1.5", "whole vehicle position"), ("cut-in:t=-1", "multiple"),
     ("merge:gap=0", "positive"), ("cut-in:leave=0", "positive time"),
     ("join:leave=3", "not an option"), ("cut-in:lc=-1", "duration"),
-    ("join:lc=0.05", "duration"), ("cut-out:lc=11", "duration"), ("merge:lc=3", "not an option")])
+    ("join:lc=0.05", "duration"), ("cut-out:lc=11", "duration"), ("merge:lc=3", "not an option"),
+    ("cut-in:signal=-1", "signal is how long"), ("cut-in:signal=0.05", "signal is how long"),
+    ("join:signal=2", "not an option")])
 def test_bad_scenario_text_is_refused(text, message):
     with pytest.raises(InputError, match=message):
         parse_scenario(text)
