@@ -32,6 +32,8 @@ DESIGNS = (  # (label, CA file stem, CA-off file stem or None)
      "learned_test_ca_td3_real_gap06_nocomm_10"),
     ("`REAL_HARD`: + washout `wo=5`, the 64 hardest training events 4x in training",
      "learned_test_ca_td3_real_hard_10", "learned_test_ca_td3_real_hard_nocomm_10"),
+    ("`REAL_RCPO`: + close calls as a Lagrangian constraint (`--lagrange-lr 1`)",
+     "learned_test_ca_td3_real_rcpo_10", "learned_test_ca_td3_real_rcpo_nocomm_10"),
     ("`REAL_ACC_SPACING`: radar-only ACC base, CA copies the CACC",
      "learned_test_ca_td3_real_accsp_10", "learned_test_ca_td3_real_accsp_nocomm_10"),
     ("`REAL_ACC_CMD`: the same, copying the predecessor's command",

@@ -87,7 +87,7 @@ CRUISE_GAIN_PER_S = 0.4
 
 @njit(cache=True)
 def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc,
-                pred_mode, pred_held, u_min, u_max, ttc_on, margin, lag, armed, a_ahead):
+                pred_mode, pred_held, u_min, u_max, ttc_on, margin, lag, armed, a_ahead, safe_b):
     """One step of every follower (head first): updates ``u`` in place, returns a (m/s²);
     ``adj`` (m/s², shape (n,)) is the learned feed-forward term (zeros for the plain law).
     ``pred_mode`` / ``pred_held`` (shape (n,)): how follower i > 0 hears its predecessor's
@@ -99,7 +99,10 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
     without a message applies at most -c²/(2·(d - margin - lag·c)) - max(-a_ahead, 0) (the module
     docstring; ``a_ahead`` m/s², shape (n,)), and ``brake`` (m/s², inf: none; its message is
     min(u, brake)) holds it; its state ``u`` stays the law's. ``armed`` (bool, shape (n,)):
-    vehicles whose reaction acts although they hear a message (a joiner that is joining)."""
+    vehicles whose reaction acts although they hear a message (a joiner that is joining).
+    ``safe_b`` (m/s²; 0: off): such a vehicle applies at most (v_safe - v)/lag, v_safe the speed
+    from which it stops behind the vehicle ahead when both brake at safe_b after its lag
+    (Gipps), and ``brake`` holds that too."""
     n = obs.shape[0]
     out = np.empty(n)
     u_pred = u_lead
@@ -129,6 +132,14 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
                 else np.inf
             out[i] = max(min(out[i], -need), acc_min, u_min[i])  # at most its own braking
             brake[i] = out[i]  # its follower hears the reaction's braking
+        if (alone or armed[i]) and safe_b > 0.0:
+            v, v_ahead = obs[i, 0], max(obs[i, 0] + obs[i, 3], 0.0)
+            bl = safe_b * lag
+            v_safe = -bl + math.sqrt(bl * bl + v_ahead * v_ahead
+                                     + 2.0 * safe_b * max(obs[i, 2] - margin, 0.0))
+            if v > v_safe:
+                out[i] = max(min(out[i], (v_safe - v) / lag), acc_min, u_min[i])
+                brake[i] = min(brake[i], out[i])
     return out
 
 
@@ -253,7 +264,7 @@ class PloegController:
                            CRUISE_GAIN_PER_S, np.ascontiguousarray(pred_mode, dtype=np.int64),
                            np.ascontiguousarray(pred_held, dtype=np.float64), *self._limits(n),
                            p.reaction_ttc_s or 0.0, REACTION_MARGIN_M, REACTION_LAG_S,
-                           *self._reaction_inputs(n, armed, a_ahead))
+                           *self._reaction_inputs(n, armed, a_ahead), p.safe_braking_mps2 or 0.0)
 
     @staticmethod
     def _reaction_inputs(n: int, armed: np.ndarray | None, a_ahead: np.ndarray | None

@@ -39,6 +39,8 @@ class PloegParams:
     washout_s: float | None = None  # wo: a learned term enters the law less its own running mean
                                 # over this time constant (s), so it cannot move the steady gap
                                 # (None: it enters as it is)
+    safe_braking_mps2: float | None = None  # gs: a vehicle without a message keeps Gipps' safe
+                                # speed for the vehicle ahead braking at this (m/s²; None: off)
 
     def name(self) -> str:
         """The controller name that runs these gains."""
@@ -48,7 +50,8 @@ class PloegParams:
             (f":ha={self.alone_gap_s:g}" if self.alone_gap_s is not None else "") + \
             (f":ttc={self.reaction_ttc_s:g}" if self.reaction_ttc_s is not None else "") + \
             (":rb=1" if self.reaction_braking_ahead else "") + \
-            (f":wo={self.washout_s:g}" if self.washout_s is not None else "")
+            (f":wo={self.washout_s:g}" if self.washout_s is not None else "") + \
+            (f":gs={self.safe_braking_mps2:g}" if self.safe_braking_mps2 is not None else "")
 
     @property
     def gap_alone_s(self) -> float:
@@ -144,7 +147,7 @@ def _switches(name: str, opts: dict[str, float]) -> dict:
             "alone_gap_s": opts.get("ha"), "reaction_ttc_s": opts.get("ttc"),
             "reaction_braking_ahead": _flag(name, opts, "rb", "the reaction counts the braking "
                                                               "of the vehicle ahead"),
-            "washout_s": opts.get("wo")}
+            "washout_s": opts.get("wo"), "safe_braking_mps2": opts.get("gs")}
 
 
 def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal") -> PloegParams:
@@ -154,12 +157,12 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
     kind = name.split(":")[0]
     law = "acc" if kind.startswith("acc") else "ploeg"
     if kind in ("ploeg", "acc"):
-        opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "ttc", "rb", "wo"))
+        opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "ttc", "rb", "wo", "gs"))
         return PloegParams(opts.get("h", TEXTBOOK.time_gap_s), opts.get("kp", TEXTBOOK.kp),
                            opts.get("kd", TEXTBOOK.kd), feed_forward=law == "ploeg",
                            **_switches(name, opts))
     if kind in ("ploeg-tuned", "acc-tuned"):
-        opts = _parse_options(name, ("h", "aw", "ha", "ttc", "rb", "wo"))
+        opts = _parse_options(name, ("h", "aw", "ha", "ttc", "rb", "wo", "gs"))
         if "h" not in opts:
             raise InputError(f"controller {name!r}: name the time gap, e.g. {kind}:h=1")
         entries = [e for e in read_tuned_entries(tuned_file) if e.get("law", "ploeg") == law]

@@ -336,6 +336,41 @@ def test_ttc_reaction_brakes_a_vehicle_without_a_message_at_once_and_tells_its_f
         assert law.step(one, law.u, 0.0)[0] == plain.step(one, plain.u, 0.0)[0]
 
 
+def test_gs_keeps_gipps_safe_speed_behind_a_vehicle_without_a_message():
+    """``gs=B``: a vehicle that hears no message applies at most (v_safe - v)/0.5 s, v_safe =
+    -B·0.5 + sqrt((B·0.5)² + v_ahead² + 2·B·(d - 1 m)), the speed from which it stops behind the
+    vehicle ahead when both brake at B after 0.5 s of lag (Gipps 1981), and tells its follower.
+    At its own time gap, or hearing a message, it is left to the law."""
+    params = parse_ploeg("ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:gs=6")
+    assert params.safe_braking_mps2 == 6.0 and params.name().endswith(":ha=1.4:gs=6")
+    with pytest.raises(InputError, match="gs must be a positive"):
+        parse_ploeg("ploeg:h=0.6:gs=0")
+    plain = PloegController(parse_ploeg("ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4"))
+    law = PloegController(params)
+    # a human cut in 2.96 m ahead at 12.17 m/s (the recorded case of docs/scenarios.md): the
+    # head (no message), follower 1 (a message) and follower 2 (none) behind such a gap at 12.32
+    obs = np.array([[12.32, 0.0, 2.96, -0.15]] * 3)
+    mode = np.array([0, 0, 2])
+    for c in (plain, law):
+        c.reset(3)
+    a_plain = plain.step(obs, plain.u, 0.0, pred_mode=mode, pred_held=np.zeros(3))
+    brake = np.full(3, np.inf)
+    a = law.step(obs, law.u, 0.0, pred_mode=mode, pred_held=np.zeros(3), brake=brake)
+    v_safe = -3.0 + math.sqrt(9.0 + 12.17 ** 2 + 2.0 * 6.0 * 1.96)
+    assert math.isclose(v_safe, 10.44, abs_tol=0.01)
+    expected = (v_safe - 12.32) / 0.5
+    assert math.isclose(a[0], expected, rel_tol=1e-12) and math.isclose(a[2], expected,
+                                                                        rel_tol=1e-12)
+    assert a[1] == a_plain[1] and a_plain[0] > -1.0 > expected  # the law alone: -0.2 m/s²
+    np.testing.assert_array_equal(law.u, plain.u)
+    assert brake[0] == brake[2] == expected and brake[1] == np.inf
+    # at the head's own gap (2 m + 1.4 s·v) and speed: far from the bound, the law alone
+    steady = np.array([[12.0, 0.0, 2.0 + 1.4 * 12.0, 0.0]])
+    for c in (plain, law):
+        c.reset(1)
+    assert law.step(steady, law.u, 0.0)[0] == plain.step(steady, plain.u, 0.0)[0]
+
+
 def test_an_armed_vehicle_reacts_although_it_hears_a_message():
     """``armed`` (a joiner without room yet): the reaction acts on a follower that hears its
     predecessor; unarmed, the same follower is left to the law; the head is unchanged."""
