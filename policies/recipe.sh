@@ -95,6 +95,12 @@ REAL_HARD="$REAL_WO --oversample policies/train_hard_real.txt --oversample-times
 # exploration before learning starts, and falls back once they are not. On REAL_HARD nine of ten seeds kept their base:
 # every later checkpoint had more TTC < 1.5 s samples than the base on the hard validation events, at the fixed price of 1.
 REAL_RCPO="$REAL_HARD --lagrange-lr 1"
+# real_settled_recipe: REAL_HARD trained and validated from the judged protocol's 60 s settled start (--warmup 60) instead
+# of 10 s. On its 94 validation events the base has 41 TTC < 1.5 s samples at --warmup 10 and 2 at --warmup 60
+# (benchmarks/close_calls.py): the safety test that kept nine of ten REAL_HARD and REAL_RCPO seeds at their base counts
+# start-up transients that the judged runs (--warmup 60, docs/results.md) do not have, and REAL_RCPO's training met almost
+# none of them.
+REAL_SETTLED="${REAL_HARD/--warmup 10 /--warmup 60 }"
 PRODUCT="--base ploeg-tuned:h=0.8 --shield-ttc 4 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
 
 train_seeds() {  # STEM "SEEDS" TRAIN_ARGS...
