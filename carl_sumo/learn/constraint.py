@@ -31,11 +31,15 @@ class CostMultiplier:
 
     def __init__(self, lr: float, learning_starts: int, state: dict | None = None):
         self.lr, self.learning_starts = float(lr), int(learning_starts)
-        self.value, self.target = 0.0, 0.0
-        self._sum, self._count = 0.0, 0
+        self.value, self._sum, self._count = 0.0, 0.0, 0
         if state:
-            self.value, self.target = float(state["value"]), float(state["target"])
+            self.value = float(state["value"])
             self._sum, self._count = float(state["sum"]), int(state["count"])
+
+    @property
+    def target(self) -> float:
+        """α: the cost rate measured before ``learning_starts`` (0 without those steps)."""
+        return self._sum / self._count if self._count else 0.0
 
     @property
     def active(self) -> bool:
@@ -49,7 +53,6 @@ class CostMultiplier:
         if step < self.learning_starts:
             self._sum += float(np.sum(cost))
             self._count += int(np.size(cost))
-            self.target = self._sum / self._count
             return
         self.value = float(np.clip(self.value + self.lr * (float(np.mean(cost)) - self.target),
                                    0.0, LAGRANGE_MAX))

@@ -20,7 +20,8 @@ the forward and backward link, held messages (2, n, M))."""
 
 class ReplayBuffer:
     """Joint platoon transitions: obs (n, obs_dim), action (n,) (m/s²), reward (n,), next_obs,
-    done, cost (n,) (the safety cost, :func:`carl_sumo.learn.reward.critical_cost`); obs_dim 4, or 5 on a classical base (a_base). ``message_dim`` > 0: also how the CA
+    done, cost (n,) (the safety cost, :func:`carl_sumo.learn.reward.critical_cost`); obs_dim
+    4, or 5 on a classical base (a_base). ``message_dim`` > 0: also how the CA
     messages of width ``message_dim`` arrived (:data:`LINK_FIELDS`)."""
 
     def __init__(self, capacity: int, n: int, obs_dim: int = 4, message_dim: int = 0):
@@ -44,9 +45,8 @@ class ReplayBuffer:
 
     def add(self, obs, action, reward, next_obs, done, links=None, next_links=None,
             cost=None) -> None:
-        """Append one transition per environment (arrays stacked over environments; ``cost``
-        None: 0); with link
-        fields, ``links`` / ``next_links`` = (forward modes (k, n), forward held (k, n, M),
+        """Append one transition per environment (arrays stacked over environments; no ``cost``:
+        0); with link fields, ``links`` / ``next_links`` = (forward modes (k, n), forward held (k, n, M),
         backward modes, backward held) at o and o'."""
         k, p = len(obs), self.pos
         values = [obs, action, reward, next_obs, done,

@@ -19,6 +19,7 @@ from carl_sumo.control.channel import Impairments
 from carl_sumo.config import BOUNDS, REWARD, ControlBounds, RewardConfig
 from carl_sumo.data.events import Event
 from carl_sumo.interrupts import die_with_parent
+from carl_sumo.learn.reward import critical_cost
 from carl_sumo.scale.workers import WorkerError
 
 
@@ -39,8 +40,6 @@ class EnvRunner:
         """(next obs, reward, terminated, truncated, final obs, safety cost) of one step of
         ``data`` = (action, the impairments of the next episode if this one ends); the cost is
         :func:`carl_sumo.learn.reward.critical_cost` of the true state after the step."""
-        from carl_sumo.learn.reward import critical_cost
-
         action, next_impairments = data
         next_obs, reward, terminated, truncated, _ = self.env.step_array(action)
         final, cost = next_obs, critical_cost(self.env.true_observation)

@@ -295,6 +295,19 @@ def test_ha_degrades_a_vehicle_without_a_message_to_an_acc_at_the_longer_gap():
     assert plain.u[0] > 0.0
 
 
+def _law_and_plain_step(law_name: str, plain_name: str, obs: np.ndarray, mode: np.ndarray):
+    """One step of a law and of the same law without its layer on ``obs`` (3 vehicles, modes
+    ``mode``): (law, plain, law's a, plain's a, law's brake)."""
+    plain = PloegController(parse_ploeg(plain_name))
+    law = PloegController(parse_ploeg(law_name))
+    for c in (plain, law):
+        c.reset(3)
+    a_plain = plain.step(obs, plain.u, 0.0, pred_mode=mode, pred_held=np.zeros(3))
+    brake = np.full(3, np.inf)
+    a = law.step(obs, law.u, 0.0, pred_mode=mode, pred_held=np.zeros(3), brake=brake)
+    return law, plain, a, a_plain, brake
+
+
 def test_ttc_reaction_brakes_a_vehicle_without_a_message_at_once_and_tells_its_follower():
     """``ttc=T``: below a time to collision T, a vehicle that hears no message applies at most
     -c²/(2·(d - 1 - 0.5·c)) and sends it; its state stays the law's. A follower that hears its
@@ -303,17 +316,12 @@ def test_ttc_reaction_brakes_a_vehicle_without_a_message_at_once_and_tells_its_f
     assert params.reaction_ttc_s == 2.0 and params.name().endswith(":ha=1.4:ttc=2")
     with pytest.raises(InputError, match="ttc must be a positive"):
         parse_ploeg("ploeg:h=0.8:ttc=0")
-    plain = PloegController(parse_ploeg("ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4"))
-    law = PloegController(params)
     # the head closes at 2.5 m/s with 4 m of gap (TTC (4 - 1)/2.5 = 1.2 s); followers 1 and 2
     # close as fast, 1 on its predecessor's message, 2 without one
     obs = np.array([[8.5, 0.0, 4.0, -2.5]] * 3)
     mode = np.array([0, 0, 2])
-    for c in (plain, law):
-        c.reset(3)
-    a_plain = plain.step(obs, plain.u, 0.0, pred_mode=mode, pred_held=np.zeros(3))
-    brake = np.full(3, np.inf)
-    a = law.step(obs, law.u, 0.0, pred_mode=mode, pred_held=np.zeros(3), brake=brake)
+    law, plain, a, a_plain, brake = _law_and_plain_step(
+        params.name(), "ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4", obs, mode)
     need = 2.5 ** 2 / (2.0 * (4.0 - 1.0 - 0.5 * 2.5))
     assert math.isclose(a[0], -need, rel_tol=1e-12) and math.isclose(a[2], -need, rel_tol=1e-12)
     assert a[1] == a_plain[1] > -need  # it hears a message: no reaction
@@ -345,17 +353,12 @@ def test_gs_keeps_gipps_safe_speed_behind_a_vehicle_without_a_message():
     assert params.safe_braking_mps2 == 6.0 and params.name().endswith(":ha=1.4:gs=6")
     with pytest.raises(InputError, match="gs must be a positive"):
         parse_ploeg("ploeg:h=0.6:gs=0")
-    plain = PloegController(parse_ploeg("ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4"))
-    law = PloegController(params)
     # a human cut in 2.96 m ahead at 12.17 m/s (the recorded case of docs/scenarios.md): the
     # head (no message), follower 1 (a message) and follower 2 (none) behind such a gap at 12.32
     obs = np.array([[12.32, 0.0, 2.96, -0.15]] * 3)
     mode = np.array([0, 0, 2])
-    for c in (plain, law):
-        c.reset(3)
-    a_plain = plain.step(obs, plain.u, 0.0, pred_mode=mode, pred_held=np.zeros(3))
-    brake = np.full(3, np.inf)
-    a = law.step(obs, law.u, 0.0, pred_mode=mode, pred_held=np.zeros(3), brake=brake)
+    law, plain, a, a_plain, brake = _law_and_plain_step(
+        params.name(), "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4", obs, mode)
     v_safe = -3.0 + math.sqrt(9.0 + 12.17 ** 2 + 2.0 * 6.0 * 1.96)
     assert math.isclose(v_safe, 10.44, abs_tol=0.01)
     expected = (v_safe - 12.32) / 0.5
