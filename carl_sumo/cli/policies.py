@@ -268,6 +268,9 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
                         "and speed), comfort (the same on jerk and dampening only, at most 5 %% "
                         "above the base's headway), metrics (jerk and dampening relative to the "
                         "base, speed at least the base's) or reward")
+    p.add_argument("--gate-string-stable", default=None, choices=("ideal", "real"),
+                   help="keep every validated checkpoint in <out>.candidates/; --out is then "
+                        "the best-scoring one string stable on this plant (rank --string-stable)")
     p.add_argument("--braking-events", type=int, default=None, metavar="N",
                    help="add N synthetic hard-braking leaders (15-30 m/s, -3 to -6 m/s²) to the "
                         "training events, a quarter of them to the validation events (default 0)")
@@ -309,9 +312,9 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
     add_event_choice(p)
 
 
-TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "w_spacing",
-                   "w_critical", "lagrange_lr", "spacing_gap", "spacing_head_gap", "jerk_scale",
-                   "message_dim", "hidden", "actor_lr", "critic_lr", "tau", "noise",
+TRAIN_OVERRIDES = ("select", "gate_string_stable", "w_gap", "w_safe", "w_comfort", "w_accel",
+                   "w_spacing", "w_critical", "lagrange_lr", "spacing_gap", "spacing_head_gap",
+                   "jerk_scale", "message_dim", "hidden", "actor_lr", "critic_lr", "tau", "noise",
                    "noise_correlation", "smooth_jerk", "smooth_accel", "adj_l2", "eval_events",
                    "val_seed", "val_source", "val_events", "oversample", "oversample_times",
                    "gamma", "adj_max", "base", "critic_burn_in", "braking_events", "update_every",
@@ -327,6 +330,7 @@ TRAIN_OVERRIDES = ("select", "w_gap", "w_safe", "w_comfort", "w_accel", "w_spaci
 
 def cmd_train(args: argparse.Namespace) -> None:
     from carl_sumo.data import load_events
+    from carl_sumo.experiments.string_stability import keep_string_stable
     from carl_sumo.learn.train import train
 
     out = check_train_args(args)
@@ -350,6 +354,8 @@ def cmd_train(args: argparse.Namespace) -> None:
                        progress=True if sys.stderr.isatty() else args.progress_every,
                        rollouts="processes" if args.ray is None else "ray",
                        tensorboard=args.tensorboard)
+    if cfg.gate_string_stable is not None:
+        keep_string_stable(out, cfg.select, cfg.gate_string_stable)  # says what it kept
     val = result["validation"]
     print(f"wrote {out} (best validation score {result['best_score']:.4f}); "
           f"wall time {result['wall_time_s']:.0f} s; last validation: "

@@ -282,6 +282,10 @@ def run_trial(config: dict[str, Any]) -> None:
     cfg = train_config(args, out, "carl-sumo train " + " ".join(config["argv"]))
     result = train(cfg, load_events(args.data, args.split), resume=resume, progress=False,
                    log=lambda *_: None, on_checkpoint=report)
+    if cfg.gate_string_stable is not None:
+        from carl_sumo.experiments.string_stability import keep_string_stable
+
+        keep_string_stable(out, cfg.select, cfg.gate_string_stable)
     tune.report({"step": cfg.steps, "resumed_at": resumed_at, "done": 1,
                  "best_score": float(result["best_score"])})
 

@@ -39,6 +39,12 @@ from its own state when the threat has passed (written into u, the filter would 
 at dt/T per step). A follower that hears its predecessor has the braking in its message and does
 not react.
 
+Safe speed (``gs=B`` in a name): a vehicle that hears no V2V message also keeps at most Gipps'
+safe speed v_safe for the vehicle ahead, the speed from which it stops behind it when both brake
+at B m/s² after its 0.5 s of lag, applying at most (v_safe - v)/0.5 s. ``gn=B`` does the same
+only for an armed vehicle: one whose vehicle ahead is new (behind a human who just cut in, a
+joiner) until it has room (carl_sumo.sim.scenario_sim), never for a platoon's head.
+
 As the base of a learned controller (``carl-sumo train --base ploeg-tuned:h=1``), a learned term
 a_adj,i (m/s²) enters the law as one more feed-forward input beside the predecessor's:
 u_i(k+1) = u_i(k) + (dt/h)·(-u_i(k) + kp·e_i + kd·ė_i + u_{i-1}(k) + a_adj,i). So it passes
@@ -87,7 +93,8 @@ CRUISE_GAIN_PER_S = 0.4
 
 @njit(cache=True)
 def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc,
-                pred_mode, pred_held, u_min, u_max, ttc_on, margin, lag, armed, a_ahead, safe_b):
+                pred_mode, pred_held, u_min, u_max, ttc_on, margin, lag, armed, a_ahead, safe_b,
+                safe_armed_only):
     """One step of every follower (head first): updates ``u`` in place, returns a (m/s²);
     ``adj`` (m/s², shape (n,)) is the learned feed-forward term (zeros for the plain law).
     ``pred_mode`` / ``pred_held`` (shape (n,)): how follower i > 0 hears its predecessor's
@@ -102,7 +109,8 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
     vehicles whose reaction acts although they hear a message (a joiner that is joining).
     ``safe_b`` (m/s²; 0: off): such a vehicle applies at most (v_safe - v)/lag, v_safe the speed
     from which it stops behind the vehicle ahead when both brake at safe_b after its lag
-    (Gipps), and ``brake`` holds that too."""
+    (Gipps), and ``brake`` holds that too; ``safe_armed_only`` (``gn=B``): only an armed vehicle
+    does."""
     n = obs.shape[0]
     out = np.empty(n)
     u_pred = u_lead
@@ -132,7 +140,7 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
                 else np.inf
             out[i] = max(min(out[i], -need), acc_min, u_min[i])  # at most its own braking
             brake[i] = out[i]  # its follower hears the reaction's braking
-        if (alone or armed[i]) and safe_b > 0.0:
+        if (armed[i] or alone and not safe_armed_only) and safe_b > 0.0:
             v, v_ahead = obs[i, 0], max(obs[i, 0] + obs[i, 3], 0.0)
             bl = safe_b * lag
             v_safe = -bl + math.sqrt(bl * bl + v_ahead * v_ahead
@@ -264,7 +272,8 @@ class PloegController:
                            CRUISE_GAIN_PER_S, np.ascontiguousarray(pred_mode, dtype=np.int64),
                            np.ascontiguousarray(pred_held, dtype=np.float64), *self._limits(n),
                            p.reaction_ttc_s or 0.0, REACTION_MARGIN_M, REACTION_LAG_S,
-                           *self._reaction_inputs(n, armed, a_ahead), p.safe_braking_mps2 or 0.0)
+                           *self._reaction_inputs(n, armed, a_ahead), p.safe_braking_mps2 or 0.0,
+                           p.safe_new_only)
 
     @staticmethod
     def _reaction_inputs(n: int, armed: np.ndarray | None, a_ahead: np.ndarray | None

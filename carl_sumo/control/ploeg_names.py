@@ -1,5 +1,5 @@
 """The names of the constant-time-gap laws and their parameters: what ``ploeg:h=0.8:kp=0.1:kd=1``,
-``ploeg-tuned:h=0.8``, ``acc:h=2.5`` and their options (``aw``, ``ha``, ``ttc``, ``rb``) stand for
+``ploeg-tuned:h=0.8``, ``acc:h=2.5`` and their options (``aw``, ``ha``, ``ttc``, ``rb``, ``wo``, ``gs``, ``gn``) stand for
 (:class:`PloegParams`), and the tuned-gains files of ``carl-sumo tune``. The law itself, and what
 each option does, is :mod:`carl_sumo.control.cacc`.
 """
@@ -41,6 +41,8 @@ class PloegParams:
                                 # (None: it enters as it is)
     safe_braking_mps2: float | None = None  # gs: a vehicle without a message keeps Gipps' safe
                                 # speed for the vehicle ahead braking at this (m/s²; None: off)
+    safe_new_only: bool = False  # gn (in place of gs): only a vehicle whose vehicle ahead is new
+                                # (armed: behind a human who cut in, a joiner) until it has room
 
     def name(self) -> str:
         """The controller name that runs these gains."""
@@ -51,7 +53,8 @@ class PloegParams:
             (f":ttc={self.reaction_ttc_s:g}" if self.reaction_ttc_s is not None else "") + \
             (":rb=1" if self.reaction_braking_ahead else "") + \
             (f":wo={self.washout_s:g}" if self.washout_s is not None else "") + \
-            (f":gs={self.safe_braking_mps2:g}" if self.safe_braking_mps2 is not None else "")
+            (f":{'gn' if self.safe_new_only else 'gs'}={self.safe_braking_mps2:g}"
+             if self.safe_braking_mps2 is not None else "")
 
     @property
     def gap_alone_s(self) -> float:
@@ -143,11 +146,15 @@ def _flag(name: str, opts: dict[str, float], key: str, what: str) -> bool:
 
 def _switches(name: str, opts: dict[str, float]) -> dict:
     """The options of a name beyond the gains (PloegParams' keywords)."""
+    if "gs" in opts and "gn" in opts:
+        raise InputError(f"controller {name!r}: give gs (every vehicle without a message) or gn "
+                         "(only one with a new vehicle ahead), not both")
     return {"anti_windup": _flag(name, opts, "aw", "each vehicle's state within its own limits"),
             "alone_gap_s": opts.get("ha"), "reaction_ttc_s": opts.get("ttc"),
             "reaction_braking_ahead": _flag(name, opts, "rb", "the reaction counts the braking "
                                                               "of the vehicle ahead"),
-            "washout_s": opts.get("wo"), "safe_braking_mps2": opts.get("gs")}
+            "washout_s": opts.get("wo"), "safe_braking_mps2": opts.get("gs", opts.get("gn")),
+            "safe_new_only": "gn" in opts}
 
 
 def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal") -> PloegParams:
@@ -157,12 +164,12 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
     kind = name.split(":")[0]
     law = "acc" if kind.startswith("acc") else "ploeg"
     if kind in ("ploeg", "acc"):
-        opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "ttc", "rb", "wo", "gs"))
+        opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "ttc", "rb", "wo", "gs", "gn"))
         return PloegParams(opts.get("h", TEXTBOOK.time_gap_s), opts.get("kp", TEXTBOOK.kp),
                            opts.get("kd", TEXTBOOK.kd), feed_forward=law == "ploeg",
                            **_switches(name, opts))
     if kind in ("ploeg-tuned", "acc-tuned"):
-        opts = _parse_options(name, ("h", "aw", "ha", "ttc", "rb", "wo", "gs"))
+        opts = _parse_options(name, ("h", "aw", "ha", "ttc", "rb", "wo", "gs", "gn"))
         if "h" not in opts:
             raise InputError(f"controller {name!r}: name the time gap, e.g. {kind}:h=1")
         entries = [e for e in read_tuned_entries(tuned_file) if e.get("law", "ploeg") == law]

@@ -455,3 +455,32 @@ def string_stable_first(rows: list[dict], plant: str) -> list[dict]:
             return [row] + rows[:i] + rows[i + 1:]
     raise InputError(f"no run is string stable on the {plant} plant (worst ‖Γ‖∞: " +
                      ", ".join(f"{r['hinf']:.4f}" for r in rows) + "); ship none of them")
+
+
+def keep_string_stable(out: Path, select: str, plant: str) -> dict | None:
+    """``train --gate-string-stable``: of a run's validated checkpoints (its candidates, from
+    :func:`carl_sumo.learn.checkpoint.candidate_dir`), write to ``out`` the best by the run's
+    ``select`` rule that is string stable on ``plant`` (checked in score order until one passes,
+    :func:`string_stable_first`; ties: the earlier step). Its rank row with ``hinf``; None (and
+    ``out`` as training left it) when no candidate is string stable."""
+    from carl_sumo.learn.checkpoint import candidate_dir
+    from carl_sumo.learn.policy import read_policy_payload, save_torch_atomic
+    from carl_sumo.learn.selection import rank_runs
+
+    paths = sorted(candidate_dir(out).glob("step*.pt"))
+    if not paths:
+        raise InputError(f"{out} has no candidates in {candidate_dir(out)}; train it with "
+                         "--gate-string-stable")
+    try:
+        row = string_stable_first(rank_runs(paths, select), plant)[0]
+    except InputError as exc:
+        print(f"{out}: {exc}; kept the best-scoring checkpoint", file=sys.stderr)
+        return None
+    payload = read_policy_payload(Path(row["path"]))
+    payload["metadata"]["string_stability_gate"] = {
+        "plant": plant, "worst_hinf": row["hinf"], "candidate": Path(row["path"]).name,
+        "candidates": len(paths)}
+    save_torch_atomic(payload, out)
+    print(f"{out}: kept {Path(row['path']).name}, the best-scoring string-stable checkpoint "
+          f"(worst ‖Γ‖∞ {row['hinf']:.4f} on the {plant} plant)", file=sys.stderr)
+    return row

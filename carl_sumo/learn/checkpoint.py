@@ -2,7 +2,8 @@
 replay buffer, random states, step, best score, wall time, and the rollouts' state: every action
 sent to the environments, the exploration noise, the recent rewards), written atomically, and
 read back. With the actions a resumed run replays its environments to where they were, so it
-continues exactly as the run would have without the stop (:func:`carl_sumo.learn.train.train`)."""
+continues exactly as the run would have without the stop (:func:`carl_sumo.learn.train.train`).
+With ``--gate-string-stable`` every validated actor is also kept as a candidate policy file."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import torch
 
 from carl_sumo.errors import InputError
 from carl_sumo.learn.agents import Agent
-from carl_sumo.learn.policy import load_torch, save_torch_atomic
+from carl_sumo.learn.policy import load_torch, save_policy, save_torch_atomic
 from carl_sumo.learn.replay_buffer import ReplayBuffer
 from carl_sumo.learn.train_config import TrainConfig
 
@@ -80,3 +81,18 @@ def restore_checkpoint(path: Path, cfg: TrainConfig, agent: Agent, rng: np.rando
                         torch_rng=torch.get_rng_state())
     return (ReplayBuffer.from_state(state["buffer"]), int(state["step"]), float(state["best"]),
             float(state["wall_s"]))
+
+
+def candidate_dir(out: Path) -> Path:
+    """Where ``--gate-string-stable`` keeps every validated checkpoint of the run writing ``out``
+    (one policy file per step, ``step000500.pt``)."""
+    return Path(out).with_suffix(".candidates")
+
+
+def save_candidate(cfg: TrainConfig, agent: Agent, out: Path, step: int, meta: dict) -> None:
+    """With ``--gate-string-stable``: the actor as a candidate of the gate (see
+    :func:`carl_sumo.experiments.string_stability.keep_string_stable`)."""
+    if cfg.gate_string_stable is not None:
+        candidate_dir(out).mkdir(exist_ok=True)
+        save_policy(agent, candidate_dir(out) / f"step{step:06d}.pt", meta)
+

@@ -37,7 +37,8 @@ from carl_sumo.control.channel import Impairments
 from carl_sumo.learn.randomize import RandomisedChannels
 from carl_sumo.learn.replay_buffer import ReplayBuffer
 from carl_sumo.learn.checkpoint import (CHECKPOINT_FORMAT, read_checkpoint,  # noqa: F401
-                                        restore_checkpoint, save_checkpoint)
+                                        candidate_dir, restore_checkpoint, save_candidate,
+                                        save_checkpoint)
 from carl_sumo.learn.train_config import (TrainConfig, held_out_split,  # noqa: F401
                                           split_validation, validation_conditions)
 from carl_sumo.files import atomic_path
@@ -102,8 +103,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     train_events, val_events = held_out_split(events, cfg)  # InputError before any file
     teacher = _teacher(cfg)  # InputError before any file
     init_actor = initial_actor(cfg)  # InputError before any file
-    out = Path(cfg.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    out = _prepare_out(Path(cfg.out), resume)
     n = cfg.n_vehicles
     _prepare_process(cfg.seed)
     agent = _new_agent(cfg, init_actor if resume is None else None)
@@ -153,7 +153,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                 wall = wall_before + time.perf_counter() - t0
                 train_reward = float(np.mean(recent[-cfg.eval_every:])) if recent else float("nan")
                 val, best = _validate_and_select(cfg, agent, val_env, val_events, baseline,
-                                                 baseline_events, out, wall, best)
+                                                 baseline_events, out, wall, best, done_steps)
                 report.validation(done_steps, wall, train_reward, val | lagrange.logged())
             if done_steps % cfg.checkpoint_every == 0 or done_steps == cfg.steps:
                 save_checkpoint(out.with_suffix(".ckpt"), cfg, agent, buffer, rng, done_steps,
@@ -273,17 +273,30 @@ def _store(buffer: ReplayBuffer, channels: RandomisedChannels | None, agent: Age
 
 def _validate_and_select(cfg: TrainConfig, agent: Agent, val_env: PlatoonEnv,
                          val_events: Sequence[Event], baseline: dict[str, float],
-                         baseline_events: list[dict], out: Path, wall_s: float, best: float
-                         ) -> tuple[dict[str, float], float]:
-    """Validate the actor; write it to ``out`` when it scores better than ``best``. Returns its
-    validation metrics and the best score so far."""
+                         baseline_events: list[dict], out: Path, wall_s: float, best: float,
+                         step: int) -> tuple[dict[str, float], float]:
+    """Validate the actor; write it to ``out`` when it scores better than ``best`` (and, with
+    ``--gate-string-stable``, every trained one to the candidates). Returns its validation
+    metrics and the best score so far."""
     val = _validate(cfg, agent, val_env, val_events, baseline_events)
     score = selection_score(val, cfg.select, baseline)
+    meta = _metadata(cfg, agent, val, wall_s, baseline, val_events)
+    if agent.updates > 0:
+        save_candidate(cfg, agent, out, step, meta)
     # only a trained actor can be the best; the first validation is a fallback
     if agent.updates > 0 and score > best or not np.isfinite(best):
         best = score if agent.updates > 0 else -np.inf
-        save_policy(agent, out, _metadata(cfg, agent, val, wall_s, baseline, val_events))
+        save_policy(agent, out, meta)
     return val, best
+
+
+def _prepare_out(out: Path, resume: Path | None) -> Path:
+    """``out`` with its folder made; a fresh run drops the gate's candidates of an earlier run
+    that wrote the same file."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if resume is None:
+        shutil.rmtree(candidate_dir(out), ignore_errors=True)
+    return out
 
 
 def _prepare_process(seed: int) -> None:
@@ -349,7 +362,9 @@ def _first_candidate(cfg: TrainConfig, agent: Agent, init_actor: dict | None,
     elif agent.cfg.residual:
         start = {**baseline, **improvement_z(baseline_events, baseline_events)}
         best = selection_score(start, cfg.select, baseline)
-        save_policy(agent, out, _metadata(cfg, agent, start, 0.0, baseline, val_events))
+        meta = _metadata(cfg, agent, start, 0.0, baseline, val_events)
+        save_policy(agent, out, meta)
+        save_candidate(cfg, agent, out, 0, meta)
     return best
 
 
@@ -440,7 +455,9 @@ def _validate_and_keep(cfg: TrainConfig, agent: Agent, val_env: PlatoonEnv,
     """Validate the actor as it is, write it as the run's first candidate; its selection score
     and validation metrics."""
     val = _validate(cfg, agent, val_env, val_events, baseline_events)
-    save_policy(agent, out, _metadata(cfg, agent, val, 0.0, baseline, val_events))
+    meta = _metadata(cfg, agent, val, 0.0, baseline, val_events)
+    save_policy(agent, out, meta)
+    save_candidate(cfg, agent, out, 0 if cfg.init is not None else cfg.learning_starts, meta)
     return selection_score(val, cfg.select, baseline), val
 
 

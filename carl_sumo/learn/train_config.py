@@ -65,6 +65,8 @@ class TrainConfig:
     critic_lr: float = AgentConfig.critic_lr
     tau: float = AgentConfig.tau                          # targets' soft-update rate per update
     select: str = "margin"         # how the best checkpoint is chosen: see selection_score
+    gate_string_stable: str | None = None  # "ideal"/"real": keep every validated checkpoint in
+    # <out>.candidates/; the kept one is the best-scoring that is string stable on that plant
     noise: float = AgentConfig.exploration_noise          # exploration std (fraction of adj_max)
     noise_correlation: float = AgentConfig.noise_correlation
     gamma: float = AgentConfig.gamma                      # discount per 0.1 s step

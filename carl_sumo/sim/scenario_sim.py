@@ -72,7 +72,8 @@ class ScenarioSim(PlatoonSim):
     ``done_step`` (the step the manoeuvre was complete, None before), ``start_step`` (with
     ``signal=S``: the human's first signal step, when the follower behind first sees him; None
     without), ``joining`` (a joiner
-    that has no room yet, module docstring), ``behind`` (the vehicles
+    that has no room yet, module docstring), ``new_ahead`` (a member a human just cut in ahead
+    of, until it has room: :attr:`armed`), ``behind`` (the vehicles
     behind the manoeuvre, from then on) and, on the real plant, ``limits[vid]`` = (a_max, b_max)
     (m/s², positive) of every CACC vehicle carl-sumo drives that exists so far: the followers from
     the start, a joiner from the step it is on the road, each with its own powertrain's class
@@ -119,6 +120,8 @@ class ScenarioSim(PlatoonSim):
         self.behind: list[str] = []
         self.radar_only: set[str] = set()
         self.joining: set[str] = set()
+        self.new_ahead: set[str] = set()  # members behind a human who just cut in, until room
+        self._met_human: set[str] = set()  # members that have had him ahead (armed once)
         self._gone: set[str] = set()  # vehicles that left the lane, tracked while in it
         self.offset: dict[str, float] = {}
         self._enter_speed = 0.0
@@ -201,7 +204,7 @@ class ScenarioSim(PlatoonSim):
             self._see_crossing(ls, x)
         member_set = set(self.members)
         self.members = [v for v in self.order if v in member_set]
-        self._settle_joiner()
+        self._settle()
 
     def _see_crossing(self, ls, x: dict[str, float]) -> None:
         """Each vehicle's predecessor when a crossing vehicle is closer than SUMO's leader, and a
@@ -215,16 +218,32 @@ class ScenarioSim(PlatoonSim):
                         and (vid in self.crossing or other in self.crossing):
                     self.ahead[vid] = (other, gap)
 
-    def _settle_joiner(self) -> None:
-        """The joiner stops joining once it has room (:data:`JOIN_LINK_GAP_S`)."""
-        joiner = self.entering
-        if joiner not in self.joining or joiner not in self.ahead:
-            return
-        pred, gap = self.ahead[joiner]
-        v = self.speeds.get(joiner, 0.0)
-        closing = pred is not None and v > self.speeds.get(pred, v)
-        if not closing and gap - JOIN_STANDSTILL_M >= JOIN_LINK_GAP_S * v:
-            self.joining.discard(joiner)
+    @property
+    def armed(self) -> set[str]:
+        """The members whose vehicle ahead is new and who have no room yet: the joiner that is
+        joining and the member a human cut in ahead of (the law's ``armed``,
+        :mod:`carl_sumo.control.cacc`)."""
+        return self.joining | self.new_ahead
+
+    def _settle(self) -> None:
+        """A member gets a human who cut in (or signals to) ahead of it: it is new to him until it
+        has room. The joiner stops joining, and such a member being new, once it has room
+        (:data:`JOIN_LINK_GAP_S`) or, for the member, once he is no longer ahead of it."""
+        human = self.entering if self.manoeuvre.kind == "cut-in" else None
+        for vid in self.members:
+            if human is not None and self.ahead[vid][0] == human and vid not in self._met_human:
+                self._met_human.add(vid)
+                self.new_ahead.add(vid)
+        for vid in list(self.armed):
+            if vid not in self.ahead:
+                continue
+            pred, gap = self.ahead[vid]
+            v = self.speeds.get(vid, 0.0)
+            closing = pred is not None and v > self.speeds.get(pred, v)
+            if (not closing and gap - JOIN_STANDSTILL_M >= JOIN_LINK_GAP_S * v) or \
+                    (vid in self.new_ahead and pred != human):
+                self.joining.discard(vid)
+                self.new_ahead.discard(vid)
 
     def observe(self) -> tuple[list[str], np.ndarray, list[tuple[str, float] | None]]:
         """(member IDs front first, observations [v, a, d, Δv] (m, 4), what each sees ahead as

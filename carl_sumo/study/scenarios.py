@@ -217,8 +217,8 @@ def run_scenario_event(sim: ScenarioSim, event: Event, n_followers: int, manoeuv
         if controller is not None:
             ids, obs, ahead = sim.observe()
             last_acc = heard_accelerations(sim, ids, leader_acc)
-            if hasattr(controller, "arm"):  # a joiner without room yet reacts (scenario_sim)
-                controller.arm(sim.joining)
+            if hasattr(controller, "arm"):  # a new vehicle ahead, no room yet (scenario_sim)
+                controller.arm(sim.armed)
             if sensors is not None and ids:  # a track restarts when the vehicle ahead changes
                 obs = sensors.measure(obs, vehicles=ids,
                                       predecessors=[a[0] if a else None for a in ahead])

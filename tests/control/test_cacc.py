@@ -374,6 +374,30 @@ def test_gs_keeps_gipps_safe_speed_behind_a_vehicle_without_a_message():
     assert law.step(steady, law.u, 0.0)[0] == plain.step(steady, plain.u, 0.0)[0]
 
 
+def test_gn_keeps_the_safe_speed_only_for_an_armed_vehicle():
+    """``gn=B``: the bound of ``gs=B`` for an armed vehicle only (one with a new vehicle ahead,
+    with or without a message); a head or a vehicle without a message that is not armed is left
+    to the law. gs and gn together: one line."""
+    params = parse_ploeg("ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:gn=6")
+    assert params.safe_new_only and params.name().endswith(":ha=1.4:gn=6")
+    with pytest.raises(InputError, match="not both"):
+        parse_ploeg("ploeg:h=0.6:gs=6:gn=6")
+    obs = np.array([[12.32, 0.0, 2.96, -0.15]] * 3)
+    mode = np.array([0, 0, 2])
+    law, plain, a, a_plain, _ = _law_and_plain_step(
+        params.name(), "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4", obs, mode)
+    np.testing.assert_array_equal(a, a_plain)  # nobody armed: the law alone
+    _, _, a_gs, _, _ = _law_and_plain_step(
+        params.name().replace(":gn=", ":gs="), "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4", obs, mode)
+    for c in (law, plain):
+        c.reset(3)
+    armed = np.array([False, True, True])
+    a = law.step(obs, law.u, 0.0, pred_mode=mode, pred_held=np.zeros(3), armed=armed)
+    a_plain = plain.step(obs, plain.u, 0.0, pred_mode=mode, pred_held=np.zeros(3), armed=armed)
+    assert a[0] == a_plain[0] and a[2] == a_gs[2] < a_plain[2]
+    assert a[1] == a_gs[2]  # armed with a message: bounded as well
+
+
 def test_an_armed_vehicle_reacts_although_it_hears_a_message():
     """``armed`` (a joiner without room yet): the reaction acts on a follower that hears its
     predecessor; unarmed, the same follower is left to the law; the head is unchanged."""

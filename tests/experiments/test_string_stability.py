@@ -6,6 +6,8 @@ there, docs/string_stability.md), the classical numbers of Ploeg et al. (2014), 
 from __future__ import annotations
 
 import json
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -99,3 +101,46 @@ def test_bad_string_stability_input_is_one_line_and_exit_2(capsys, options, mess
     assert main(args + options) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("carl-sumo: error:") and message in err and "\n" not in err
+
+
+def test_the_gate_keeps_the_best_scoring_string_stable_checkpoint(tmp_path, capsys):
+    """``train --gate-string-stable``: a real run keeps its base and every validated actor as
+    candidates. A candidate that validated best but always accelerates (a_adj = +5 m/s², 25 m
+    of spacing error at kp = 0.2) runs into its predecessor in the frequency test, so the gate passes it over and writes the next
+    one in score order, string stable, to the run's file."""
+    import torch
+
+    from carl_sumo.errors import InputError
+    from carl_sumo.experiments.bench import cruise_event
+    from carl_sumo.experiments.string_stability import keep_string_stable
+    from carl_sumo.learn.policy import read_policy_payload, save_torch_atomic
+    from carl_sumo.learn.selection import rank_runs
+    from carl_sumo.learn.train import TrainConfig, candidate_dir, train
+
+    out = tmp_path / "p.pt"
+    cfg = TrainConfig(algo="td3", n_vehicles=2, steps=80, seed=0, num_envs=2,
+                      learning_starts=20, eval_every=40, eval_events=1, checkpoint_every=80,
+                      base="ploeg:h=0.8:kp=0.2:kd=0.7", adj_max=5.0, select="reward",
+                      gate_string_stable="ideal", net=str(NET), out=str(out))
+    train(cfg, [cruise_event(120, 15.0, 30.0)], progress=False)
+    names = sorted(p.name for p in candidate_dir(out).iterdir())
+    assert names == ["step000000.pt", "step000040.pt", "step000080.pt"]
+    greedy = read_policy_payload(candidate_dir(out) / "step000080.pt")
+    last = [k for k in greedy["actor"] if k.endswith("bias")][-1]
+    greedy["actor"][last] = torch.full_like(greedy["actor"][last], 50.0)
+    greedy["actor"][last.replace("bias", "weight")].zero_()
+    greedy["metadata"]["validation"]["val_reward"] = 1e3  # validated best
+    save_torch_atomic(greedy, candidate_dir(out) / "step000120.pt")
+    kept = keep_string_stable(out, "reward", "ideal")
+    err = capsys.readouterr().err
+    assert "step000120.pt: worst ‖Γ‖∞ inf" in err
+    ranked = [r["path"] for r in rank_runs(sorted(candidate_dir(out).glob("*.pt")), "reward")]
+    assert ranked[0].endswith("step000120.pt") and kept["path"] == ranked[1]
+    payload = read_policy_payload(out)
+    gate = payload["metadata"]["string_stability_gate"]
+    assert gate["candidate"] == os.path.basename(ranked[1]) and 0 < gate["worst_hinf"] <= 1
+    assert gate["candidates"] == 4
+    chosen = read_policy_payload(Path(ranked[1]))["actor"]
+    assert all(torch.equal(payload["actor"][k], chosen[k]) for k in chosen)
+    with pytest.raises(InputError, match="no candidates"):
+        keep_string_stable(tmp_path / "other.pt", "reward", "ideal")

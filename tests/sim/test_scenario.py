@@ -189,6 +189,32 @@ def _signal_run(event, text: str) -> tuple[ScenarioSim, list]:
     return sim, [w for w in _drive(sim, controller, watch) if w is not None]
 
 
+@pytest.mark.parametrize("text", ["cut-in:k=3:t=6:f=0.5", "cut-in:k=3:t=6:f=0.5:signal=2"])
+def test_the_member_a_human_cuts_in_ahead_of_is_armed_until_it_has_room(event, text):
+    """From the first step the human is ahead of f3 (his landing, or his first signal) f3 is
+    armed (the law's ``gn=B`` acts on it), in one stretch that ends the first step it is not
+    closing in and (d - 2 m)/v ≥ 0.8 s; no other member is ever armed."""
+    _, controller = scenario_controller(ROBUST_HA + ":ttc=2")  # behind him: an ACC at 1.4 s
+    sim = ScenarioSim(NET, "external")
+    sim.start(event, N, parse_scenario(text).draw(event, N))
+
+    def watch(s, ls):
+        pred, gap = s.ahead["f3"]
+        return set(s.armed), pred, gap, s.speeds["f3"], s.speeds.get(pred, np.inf)
+
+    seen = _drive(sim, controller, watch)
+    first = next(i for i, w in enumerate(seen) if w[1] == "human")
+    armed = [i for i, w in enumerate(seen) if w[0]]
+    assert armed[0] == first and armed == list(range(first, armed[-1] + 1))
+    assert all(w[0] == {"f3"} for w in seen[first:armed[-1] + 1])
+
+    def has_room(w):
+        return w[2] - 2.0 >= 0.8 * w[3] and w[3] <= w[4]
+
+    assert not any(has_room(w) for w in seen[first:armed[-1] + 1])
+    assert armed[-1] + 1 < len(seen) and has_room(seen[armed[-1] + 1])
+
+
 def test_a_signalled_cut_in_is_seen_from_the_first_signal_and_gets_room(event):
     """``signal=2``: the human shows his left indicator beside the gap for 2 s, keeping pace,
     and the follower behind takes him as its predecessor from then on (a cut-in prediction); he
