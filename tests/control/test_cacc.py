@@ -458,6 +458,24 @@ def test_ttc_reaction_keeps_the_platoon_of_a_close_start_apart_in_sumo():
     assert runs[base + ":ttc=2"].collisions == 0
 
 
+def test_gn_never_acts_in_a_plain_run_where_gs_does():
+    """The close start above (3.9 m, closing at 2.5 m/s, real plant): ``gs=6`` bounds the head's
+    speed, ``gn=6`` arms nobody in a plain run, so it drives exactly as the law without it."""
+    from carl_sumo.control.channel import Impairments
+    from carl_sumo.sim.vehicle import REAL_PLANT
+
+    v_lead, steps = 6.09, 200
+    event = Event("close_start", "synthetic", "none", v_lead * DT_S * np.arange(steps),
+                  np.full(steps, v_lead), 5.0, np.full(steps, 8.55), np.full(steps, 3.93),
+                  dt=DT_S).with_warmup(10.0)
+    imp = Impairments(delay_s=0.1, plant=REAL_PLANT)
+    law = "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1"
+    runs = {name: run_event(cached_sim(NET, "external"), event, 5, ploeg_controller(name),
+                            impairments=imp) for name in (law, law + ":gs=6", law + ":gn=6")}
+    np.testing.assert_array_equal(runs[law + ":gn=6"].speed, runs[law].speed)
+    assert np.abs(runs[law + ":gs=6"].speed - runs[law].speed).max() > 0.1
+
+
 class _BiasedLaw:
     """A law with a constant learned term a_adj on every follower (m/s²)."""
 
