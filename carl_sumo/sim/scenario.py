@@ -28,7 +28,11 @@ moves sideways over S and SUMO counts it in its new lane from halfway, when the 
 see it as their leader). With ``signal=S`` (cut-in) the human shows his turn signal for S seconds
 beside the gap before he moves over, and the follower behind the gap takes him as its
 predecessor from his first signal on (a cut-in prediction from the indicator, as an ACC's camera
-makes it), so it can open room before he lands.
+makes it), so it can open room before he lands. A joiner with ``signal=S`` (join) does the same:
+its request to join reaches the member behind the gap S seconds before it moves over (a
+cooperative join, in which the platoon makes room first); until it is in the lane that member
+meets it on radar alone (the degraded mode), as its message joins the chain only once it is a
+member.
 
 Drawn per event (what the spec leaves open), from ``seed`` and the event's ID:
 ``time_s`` uniform in :data:`TIME_SHARE` of the scored part of the event (after a warm-up),
@@ -61,7 +65,7 @@ MIN_ROOM_M = 4.0
 MAX_LANE_CHANGE_S = 10.0
 """The longest lane change ``lc=S`` takes (s)."""
 MAX_SIGNAL_S = 10.0
-"""The longest turn signal ``signal=S`` before a cut-in (s)."""
+"""The longest turn signal ``signal=S`` before a cut-in or a join (s)."""
 SETTLE_AFTER_S = 5.0
 """A manoeuvre time must leave at least this much of the event after it (s)."""
 
@@ -79,7 +83,7 @@ class Manoeuvre:
     lane_change_s: float = 0.0    # how long a lane change takes (s; 0: one step)
     wait_s: float | None = None   # cut-in, join: the longest it waits for room after time_s
                                   # (s; None: to the end of the event)
-    signal_s: float = 0.0         # cut-in: how long the human signals before he moves over (s)
+    signal_s: float = 0.0         # cut-in, join: how long it signals before it moves over (s)
 
     @property
     def step(self) -> int:
@@ -199,9 +203,9 @@ def parse_scenario(text: str, seed: int = 0) -> ScenarioSpec:
     if kind in ("cut-in", "join"):
         allowed["f"] = "gap_fraction"
         allowed["wait"] = "wait_s"
+        allowed["signal"] = "signal_s"
     if kind == "cut-in":
         allowed["leave"] = "leave_s"
-        allowed["signal"] = "signal_s"
     if kind == "merge":
         allowed["gap"] = "extra_gap_m"
     else:
@@ -230,9 +234,9 @@ def parse_scenario(text: str, seed: int = 0) -> ScenarioSpec:
                              f"{MAX_LANE_CHANGE_S:g} s in multiples of {DT_S} s, got {value_text}")
         if key == "signal" and not (0 <= value <= MAX_SIGNAL_S
                                     and abs(value / DT_S - round(value / DT_S)) < 1e-6):
-            raise InputError(f"--scenario {text!r}: signal is how long the human signals before "
-                             f"he moves over, 0 to {MAX_SIGNAL_S:g} s in multiples of {DT_S} s, "
-                             f"got {value_text}")
+            raise InputError(f"--scenario {text!r}: signal is how long the entering vehicle "
+                             f"signals before it moves over, 0 to {MAX_SIGNAL_S:g} s in "
+                             f"multiples of {DT_S} s, got {value_text}")
         if key == "wait" and (value < 0 or abs(value / DT_S - round(value / DT_S)) > 1e-6):
             raise InputError(f"--scenario {text!r}: wait is how long the entering vehicle waits "
                              f"for room, 0 s or more in multiples of {DT_S} s, got {value_text}")

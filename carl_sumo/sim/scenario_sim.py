@@ -14,7 +14,9 @@ lane change is done (SUMO then drives it in the adjacent lane) and a joiner beco
 lane change into the platoon lane is done. It hears the chain's messages from then on, and it is
 ``joining`` (its reaction layer armed, if its law has one: carl_sumo.control.cacc) until it is
 no longer closing in on the vehicle ahead and its spacing (d - 2 m)/v has reached
-:data:`JOIN_LINK_GAP_S`: it entered at a share of a gap kept for one vehicle. A human who cuts
+:data:`JOIN_LINK_GAP_S`: it entered at a share of a gap kept for one vehicle. The member behind a
+vehicle that enters (a joiner or a human who cuts in) is armed the same way, from the first step
+it has that vehicle ahead until it has that room. A human who cuts
 in is never a member: it is driven by SUMO's Krauss model (``human_krauss``) from the step it is
 in the platoon lane, and it sends no V2V.
 """
@@ -72,8 +74,8 @@ class ScenarioSim(PlatoonSim):
     ``done_step`` (the step the manoeuvre was complete, None before), ``start_step`` (with
     ``signal=S``: the human's first signal step, when the follower behind first sees him; None
     without), ``joining`` (a joiner
-    that has no room yet, module docstring), ``new_ahead`` (a member a human just cut in ahead
-    of, until it has room: :attr:`armed`), ``behind`` (the vehicles
+    that has no room yet, module docstring), ``new_ahead`` (a member a human or a joiner just
+    entered ahead of, until it has room: :attr:`armed`), ``behind`` (the vehicles
     behind the manoeuvre, from then on) and, on the real plant, ``limits[vid]`` = (a_max, b_max)
     (m/s², positive) of every CACC vehicle carl-sumo drives that exists so far: the followers from
     the start, a joiner from the step it is on the road, each with its own powertrain's class
@@ -120,8 +122,8 @@ class ScenarioSim(PlatoonSim):
         self.behind: list[str] = []
         self.radar_only: set[str] = set()
         self.joining: set[str] = set()
-        self.new_ahead: set[str] = set()  # members behind a human who just cut in, until room
-        self._met_human: set[str] = set()  # members that have had him ahead (armed once)
+        self.new_ahead: set[str] = set()  # members behind a vehicle that just entered, until room
+        self._met_entering: set[str] = set()  # members that have had it ahead (armed once)
         self._gone: set[str] = set()  # vehicles that left the lane, tracked while in it
         self.offset: dict[str, float] = {}
         self._enter_speed = 0.0
@@ -178,8 +180,9 @@ class ScenarioSim(PlatoonSim):
         return out
 
     def _announced(self) -> list[str]:
-        """The human who signals a cut-in (``signal=S``), from his first signal until he is in
-        the lane: the follower behind the gap takes him as its predecessor."""
+        """The entering vehicle that signals (``signal=S``: a human's indicator before a cut-in,
+        a joiner's request over V2V before a join), from its first signal until it is in the
+        lane: the member behind the gap takes it as its predecessor."""
         if self.manoeuvre.signal_s > 0 and self.phase in ("signalling", "changing") \
                 and self.entering in self.tracked and self.entering not in self._body_crossing:
             return [self.entering]
@@ -221,18 +224,21 @@ class ScenarioSim(PlatoonSim):
     @property
     def armed(self) -> set[str]:
         """The members whose vehicle ahead is new and who have no room yet: the joiner that is
-        joining and the member a human cut in ahead of (the law's ``armed``,
+        joining and the member a human cut in or a joiner joined ahead of (the law's ``armed``,
         :mod:`carl_sumo.control.cacc`)."""
         return self.joining | self.new_ahead
 
     def _settle(self) -> None:
-        """A member gets a human who cut in (or signals to) ahead of it: it is new to him until it
-        has room. The joiner stops joining, and such a member being new, once it has room
-        (:data:`JOIN_LINK_GAP_S`) or, for the member, once he is no longer ahead of it."""
-        human = self.entering if self.manoeuvre.kind == "cut-in" else None
+        """A member gets a vehicle that enters ahead of it (a human who cuts in or a joiner, from
+        the step it is ahead: its landing, or its first signal): it is new to that vehicle until
+        it has room. The joiner stops joining, and such a member being new, once it has room
+        (:data:`JOIN_LINK_GAP_S`) or, for the member, once the entering vehicle is no longer
+        ahead of it."""
+        entering = self.entering if self.manoeuvre.kind in ENTERING_ID else None
         for vid in self.members:
-            if human is not None and self.ahead[vid][0] == human and vid not in self._met_human:
-                self._met_human.add(vid)
+            if entering is not None and vid != entering and self.ahead[vid][0] == entering \
+                    and vid not in self._met_entering:
+                self._met_entering.add(vid)
                 self.new_ahead.add(vid)
         for vid in list(self.armed):
             if vid not in self.ahead:
@@ -241,7 +247,7 @@ class ScenarioSim(PlatoonSim):
             v = self.speeds.get(vid, 0.0)
             closing = pred is not None and v > self.speeds.get(pred, v)
             if (not closing and gap - JOIN_STANDSTILL_M >= JOIN_LINK_GAP_S * v) or \
-                    (vid in self.new_ahead and pred != human):
+                    (vid in self.new_ahead and pred != entering):
                 self.joining.discard(vid)
                 self.new_ahead.discard(vid)
 
@@ -459,7 +465,7 @@ class ScenarioSim(PlatoonSim):
                 ls.vehicle.setSpeed(self.entering, -1)
             if m.kind == "join":
                 self.members.append(self.entering)  # _sense puts it in its place
-                self.joining.add(self.entering)  # until it has room (_settle_joiner)
+                self.joining.add(self.entering)  # until it has room (_settle)
             x = self._route_x(ls, self.entering)
             self.behind = [v for v in self.order if self._route_x(ls, v) < x]
             if m.kind == "join" and not self.behind:  # at the tail: the joiner's own gap

@@ -179,59 +179,73 @@ def _signal_run(event, text: str) -> tuple[ScenarioSim, list]:
     _, controller = scenario_controller("ploeg-tuned:h=0.8")
     sim = ScenarioSim(NET, "external")
     sim.start(event, N, parse_scenario(text).draw(event, N))
+    entering = sim.entering
 
     def watch(s, ls):
-        if "human" not in s.tracked:
+        if entering not in s.tracked:
             return None
-        return (s.k, s.phase, s.ahead["f3"][0], s.ahead["f3"][1], ls.vehicle.getSignals("human"),
-                ls.vehicle.getLaneIndex("human"))
+        return (s.k, s.phase, s.ahead["f3"][0], s.ahead["f3"][1], ls.vehicle.getSignals(entering),
+                ls.vehicle.getLaneIndex(entering))
 
     return sim, [w for w in _drive(sim, controller, watch) if w is not None]
 
 
-@pytest.mark.parametrize("text", ["cut-in:k=3:t=6:f=0.5", "cut-in:k=3:t=6:f=0.5:signal=2"])
-def test_the_member_a_human_cuts_in_ahead_of_is_armed_until_it_has_room(event, text):
-    """From the first step the human is ahead of f3 (his landing, or his first signal) f3 is
-    armed (the law's ``gn=B`` acts on it), in one stretch that ends the first step it is not
-    closing in and (d - 2 m)/v ≥ 0.8 s; no other member is ever armed."""
+@pytest.mark.parametrize("text", ["cut-in:k=3:t=6:f=0.5", "cut-in:k=3:t=6:f=0.5:signal=2",
+                                  "join:k=3:t=6:f=0.5", "join:k=3:t=6:f=0.5:signal=2"])
+def test_the_member_a_vehicle_enters_ahead_of_is_armed_until_it_has_room(event, text):
+    """From the first step the human or the joiner is ahead of f3 (its landing, or its first
+    signal) f3 is armed (the law's ``gn=B`` acts on it), in one stretch that ends the first step
+    it is not closing in and (d - 2 m)/v ≥ 0.8 s; no other member is ever armed but the joiner
+    itself (joining)."""
     _, controller = scenario_controller(ROBUST_HA + ":ttc=2")  # behind him: an ACC at 1.4 s
     sim = ScenarioSim(NET, "external")
     sim.start(event, N, parse_scenario(text).draw(event, N))
+    entering = sim.entering
 
     def watch(s, ls):
         pred, gap = s.ahead["f3"]
         return set(s.armed), pred, gap, s.speeds["f3"], s.speeds.get(pred, np.inf)
 
     seen = _drive(sim, controller, watch)
-    first = next(i for i, w in enumerate(seen) if w[1] == "human")
-    armed = [i for i, w in enumerate(seen) if w[0]]
+    first = next(i for i, w in enumerate(seen) if w[1] == entering)
+    armed = [i for i, w in enumerate(seen) if "f3" in w[0]]
     assert armed[0] == first and armed == list(range(first, armed[-1] + 1))
-    assert all(w[0] == {"f3"} for w in seen[first:armed[-1] + 1])
+    assert all(w[0] - {"joiner"} == {"f3"} for w in seen[first:armed[-1] + 1])
+    assert all(w[0] <= {"joiner"} for w in seen[armed[-1] + 1:])
 
     def has_room(w):
         return w[2] - 2.0 >= 0.8 * w[3] and w[3] <= w[4]
 
     assert not any(has_room(w) for w in seen[first:armed[-1] + 1])
-    assert armed[-1] + 1 < len(seen) and has_room(seen[armed[-1] + 1])
+    if entering == "human":
+        assert armed[-1] + 1 < len(seen) and has_room(seen[armed[-1] + 1])
+    else:  # behind a joiner the law's own 0.8 s is approached from below: armed to the end
+        assert armed[-1] + 1 == len(seen) and seen[-1][1] == "joiner"
 
 
-def test_a_signalled_cut_in_is_seen_from_the_first_signal_and_gets_room(event):
-    """``signal=2``: the human shows his left indicator beside the gap for 2 s, keeping pace,
-    and the follower behind takes him as its predecessor from then on (a cut-in prediction); he
-    moves over after it, keeping pace with the vehicle ahead of his gap. The follower brakes
-    before he lands, so it comes less close behind him than in the same cut-in without the
-    signal, and the peak deceleration counts from the signal."""
-    plain, plain_seen = _signal_run(event, "cut-in:k=3:t=6:f=0.5")
-    sim, seen = _signal_run(event, "cut-in:k=3:t=6:f=0.5:signal=2")
+@pytest.mark.parametrize("kind", ["cut-in", "join"])
+def test_a_signalled_entry_is_seen_from_the_first_signal_and_gets_room(event, kind):
+    """``signal=2``: the human (his left indicator) or the joiner (its request to join) signals
+    beside the gap for 2 s, keeping pace, and the follower behind takes it as its predecessor
+    from then on; it moves over after that, keeping pace with the vehicle ahead of its gap. The
+    follower brakes for it before it lands, so it comes less close behind it than in the same entry
+    without the signal (a cut-in; behind a joiner the law at 0.8 s comes closer), and the peak
+    deceleration counts from the signal."""
+    plain, plain_seen = _signal_run(event, f"{kind}:k=3:t=6:f=0.5")
+    sim, seen = _signal_run(event, f"{kind}:k=3:t=6:f=0.5:signal=2")
     signalling = [w for w in seen if w[1] == "signalling"]
     assert len(signalling) == round(2.0 / DT_S)
-    assert all(w[2] == "human" and w[4] & 2 and w[5] == PLATOON_INDEX - 1 for w in signalling)
+    assert all(w[2] == sim.entering and w[4] & 2 and w[5] == PLATOON_INDEX - 1
+               for w in signalling)
     assert sim.start_step == signalling[0][0] - 1 == plain.done_step - 1
     assert sim.done_step == sim.start_step + round(2.0 / DT_S) + 1
-    assert all(w[2] == "human" for w in seen if w[0] >= signalling[0][0])
+    assert all(w[2] == sim.entering for w in seen if w[0] >= signalling[0][0])
     closest = min(w[3] for w in seen if w[0] >= sim.done_step)
     plain_closest = min(w[3] for w in plain_seen if w[0] >= plain.done_step)
-    assert closest > plain_closest + 0.2  # m: room opened while he signalled (7.0 against 6.7)
+    if kind == "cut-in":
+        assert closest > plain_closest + 0.2  # m: room opened while he signalled (7.0, 6.7)
+    else:  # measured: 7.7 m against 8.0: on radar alone f3 loses the joiner's feed-forward
+        assert closest == pytest.approx(7.73, abs=0.05) and plain_closest > closest
     trace = ScenarioTrace("e", "cut-in", np.zeros(4), ["f3"], ["f3"],
                           np.array([[20.0], [19.0], [19.0], [19.0]]), np.full((4, 1), 10.0),
                           np.full((4, 1), 19.0), done_step=2, behind=["f3"])
@@ -440,7 +454,7 @@ def test_a_manoeuvre_that_did_not_happen_has_nan_metrics():
     ("join:leave=3", "not an option"), ("cut-in:lc=-1", "duration"),
     ("join:lc=0.05", "duration"), ("cut-out:lc=11", "duration"), ("merge:lc=3", "not an option"),
     ("cut-in:signal=-1", "signal is how long"), ("cut-in:signal=0.05", "signal is how long"),
-    ("join:signal=2", "not an option")])
+    ("cut-out:signal=2", "not an option"), ("join:signal=11", "signal is how long")])
 def test_bad_scenario_text_is_refused(text, message):
     with pytest.raises(InputError, match=message):
         parse_scenario(text)
