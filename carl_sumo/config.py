@@ -44,6 +44,8 @@ class RewardConfig:
     optionally -w_spacing·min((e/v)², 1), e = d - s0 - h_s·v (m), the spacing error of a
     constant-time-gap policy with time gap h_s = spacing_gap_s (0 = off, the paper's reward);
     optionally -w_critical for each step with 0 < TTC < 1.5 s (0 = off, the paper's reward);
+    optionally -w_amplify·max(a_i² - a_{i-1}², 0) for a follower whose acceleration exceeds its
+    predecessor's in magnitude (not the head: its predecessor is the human leader; 0 = off);
     a collision (bumper gap ≤ 0) ends the episode and adds collision_penalty.
     """
 
@@ -56,6 +58,7 @@ class RewardConfig:
     spacing_head_gap_s: float | None = None  # the head's (first follower's) h_s (s; None: h_s)
     spacing_standstill_m: float = 2.0  # its standstill gap s0 (m; Ploeg's, control/cacc.py)
     w_critical: float = 0.0        # optional -w_critical per step with 0 < TTC < 1.5 s
+    w_amplify: float = 0.0         # optional -w_amplify·max(a_i² - a_{i-1}², 0) (a in m/s²)
     headway_mu: float = 0.4226     # μ of ln(h), h in s
     headway_sigma: float = 0.4366  # σ of ln(h)
     ttc_threshold_s: float = 4.0   # TTC below which r_safe is negative (s)

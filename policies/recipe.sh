@@ -106,6 +106,12 @@ REAL_SETTLED="${REAL_HARD/--warmup 10 /--warmup 60 }"
 # REAL_SETTLED CA seeds bought 13-35 % less jerk but their kept checkpoints amplify by 0.4-2 % (‖Γ‖∞ 1.0038-1.0219), so
 # shipping chose the one seed without comfort; a per-checkpoint gate can keep an earlier checkpoint of such a seed.
 REAL_GATED="$REAL_SETTLED --gate-string-stable real"
+# real_amp_recipe: REAL_SETTLED with an amplification term in the reward (--w-amplify 1: -max(a_i^2 - a_(i-1)^2, 0) per
+# follower and step, a in m/s^2, the head excluded; the weight of the control-effort term a^2). REAL_SETTLED's comfort seeds
+# amplify at 0.07-0.22 rad/s (truck, 2 m/s: seed 4 1.0207 at 0.153 rad/s on every inner link, seed 3 1.0029 on the first),
+# where nothing in the reward saw it: the jerk and a^2 terms price a vehicle's own motion, not what it passes on. The term
+# prices what string stability bounds, each follower against its predecessor; only the CA networks hear that predecessor.
+REAL_AMP="$REAL_SETTLED --w-amplify 1"
 PRODUCT="--base ploeg-tuned:h=0.8 --shield-ttc 4 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
 
 train_seeds() {  # STEM "SEEDS" TRAIN_ARGS...

@@ -32,6 +32,8 @@ def _add_reward_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--w-critical", type=float, default=None,
                    help="penalty per follower and step with a time to collision below 1.5 s, "
                         "the metric's bar (default 0: off)")
+    p.add_argument("--w-amplify", type=float, default=None, help="weight of the optional "
+                   "amplification term -w·max(a_i² - a_(i-1)², 0), a in m/s² (default 0: off)")
     p.add_argument("--lagrange-lr", type=float, default=None,
                    help="RCPO: price close calls at a learned multiplier that rises while they "
                         "are more frequent than the base's (learn/constraint.py; default 0: off)")
@@ -67,9 +69,9 @@ _RANGES = {  # option: (lowest, highest, whether the bounds are allowed), finite
     "noise": (0.0, math.inf, True), "w_gap": (0.0, math.inf, True),
     "w_safe": (0.0, math.inf, True), "w_comfort": (0.0, math.inf, True),
     "w_accel": (0.0, math.inf, True), "w_spacing": (0.0, math.inf, True),
-    "w_critical": (0.0, math.inf, True), "lagrange_lr": (0.0, math.inf, True),
+    "w_critical": (0.0, math.inf, True), "w_amplify": (0.0, math.inf, True),
+    "lagrange_lr": (0.0, math.inf, True), "smooth_jerk": (0.0, math.inf, True),
     "spacing_gap": (0.0, 5.0, True), "spacing_head_gap": (0.0, 5.0, True),
-    "smooth_jerk": (0.0, math.inf, True),
     "smooth_accel": (0.0, math.inf, True), "adj_l2": (0.0, math.inf, True),
     "adj_max": (0.0, math.inf, False), "jerk_scale": (0.0, math.inf, False),
     "noise_correlation": (0.0, 1.0, None), "critic_burn_in": (0, math.inf, True),
@@ -299,11 +301,9 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
                         "realised acceleration (default) or its command a_base")
     p.add_argument("--imitate-updates", type=int, default=None,
                    help="behaviour-cloning gradient steps of --imitate (default 4000)")
-    p.add_argument("--init", default=None, metavar="POLICY.pt",
-                   help="warm start from a trained policy of the same configuration: its actor "
-                        "drives from the first step and is the first candidate, kept unless a "
-                        "trained checkpoint validates better; the critics start fresh (give "
-                        "--critic-burn-in)")
+    p.add_argument("--init", default=None, metavar="POLICY.pt", help="warm start from a trained "
+                   "policy of the same configuration: its actor drives from the first step and is "
+                   "the first candidate; the critics start fresh (give --critic-burn-in)")
     p.add_argument("--base", default=None,
                    help="base model under the learned adjustment: idm (default, the paper's) or "
                         "a classical CACC such as ploeg-tuned:h=0.8 (the actor starts at a_adj = 0)")
@@ -313,18 +313,18 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
 
 
 TRAIN_OVERRIDES = ("select", "gate_string_stable", "w_gap", "w_safe", "w_comfort", "w_accel",
-                   "w_spacing", "w_critical", "lagrange_lr", "spacing_gap", "spacing_head_gap",
-                   "jerk_scale", "message_dim", "hidden", "actor_lr", "critic_lr", "tau", "noise",
-                   "noise_correlation", "smooth_jerk", "smooth_accel", "adj_l2", "eval_events",
-                   "val_seed", "val_source", "val_events", "oversample", "oversample_times",
-                   "gamma", "adj_max", "base", "critic_burn_in", "braking_events", "update_every",
-                   "scale_rates", "lr_decay", "batch_size",
-                   "imitate", "imitate_target", "imitate_updates", "init", "observe_ahead",
-                   "shield_ttc", "comm_fallback", "comm_randomize", "randomize_sensors",
-                   "val_impaired",
-                   "comm_delay", "comm_loss", "comm_burst", "comm_timeout", "comm_fade", "warmup",
-                   "sensor_noise", "sensor_filter", "impairment_seed", "plant", "fleet",
-                   "vehicle_lag", "actuation_delay", "plant_randomize", "comm_off")
+                   "w_spacing", "w_critical", "w_amplify", "lagrange_lr", "spacing_gap",
+                   "spacing_head_gap", "jerk_scale", "message_dim", "hidden", "actor_lr",
+                   "critic_lr", "tau", "noise", "noise_correlation", "smooth_jerk",
+                   "smooth_accel", "adj_l2", "eval_events", "val_seed", "val_source",
+                   "val_events", "oversample", "oversample_times", "gamma", "adj_max", "base",
+                   "critic_burn_in", "braking_events", "update_every", "scale_rates", "lr_decay",
+                   "batch_size", "imitate", "imitate_target", "imitate_updates", "init",
+                   "observe_ahead", "shield_ttc", "comm_fallback", "comm_randomize",
+                   "randomize_sensors", "val_impaired", "comm_delay", "comm_loss",
+                   "comm_burst", "comm_timeout", "comm_fade", "warmup", "sensor_noise",
+                   "sensor_filter", "impairment_seed", "plant", "fleet", "vehicle_lag",
+                   "actuation_delay", "plant_randomize", "comm_off")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 

@@ -15,6 +15,10 @@ It holds a learned term on a CACC base at a chosen time gap instead of the human
 So is the optional critical-TTC term -w_critical per follower and step with 0 < TTC < 1.5 s (off
 by default): the samples that the metric ``ttc_lt_1_5s_count`` counts (sim/metrics.py), priced
 in the reward where r_safe's log(TTC/4 s) is only -0.98 at 1.5 s.
+So is the optional amplification term -w_amplify·max(a_i² - a_{i-1}², 0) (off by default): a
+follower that accelerates or brakes harder than its predecessor (a in m/s², the realised ones)
+passes a disturbance on larger, the per-step form of string stability's ‖a_i‖ ≤ ‖a_{i-1}‖. The
+head (row 0) has none: its predecessor is the human leader, whose acceleration it does not hear.
 Compiled with numba because it runs every 0.1 s step.
 """
 
@@ -43,7 +47,7 @@ def _headway_reward(h: float, mu: float, sigma: float) -> float:
 @njit(cache=True)
 def _platoon_reward(obs, prev_acc, w_gap, w_safe, w_comfort, w_accel, w_spacing, gap_s,
                     head_gap_s, standstill_m, mu, sigma, ttc_max, jerk_scale, penalty, dt,
-                    w_critical, critical_ttc):
+                    w_critical, critical_ttc, w_amplify):
     n = obs.shape[0]
     reward = np.empty(n)
     collided = np.zeros(n, dtype=np.bool_)
@@ -62,6 +66,10 @@ def _platoon_reward(obs, prev_acc, w_gap, w_safe, w_comfort, w_accel, w_spacing,
             h_s = head_gap_s if i == 0 else gap_s
             gap_error_s = (d - standstill_m - h_s * v) / max(v, 1.0)
             r -= w_spacing * min(gap_error_s * gap_error_s, 1.0)
+        if w_amplify > 0.0 and i > 0:
+            excess = a * a - obs[i - 1, 1] * obs[i - 1, 1]
+            if excess > 0.0:
+                r -= w_amplify * excess
         if d <= 0.0:
             collided[i] = True
             r += penalty
@@ -75,7 +83,7 @@ def _params(cfg: RewardConfig) -> tuple[float, ...]:
     return (cfg.w_gap, cfg.w_safe, cfg.w_comfort, cfg.w_accel, cfg.w_spacing, cfg.spacing_gap_s,
             head_gap, cfg.spacing_standstill_m, cfg.headway_mu, cfg.headway_sigma,
             cfg.ttc_threshold_s, cfg.jerk_scale_mps3, cfg.collision_penalty, DT_S,
-            cfg.w_critical, CRITICAL_TTC_S)
+            cfg.w_critical, CRITICAL_TTC_S, cfg.w_amplify)
 
 
 def critical_cost(obs: np.ndarray) -> np.ndarray:

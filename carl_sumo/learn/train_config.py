@@ -57,6 +57,7 @@ class TrainConfig:
     spacing_gap: float = REWARD.spacing_gap_s
     spacing_head_gap: float | None = REWARD.spacing_head_gap_s  # the head's h_s (s; None: h_s)
     w_critical: float = REWARD.w_critical  # penalty per step with 0 < TTC < 1.5 s (reward.py)
+    w_amplify: float = REWARD.w_amplify    # amplification term's weight (reward.py)
     lagrange_lr: float = 0.0               # RCPO multiplier step on the close-call cost (0: off)
     jerk_scale: float = REWARD.jerk_scale_mps3
     message_dim: int = AgentConfig.message_dim            # V2V message width (CA models)
@@ -130,7 +131,8 @@ class TrainConfig:
         return replace(REWARD, w_gap=self.w_gap, w_safe=self.w_safe, w_comfort=self.w_comfort,
                        w_accel=self.w_accel, w_spacing=self.w_spacing,
                        spacing_gap_s=self.spacing_gap, spacing_head_gap_s=self.spacing_head_gap,
-                       w_critical=self.w_critical, jerk_scale_mps3=self.jerk_scale)
+                       w_critical=self.w_critical, w_amplify=self.w_amplify,
+                       jerk_scale_mps3=self.jerk_scale)
 
 
 def split_validation(events: Sequence[Event], k: int, seed: int, source: str | None = None

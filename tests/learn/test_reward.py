@@ -75,3 +75,16 @@ def test_optional_critical_ttc_term_counts_the_metrics_samples():
     plain, _ = platoon_reward(obs, obs[:, 1].copy())
     critical, _ = platoon_reward(obs, obs[:, 1].copy(), cfg)
     assert np.allclose(plain - critical, [3.0, 0.0, 0.0, 0.0, 0.0])
+
+
+def test_optional_amplification_term_prices_a_follower_harder_than_its_predecessor():
+    from dataclasses import replace
+
+    cfg = replace(REWARD, w_amplify=2.0)
+    # a: head -1.5 (no term: its predecessor is the human leader), then 1.0 (weaker than -1.5:
+    # none), -2.0 (harder than 1.0: 2·(4 - 1) = 6), -2.0 (as hard: none), 0.5 (none)
+    a = np.array([-1.5, 1.0, -2.0, -2.0, 0.5])
+    obs = np.column_stack([np.full(5, 20.0), a, np.full(5, 30.0), np.zeros(5)])
+    plain, _ = platoon_reward(obs, a.copy())
+    amplify, _ = platoon_reward(obs, a.copy(), cfg)
+    assert np.allclose(plain - amplify, [0.0, 0.0, 6.0, 0.0, 0.0])
