@@ -42,8 +42,10 @@ not react.
 Safe speed (``gs=B`` in a name): a vehicle that hears no V2V message also keeps at most Gipps'
 safe speed v_safe for the vehicle ahead, the speed from which it stops behind it when both brake
 at B m/s² after its 0.5 s of lag, applying at most (v_safe - v)/0.5 s. ``gn=B`` does the same
-only for an armed vehicle: one whose vehicle ahead is new (behind a human who just cut in, a
-joiner) until it has room (carl_sumo.sim.scenario_sim), never for a platoon's head.
+only for an armed vehicle that hears no message: one whose vehicle ahead is new and silent (a
+human who just cut in or signals to, a joiner that announces itself before it is heard) until it
+has room (carl_sumo.sim.scenario_sim), never for a platoon's head. Behind a joiner it hears, the
+member is left to its law and its reaction layer.
 
 As the base of a learned controller (``carl-sumo train --base ploeg-tuned:h=1``), a learned term
 a_adj,i (m/s²) enters the law as one more feed-forward input beside the predecessor's:
@@ -110,7 +112,7 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
     ``safe_b`` (m/s²; 0: off): such a vehicle applies at most (v_safe - v)/lag, v_safe the speed
     from which it stops behind the vehicle ahead when both brake at safe_b after its lag
     (Gipps), and ``brake`` holds that too; ``safe_armed_only`` (``gn=B``): only an armed vehicle
-    does."""
+    that hears no message does."""
     n = obs.shape[0]
     out = np.empty(n)
     u_pred = u_lead
@@ -140,7 +142,8 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
                 else np.inf
             out[i] = max(min(out[i], -need), acc_min, u_min[i])  # at most its own braking
             brake[i] = out[i]  # its follower hears the reaction's braking
-        if (armed[i] or alone and not safe_armed_only) and safe_b > 0.0:
+        guarded = alone and armed[i] if safe_armed_only else armed[i] or alone
+        if guarded and safe_b > 0.0:
             v, v_ahead = obs[i, 0], max(obs[i, 0] + obs[i, 3], 0.0)
             bl = safe_b * lag
             v_safe = -bl + math.sqrt(bl * bl + v_ahead * v_ahead
