@@ -40,6 +40,8 @@ DESIGNS = (  # (label, CA file stem, CA-off file stem or None)
      "learned_test_ca_td3_real_gated_10", "learned_test_ca_td3_real_gated_nocomm_10"),
     ("`REAL_AMP`: `REAL_SETTLED` + an amplification term in the reward (`--w-amplify 1`)",
      "learned_test_ca_td3_real_amp_10", "learned_test_ca_td3_real_amp_nocomm_10"),
+    ("`REAL_HP`: `REAL_SETTLED` with the washout at 1 s (`wo=1`)",
+     "learned_test_ca_td3_real_hp_10", "learned_test_ca_td3_real_hp_nocomm_10"),
     ("`REAL_ACC_SPACING`: radar-only ACC base, CA copies the CACC",
      "learned_test_ca_td3_real_accsp_10", "learned_test_ca_td3_real_accsp_nocomm_10"),
     ("`REAL_ACC_CMD`: the same, copying the predecessor's command",

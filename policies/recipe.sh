@@ -112,6 +112,11 @@ REAL_GATED="$REAL_SETTLED --gate-string-stable real"
 # where nothing in the reward saw it: the jerk and a^2 terms price a vehicle's own motion, not what it passes on. The term
 # prices what string stability bounds, each follower against its predecessor; only the CA networks hear that predecessor.
 REAL_AMP="$REAL_SETTLED --w-amplify 1"
+# real_hp_recipe: REAL_SETTLED with the washout's corner moved above the band where learned terms amplify (wo=1 in place of
+# wo=5: a_adj less its running mean over 1 s, a first-order high-pass at 1 rad/s, in place of 0.2 rad/s). Every learned
+# CA seed of REAL_SETTLED and REAL_AMP that bought more than 5 % jerk amplifies (1.0038-1.0219), at 0.07-0.22 rad/s, where
+# wo=5 passes 33-74 % of a_adj and wo=1 7-22 %; the comfort a high-pass keeps is the one above 1 rad/s.
+REAL_HP="${REAL_SETTLED/:rb=1:wo=5 /:rb=1:wo=1 }"
 PRODUCT="--base ploeg-tuned:h=0.8 --shield-ttc 4 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
 
 train_seeds() {  # STEM "SEEDS" TRAIN_ARGS...
