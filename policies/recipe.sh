@@ -117,6 +117,10 @@ REAL_AMP="$REAL_SETTLED --w-amplify 1"
 # CA seed of REAL_SETTLED and REAL_AMP that bought more than 5 % jerk amplifies (1.0038-1.0219), at 0.07-0.22 rad/s, where
 # wo=5 passes 33-74 % of a_adj and wo=1 7-22 %; the comfort a high-pass keeps is the one above 1 rad/s.
 REAL_HP="${REAL_SETTLED/:rb=1:wo=5 /:rb=1:wo=1 }"
+# real_gn6_recipe: REAL_GAP06 (the product's recipe) on its base with Gipps' safe speed for a vehicle that has a new, silent
+# vehicle ahead (gn=6, docs/vehicles.md). gn never acts in a plain run, so training is REAL_GAP06's step for step; in scenario
+# runs it takes the unannounced cut-ins where the product collides and the CACC at 0.8 s does not from 3 to 1 (wait=0).
+REAL_GN6="${REAL_GAP06/:ttc=2:rb=1 /:ttc=2:rb=1:gn=6 }"
 PRODUCT="--base ploeg-tuned:h=0.8 --shield-ttc 4 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
 
 train_seeds() {  # STEM "SEEDS" TRAIN_ARGS...
