@@ -46,9 +46,27 @@ TEMP_SUFFIX = ".tmp"
 
 def atomic_output(path: Path, suffix: str = "") -> Path:
     """The temporary path beside ``path`` that :func:`atomic_path` writes to (its folder is
-    created); ``suffix`` after it for writers that read the format from the name."""
+    created); ``suffix`` after it for writers that read the format from the name. Temporary
+    files of the same target left by a process that no longer runs (killed with SIGKILL, which
+    no handler sees) are removed first."""
     path.parent.mkdir(parents=True, exist_ok=True)
+    _remove_stale(path, suffix)
     return path.with_name(f".{path.name}.{os.getpid()}{TEMP_SUFFIX}{suffix}")
+
+
+def _remove_stale(path: Path, suffix: str) -> None:
+    """Remove ``.NAME.PID.tmp`` files beside ``path`` whose process PID is gone."""
+    prefix, end = f".{path.name}.", f"{TEMP_SUFFIX}{suffix}"
+    for tmp in path.parent.glob(f"{prefix}*{end}"):
+        pid_text = tmp.name[len(prefix):len(tmp.name) - len(end)]
+        if not pid_text.isdigit() or int(pid_text) == os.getpid():
+            continue
+        try:
+            os.kill(int(pid_text), 0)
+        except ProcessLookupError:
+            _remove(tmp)
+        except OSError:  # it runs under another user: not ours to remove
+            pass
 
 
 def check_target(path: str | Path, option: str = "") -> None:

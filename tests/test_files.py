@@ -26,6 +26,26 @@ def test_write_text_atomic_creates_folders_and_leaves_no_temporary(tmp_path):
     assert tmp.parent == path.parent and tmp.name.startswith(".out.txt.") and not tmp.exists()
 
 
+def test_a_temporary_left_by_a_killed_writer_goes_with_the_next_write(tmp_path):
+    """SIGKILL leaves a writer's ``.NAME.PID.tmp`` behind; the next write of the same file
+    removes it, and leaves a running process's own temporary alone."""
+    import os
+    import subprocess
+    import sys
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)
+    path = tmp_path / "p.ckpt"
+    stale = tmp_path / f".p.ckpt.{int(dead.stdout)}.tmp"
+    alive = tmp_path / f".p.ckpt.{os.getppid()}.tmp"
+    other = tmp_path / f".q.ckpt.{int(dead.stdout)}.tmp"
+    for f in (stale, alive, other):
+        f.write_text("half")
+    write_text_atomic(path, "whole\n")
+    assert not stale.exists() and alive.exists() and other.exists()
+    assert path.read_text() == "whole\n"
+
+
 def test_every_writer_imports_the_file_helpers_from_files():
     import carl_sumo.sim.sumo as sumo
 
