@@ -72,8 +72,8 @@ class ScenarioSim(PlatoonSim):
     lane, front first), ``order`` (every tracked vehicle in the platoon lane, front first),
     ``ahead[vid]`` = (predecessor ID or None, bumper gap m), ``speeds`` / ``accels`` (m/s, m/s²),
     ``done_step`` (the step the manoeuvre was complete, None before), ``start_step`` (with
-    ``signal=S``: the human's first signal step, when the follower behind first sees him; None
-    without), ``joining`` (a joiner
+    ``signal=S``: the entering vehicle's first signal step, when the member behind first sees
+    it; None without), ``joining`` (a joiner
     that has no room yet, module docstring), ``new_ahead`` (a member a human or a joiner just
     entered ahead of, until it has room: :attr:`armed`), ``behind`` (the vehicles
     behind the manoeuvre, from then on) and, on the real plant, ``limits[vid]`` = (a_max, b_max)
@@ -234,7 +234,7 @@ class ScenarioSim(PlatoonSim):
         it has room. The joiner stops joining, and such a member being new, once it has room
         (:data:`JOIN_LINK_GAP_S`) or, for the member, once the entering vehicle is no longer
         ahead of it."""
-        entering = self.entering if self.manoeuvre.kind in ENTERING_ID else None
+        entering = self.entering  # None for a cut-out or a merge
         for vid in self.members:
             if entering is not None and vid != entering and self.ahead[vid][0] == entering \
                     and vid not in self._met_entering:
