@@ -290,12 +290,12 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
                         "(default 0: off)")
     _add_robust_training_options(p)
     add_warmup(p)
-    p.add_argument("--imitate", default=None, metavar="PLOEG",
-                   help="warm start: the platoons drive with this Ploeg CACC plus exploration noise "
-                        "for --learning-starts steps, then the actor is fitted to it before RL, "
-                        "e.g. ploeg:h=1.1:kp=2.278:kd=10.6313 on the IDM base, or on an ACC base "
-                        "the CACC with its gains (--base acc:h=0.8:kp=0.3:kd=1.5 --imitate "
-                        "ploeg:h=0.8:kp=0.3:kd=1.5)")
+    p.add_argument("--imitate", default=None, metavar="TEACHER",
+                   help="warm start: the platoons drive with this teacher plus exploration noise for "
+                        "--learning-starts steps, then the actor is fitted to it before RL: a Ploeg "
+                        "CACC on the IDM base, on an ACC base the CACC with its gains (--base "
+                        "acc:h=0.8:kp=0.3:kd=1.5 --imitate ploeg:h=0.8:kp=0.3:kd=1.5), or on a CACC "
+                        "base two-ahead:c=C (C of the command two ahead fed forward, docs/training.md)")
     p.add_argument("--imitate-target", choices=("realised", "command"), default=None,
                    help="on an ACC base, what the copied feed-forward carries: the predecessor's "
                         "realised acceleration (default) or its command a_base")

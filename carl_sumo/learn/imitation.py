@@ -34,6 +34,17 @@ teacher, an actor that hears nothing (CA-off, TD3) only its mean given o_i.
 a_base, the fifth column of o), which its actuator follows with its lag, as the CACC's own message
 does; the default ``realised`` is the acceleration it achieved.
 
+**Two ahead, on a CACC base** (``--imitate two-ahead:c=C``, 0 < C ≤ 1). The base already feeds
+forward its predecessor's command; the target adds the command of the vehicle two ahead, which
+leads it by that predecessor's response:
+
+    target a_adj,i = C·(a_base,i-2 - a_base,i-1)   (m/s², 0 for the first two followers)
+
+read from the fifth column of o (each vehicle's base command), so the CACC's feed-forward becomes
+(1 - C)·u_{i-1} + C·u_{i-2}. Only the CA messages carry a_base,i-2 to vehicle i (two hops):
+CA-off and TD3 see o_i only. ``benchmarks/two_ahead.py`` measures the law itself with the two
+hops' V2V delays, on training events and in the frequency test.
+
 **Fit.** At ``--learning-starts`` the actor is fitted to the targets by mean squared error
 (:meth:`carl_sumo.learn.agents.Agent.imitate`); its target network is set to it; the cloned actor is
 validated and kept as the first candidate, and RL (with the critics' burn-in, if given) goes on
@@ -41,6 +52,9 @@ from it.
 """
 
 from __future__ import annotations
+
+import math
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -54,8 +68,39 @@ TARGET_FRACTION = 0.95
 """Targets are clipped to this fraction of the actor's bound: tanh reaches ±1 only at ±∞."""
 
 
-def teacher(name: str) -> PloegController:
-    """The controller a run imitates (a Ploeg name); InputError for anything else."""
+@dataclass(frozen=True)
+class TwoAhead:
+    """The two-ahead teacher on a CACC base (the module docstring): weight C (-) of the command
+    of the vehicle two ahead in the feed-forward."""
+
+    weight: float
+
+
+TWO_AHEAD = "two-ahead"
+
+
+def parse_two_ahead(name: str) -> TwoAhead | None:
+    """``two-ahead:c=C`` as a :class:`TwoAhead` (None for another name); InputError for a bad C."""
+    kind, _, rest = name.partition(":")
+    if kind != TWO_AHEAD:
+        return None
+    key, _, value = rest.partition("=")
+    try:
+        weight = float(value) if key == "c" else math.nan
+    except ValueError:
+        weight = math.nan
+    if not 0.0 < weight <= 1.0:
+        raise InputError(f"--imitate {name}: give two-ahead:c=C with a weight C in (0, 1], "
+                         "e.g. two-ahead:c=0.3")
+    return TwoAhead(weight)
+
+
+def teacher(name: str) -> PloegController | TwoAhead:
+    """The controller a run imitates (a Ploeg name, or ``two-ahead:c=C``); InputError for
+    anything else."""
+    two = parse_two_ahead(name)
+    if two is not None:
+        return two
     if not is_ploeg_name(name):
         raise InputError(f"--imitate {name!r}: name a Ploeg CACC to imitate, e.g. "
                          "ploeg:h=1.1:kp=2.278:kd=10.6313 or ploeg-tuned:h=1")
@@ -64,10 +109,17 @@ def teacher(name: str) -> PloegController:
 
 def check_teacher_base(name: str, base: str) -> None:
     """InputError unless ``name`` can be imitated on ``base``: any Ploeg CACC on the IDM base, or
-    on an ACC base the Ploeg CACC with the ACC's own gains (the module docstring)."""
+    on an ACC base the Ploeg CACC with the ACC's own gains, and ``two-ahead`` on a CACC base
+    (the module docstring)."""
+    from carl_sumo.control.cacc import parse_ploeg
+
+    if parse_two_ahead(name) is not None:
+        if not is_ploeg_name(base) or not parse_ploeg(base).feed_forward:
+            raise InputError(f"--imitate {name} on --base {base}: two-ahead adds to a CACC's "
+                             "feed-forward; give a CACC base, e.g. --base ploeg:h=0.6:kp=0.0445:kd=1")
+        return
     if base == "idm":
         return
-    from carl_sumo.control.cacc import parse_ploeg
 
     law, acc = parse_ploeg(name), parse_ploeg(base) if is_ploeg_name(base) else None
     if acc is None or acc.feed_forward or not law.feed_forward or \
@@ -96,6 +148,16 @@ def predecessor_adjustment(obs: np.ndarray, adj_max: float, target: str = "reali
     target_a[..., 1:] = obs[..., :-1, column]
     bound = TARGET_FRACTION * min(adj_max, BOUNDS.adj_max_mps2)
     return np.clip(target_a, -bound, bound)
+
+
+def two_ahead_adjustment(obs: np.ndarray, weight: float, adj_max: float) -> np.ndarray:
+    """The two-ahead target a_adj (m/s², shape (..., n)): weight·(a_base,i-2 - a_base,i-1) from
+    o's fifth column, 0 for the first two followers, clipped to ``TARGET_FRACTION``·``adj_max``."""
+    obs = np.asarray(obs, dtype=np.float64)
+    target = np.zeros(obs.shape[:-1])
+    target[..., 2:] = weight * (obs[..., :-2, 4] - obs[..., 1:-1, 4])
+    bound = TARGET_FRACTION * min(adj_max, BOUNDS.adj_max_mps2)
+    return np.clip(target, -bound, bound)
 
 
 def teacher_acceleration(controller: PloegController, obs: np.ndarray,
@@ -128,17 +190,19 @@ def teacher_adjustment(controller: PloegController, obs: np.ndarray, adj_max: fl
     return np.clip(teacher_acceleration(controller, obs, with_ahead) - a_idm, -bound, bound)
 
 
-def target_adjustment(controller: PloegController, obs: np.ndarray, adj_max: float,
+def target_adjustment(controller: PloegController | TwoAhead, obs: np.ndarray, adj_max: float,
                       with_ahead: bool = False, base: str = "idm", target: str = "realised"
                       ) -> np.ndarray:
-    """The teacher's target a_adj (m/s², shape (..., n)) on ``base``: IDM or an ACC (``target``:
-    see :data:`IMITATE_TARGETS`)."""
+    """The teacher's target a_adj (m/s², shape (..., n)) on ``base``: IDM, an ACC (``target``:
+    see :data:`IMITATE_TARGETS`) or, for :class:`TwoAhead`, a CACC."""
+    if isinstance(controller, TwoAhead):
+        return two_ahead_adjustment(obs, controller.weight, adj_max)
     if base != "idm":
         return predecessor_adjustment(obs, adj_max, target)
     return teacher_adjustment(controller, obs, adj_max, with_ahead)
 
 
-def dataset(controller: PloegController, obs: torch.Tensor, adj_max: float,
+def dataset(controller: PloegController | TwoAhead, obs: torch.Tensor, adj_max: float,
             with_ahead: bool = False, base: str = "idm", target: str = "realised"
             ) -> tuple[torch.Tensor, torch.Tensor]:
     """(observations, target a_adj) of stored platoon observations (batch, n, 4 or 5)."""

@@ -309,6 +309,10 @@ def test_a_shipped_network_is_found_by_name_from_any_folder(tmp_path, monkeypatc
     (["--vehicles", "100000"], "--vehicles 100000 is more than"),
     (["--steps", "500", "--learning-starts", "1000"], "leaves no training step"),
     (["--imitate-target", "command"], "--imitate-target is for --imitate on an ACC base"),
+    (["--imitate", "two-ahead:c=1.5", "--base", "ploeg:h=0.6"], "a weight C in (0, 1]"),
+    (["--imitate", "two-ahead:c=0.3"], "two-ahead adds to a CACC's feed-forward"),
+    (["--imitate", "two-ahead:c=0.3", "--base", "acc:h=0.8:kp=0.1:kd=1"],
+     "two-ahead adds to a CACC's feed-forward"),
 ])
 def test_bad_learning_options_are_one_line_and_exit_2(capsys, tmp_path, options, message):
     code, _, err = run(capsys, "train", "--out", str(tmp_path / "x.pt"), *options)

@@ -13,8 +13,8 @@ from carl_sumo.control.controllers import AheadAcceleration, adjustment_bounds, 
     idm_acceleration
 from carl_sumo.learn.env import PlatoonEnv
 from carl_sumo.errors import InputError
-from carl_sumo.learn.imitation import check_teacher_base, predecessor_adjustment, teacher, \
-    teacher_acceleration, teacher_adjustment
+from carl_sumo.learn.imitation import TwoAhead, check_teacher_base, predecessor_adjustment, \
+    target_adjustment, teacher, teacher_acceleration, teacher_adjustment
 from carl_sumo.learn.policy import load_controller, load_policy
 from carl_sumo.learn.train import TrainConfig, train
 
@@ -165,3 +165,42 @@ def test_on_an_acc_base_the_command_target_feeds_forward_the_predecessors_a_base
 def test_an_unknown_imitation_target_is_refused():
     with pytest.raises(InputError, match="imitation target 'comand'"):
         predecessor_adjustment(np.zeros((1, 3, 5)), adj_max=2.0, target="comand")
+
+
+def test_the_two_ahead_target_feeds_forward_the_command_two_ahead_less_the_predecessors():
+    """--imitate two-ahead:c=C: follower i's target is C·(a_base,i-2 - a_base,i-1) from o's fifth
+    column, 0 for the first two followers, clipped to 0.95·adj_max; numbers by hand."""
+    two = teacher("two-ahead:c=0.5")
+    assert two == TwoAhead(0.5)
+    check_teacher_base("two-ahead:c=0.5", "ploeg:h=0.6:kp=0.0445:kd=1:wo=5")  # accepted
+    obs = np.zeros((2, 4, 5))
+    obs[0, :, 4] = [1.0, 0.4, -0.2, 0.1]
+    obs[1, :, 4] = [0.0, 3.0, -3.0, 0.0]
+    target = target_adjustment(two, obs, adj_max=1.0, base="ploeg:h=0.6")
+    np.testing.assert_allclose(target[0], [0.0, 0.0, 0.5 * (1.0 - 0.4), 0.5 * (0.4 + 0.2)])
+    np.testing.assert_allclose(target[1], [0.0, 0.0, -0.95, 0.95])  # -0.5·3 and 0.5·6: clipped
+
+
+def test_a_two_ahead_run_copies_the_target_with_its_messages(tmp_path):
+    """--imitate two-ahead on a CACC base end to end: the cloned CA actor's a_adj follows the
+    target (which needs the command two vehicles ahead) on a braking platoon."""
+    from carl_sumo.learn.policy import load_controller
+
+    base = "ploeg:h=0.8:kp=0.2:kd=1"
+    cfg = TrainConfig(algo="ca-td3", base=base, imitate="two-ahead:c=0.5", imitate_updates=800,
+                      n_vehicles=4, steps=300, learning_starts=250, eval_every=300, eval_events=1,
+                      adj_max=1.0, net=str(NET), out=str(tmp_path / "two.pt"))
+    train(cfg, [braking_event(v0=12.0, n=150), braking_event(v0=14.0, n=150, event_id="b2")],
+          progress=False)
+    agent, _ = load_policy(tmp_path / "two.pt")
+    env = PlatoonEnv([braking_event(v0=13.0, n=150)], 4, NET, base=base,
+                     bounds=adjustment_bounds(1.0))
+    obs, errors, targets = env.reset_array(), [], []
+    for _ in range(120):
+        action = agent.act(obs)
+        target = target_adjustment(TwoAhead(0.5), obs, 1.0)
+        errors.append(action - target), targets.append(target)
+        obs = env.step_array(action)[0]
+    errors, targets = np.array(errors), np.array(targets)
+    assert np.abs(targets[:, 2:]).max() > 0.05  # there is something to copy
+    assert np.sqrt(np.mean(errors ** 2)) < 0.5 * np.sqrt(np.mean(targets ** 2))
