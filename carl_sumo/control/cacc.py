@@ -42,10 +42,11 @@ not react.
 Safe speed (``gs=B`` in a name): a vehicle that hears no V2V message also keeps at most Gipps'
 safe speed v_safe for the vehicle ahead, the speed from which it stops behind it when both brake
 at B m/s² after its 0.5 s of lag, applying at most (v_safe - v)/0.5 s. ``gn=B`` does the same
-only for an armed vehicle that hears no message: one whose vehicle ahead is new and silent (a
-human who just cut in or signals to, a joiner that announces itself before it is heard) until it
-has room (carl_sumo.sim.scenario_sim), never for a platoon's head. Behind a joiner it hears, the
-member is left to its law and its reaction layer.
+only for an armed vehicle at the front of its V2V chain: one whose vehicle ahead is new and is no
+member it hears (a human who just cut in or signals to, a joiner that announces itself before it
+is in the lane) until it has room (carl_sumo.sim.scenario_sim), never for a platoon's head. Behind
+a joiner in its chain the member is left to its law and its reaction layer, also in the steps
+before the joiner's first message arrives (the V2V delay).
 
 As the base of a learned controller (``carl-sumo train --base ploeg-tuned:h=1``), a learned term
 a_adj,i (m/s²) enters the law as one more feed-forward input beside the predecessor's:
@@ -112,7 +113,7 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
     ``safe_b`` (m/s²; 0: off): such a vehicle applies at most (v_safe - v)/lag, v_safe the speed
     from which it stops behind the vehicle ahead when both brake at safe_b after its lag
     (Gipps), and ``brake`` holds that too; ``safe_armed_only`` (``gn=B``): only an armed vehicle
-    that hears no message does."""
+    at the front of its chain (i = 0: the vehicle ahead is no member it hears, a human) does."""
     n = obs.shape[0]
     out = np.empty(n)
     u_pred = u_lead
@@ -142,7 +143,9 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
                 else np.inf
             out[i] = max(min(out[i], -need), acc_min, u_min[i])  # at most its own braking
             brake[i] = out[i]  # its follower hears the reaction's braking
-        guarded = alone and armed[i] if safe_armed_only else armed[i] or alone
+        # gn: only a chain's first vehicle, whose vehicle ahead is not a member it hears (a
+        # human); behind a member of its chain a message is on its way (the V2V delay)
+        guarded = i == 0 and armed[i] if safe_armed_only else armed[i] or alone
         if guarded and safe_b > 0.0:
             v, v_ahead = obs[i, 0], max(obs[i, 0] + obs[i, 3], 0.0)
             bl = safe_b * lag

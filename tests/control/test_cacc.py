@@ -375,10 +375,11 @@ def test_gs_keeps_gipps_safe_speed_behind_a_vehicle_without_a_message():
 
 
 def test_gn_keeps_the_safe_speed_only_for_an_armed_vehicle():
-    """``gn=B``: the bound of ``gs=B`` for an armed vehicle that hears no message only (a new,
-    silent vehicle ahead: a human who cut in); a head, a vehicle without a message that is not
-    armed, and an armed vehicle that hears its predecessor (behind a joiner) are left to the law.
-    gs and gn together: one line."""
+    """``gn=B``: the bound of ``gs=B`` for an armed vehicle at the front of its chain only (its
+    new vehicle ahead is no member it hears: a human who cut in); a vehicle without a message
+    that is not armed, an armed vehicle that hears its predecessor, and an armed one in a chain
+    whose predecessor's first message has not arrived yet (behind a joiner, the V2V delay) are
+    left to the law. gs and gn together: one line."""
     params = parse_ploeg("ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:gn=6")
     assert params.safe_new_only and params.name().endswith(":ha=1.4:gn=6")
     with pytest.raises(InputError, match="not both"):
@@ -392,11 +393,12 @@ def test_gn_keeps_the_safe_speed_only_for_an_armed_vehicle():
         params.name().replace(":gn=", ":gs="), "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4", obs, mode)
     for c in (law, plain):
         c.reset(3)
-    armed = np.array([False, True, True])
+    armed = np.array([True, True, True])
     a = law.step(obs, law.u, 0.0, pred_mode=mode, pred_held=np.zeros(3), armed=armed)
     a_plain = plain.step(obs, plain.u, 0.0, pred_mode=mode, pred_held=np.zeros(3), armed=armed)
-    assert a[0] == a_plain[0] and a[2] == a_gs[2] < a_plain[2]
+    assert a[0] == a_gs[0] < a_plain[0]  # the chain's front, armed: bounded
     assert a[1] == a_plain[1] > a_gs[2]  # armed with a message: the law's (gs: bounded)
+    assert a[2] == a_plain[2] > a_gs[2]  # armed, its message on the way: the law's (gs: bounded)
 
 
 def test_an_armed_vehicle_reacts_although_it_hears_a_message():
