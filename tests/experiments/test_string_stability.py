@@ -144,3 +144,23 @@ def test_the_gate_keeps_the_best_scoring_string_stable_checkpoint(tmp_path, caps
     assert all(torch.equal(payload["actor"][k], chosen[k]) for k in chosen)
     with pytest.raises(InputError, match="no candidates"):
         keep_string_stable(tmp_path / "other.pt", "reward", "ideal")
+
+
+def test_shipping_checks_between_the_gates_frequencies():
+    """``REAL_TWO`` seed 2 passed the per-checkpoint gate's 8 frequencies, but trucks at 0.5 m/s
+    amplify at 0.863 rad/s, a shipping frequency between the gate's 0.517 and 0.928 rad/s: the
+    finer grid of ``rank --string-stable`` sees it, the gate's neighbours do not."""
+    from dataclasses import replace
+
+    from carl_sumo.control.channel import plant_impairments
+    from carl_sumo.experiments.string_stability import SELECTION_OMEGAS, SHIP_OMEGAS
+
+    policy = str(Path(__file__).resolve().parents[2] / "policies/seeds/ca_td3_real_two_10_seed2.pt")
+    between = [w for w in SHIP_OMEGAS if 0.86 < w < 0.87]
+    neighbours = [w for w in SELECTION_OMEGAS if 0.5 < w < 1.0]
+    assert len(between) == 1 and len(neighbours) == 2
+    real = plant_impairments("real")
+    trucks = replace(real, plant=real.plant.worst_case("truck"))
+    gains = measure(policy, [*neighbours, between[0]], 5, SineTest(amplitude_mps=0.5), trucks,
+                    str(NET))["gain"]
+    assert max(gains[:2]) <= 1.0 < gains[2]
