@@ -272,7 +272,7 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
                         "base, speed at least the base's) or reward")
     p.add_argument("--gate-string-stable", default=None, choices=("ideal", "real"),
                    help="keep every validated checkpoint in <out>.candidates/; --out is then "
-                        "the best-scoring one string stable on this plant (rank --string-stable)")
+                        "the best-scoring one string stable on this plant (8 frequencies)")
     p.add_argument("--braking-events", type=int, default=None, metavar="N",
                    help="add N synthetic hard-braking leaders (15-30 m/s, -3 to -6 m/s²) to the "
                         "training events, a quarter of them to the validation events (default 0)")
