@@ -132,6 +132,10 @@ REAL_TWO="$REAL_GATED --imitate two-ahead:c=0.3"
 # real_two_gn6_recipe: REAL_TWO on its base with gn=6, as REAL_GN6 is REAL_GAP06's: gn acts only in manoeuvres (a member
 # with a new vehicle ahead that it does not hear as a member), never in training, so the runs are REAL_TWO's bit for bit.
 REAL_TWO_GN6="${REAL_TWO/:rb=1:wo=5 /:rb=1:wo=5:gn=6 }"
+# real_two_open_recipe: REAL_TWO_GN6 on its base with op=2: the member behind a new vehicle it does not hear (a human who
+# cuts in or signals to, a joiner that announces itself) opens its gap to 0.8 s braking at up to 2 m/s^2. Like gn it acts
+# only in manoeuvres, never in training, so the runs are REAL_TWO's bit for bit.
+REAL_TWO_OPEN="${REAL_TWO_GN6/:gn=6 /:gn=6:op=2 }"
 PRODUCT="--base ploeg-tuned:h=0.8 --shield-ttc 4 --adj-max 1 --w-gap 0.3 --w-comfort 300 --w-accel 1.0 --actor-lr 1e-4 --critic-lr 3e-4 --noise 0.15 --noise-correlation 0.99 --select comfort"
 
 train_seeds() {  # STEM "SEEDS" TRAIN_ARGS...

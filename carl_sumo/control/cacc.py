@@ -48,6 +48,14 @@ is in the lane) until it has room (carl_sumo.sim.scenario_sim), never for a plat
 a joiner in its chain the member is left to its law and its reaction layer, also in the steps
 before the joiner's first message arrives (the V2V delay).
 
+Opening (``op=B`` in a name): the same armed vehicle at the front of its chain opens its gap to
+the 0.8 s at which it stops being armed, instead of leaving the gap to its law (whose robust
+kp = 0.0445 1/s² answers a 10 m spacing error with -0.4 m/s²). Short of s_open = s0 + 0.8 s·v
+by m = s_open - d_i > 0, it asks for the vehicle ahead to draw away at m/3 s and applies at most
+(Δv_i - m/3 s)/1 s, never below -B; its follower hears it as a reaction's braking. Behind a
+human who signals (``cut-in:signal=S``) or a joiner that announces itself (``join:signal=S``)
+it so makes room before the vehicle is in the lane.
+
 As the base of a learned controller (``carl-sumo train --base ploeg-tuned:h=1``), a learned term
 a_adj,i (m/s²) enters the law as one more feed-forward input beside the predecessor's:
 u_i(k+1) = u_i(k) + (dt/h)·(-u_i(k) + kp·e_i + kd·ė_i + u_{i-1}(k) + a_adj,i). So it passes
@@ -90,6 +98,13 @@ REACTION_MARGIN_M = 1.0
 REACTION_LAG_S = 0.5
 """The reaction layer's allowance for dead time and powertrain lag: the gap it counts on is
 reduced by the closing speed times this (s; a truck's lag is 0.4-0.6 s, docs/vehicles.md)."""
+OPEN_GAP_S = 0.8
+"""``op=B``: the time gap an armed vehicle at the front of its chain opens (s; an armed vehicle
+stays armed until its spacing reaches it, carl_sumo.sim.scenario_sim.JOIN_LINK_GAP_S)."""
+OPEN_TIME_S = 3.0
+"""``op=B``: the opening speed it asks for is the missing gap over this time (m / s)."""
+OPEN_SPEED_TIME_S = 1.0
+"""``op=B``: it reaches that opening speed with this time constant (s)."""
 CRUISE_GAIN_PER_S = 0.4
 """k_cc: cruise-control gain of the speed cap a ≤ k_cc·(v0 - v) (1/s)."""
 
@@ -97,7 +112,7 @@ CRUISE_GAIN_PER_S = 0.4
 @njit(cache=True)
 def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc,
                 pred_mode, pred_held, u_min, u_max, ttc_on, margin, lag, armed, a_ahead, safe_b,
-                safe_armed_only):
+                safe_armed_only, open_b):
     """One step of every follower (head first): updates ``u`` in place, returns a (m/s²);
     ``adj`` (m/s², shape (n,)) is the learned feed-forward term (zeros for the plain law).
     ``pred_mode`` / ``pred_held`` (shape (n,)): how follower i > 0 hears its predecessor's
@@ -154,6 +169,14 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
             if v > v_safe:
                 out[i] = max(min(out[i], (v_safe - v) / lag), acc_min, u_min[i])
                 brake[i] = min(brake[i], out[i])
+        # op: an armed chain front opens its gap to OPEN_GAP_S at up to open_b
+        if open_b > 0.0 and i == 0 and armed[i]:
+            short = s0 + OPEN_GAP_S * obs[i, 0] - obs[i, 2]
+            if short > 0.0:
+                a_open = max((obs[i, 3] - short / OPEN_TIME_S) / OPEN_SPEED_TIME_S, -open_b)
+                if a_open < out[i]:
+                    out[i] = max(a_open, acc_min, u_min[i])
+                    brake[i] = min(brake[i], out[i])
     return out
 
 
@@ -279,7 +302,7 @@ class PloegController:
                            np.ascontiguousarray(pred_held, dtype=np.float64), *self._limits(n),
                            p.reaction_ttc_s or 0.0, REACTION_MARGIN_M, REACTION_LAG_S,
                            *self._reaction_inputs(n, armed, a_ahead), p.safe_braking_mps2 or 0.0,
-                           p.safe_new_only)
+                           p.safe_new_only, p.opening_braking_mps2 or 0.0)
 
     @staticmethod
     def _reaction_inputs(n: int, armed: np.ndarray | None, a_ahead: np.ndarray | None

@@ -401,6 +401,45 @@ def test_gn_keeps_the_safe_speed_only_for_an_armed_vehicle():
     assert a[2] == a_plain[2] > a_gs[2]  # armed, its message on the way: the law's (gs: bounded)
 
 
+def test_op_opens_the_gap_of_an_armed_chain_front_at_a_bounded_braking():
+    """``op=B``: an armed vehicle at the front of its chain, short of 2 m + 0.8 s·v, asks for an
+    opening speed of the missing gap over 3 s and brakes toward it with a 1 s time constant, at
+    most B; it tells its follower. Unarmed, at its 0.8 s gap, or hearing its predecessor, it is
+    left to the law; the law's state is left as it is."""
+    base = "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1:gn=6"
+    params = parse_ploeg(base + ":op=2")
+    assert params.opening_braking_mps2 == 2.0 and params.name() == base + ":op=2"
+    with pytest.raises(InputError, match="op must be a positive"):
+        parse_ploeg(base + ":op=-1")
+    # a signalling human 12 m ahead of the head at 15 m/s, 0.3 m/s faster; follower 1 hears the
+    # head, follower 2 (a message on its way) is as short: 2 + 0.8·15 - 12 = 2 m short
+    obs = np.array([[15.0, 0.0, 12.0, 0.3]] * 3)
+    mode = np.array([0, 0, 2])
+    law, plain, a, a_plain, _ = _law_and_plain_step(params.name(), base, obs, mode)
+    np.testing.assert_array_equal(a, a_plain)  # nobody armed: the law alone
+    for c in (law, plain):
+        c.reset(3)
+    armed = np.array([True, True, True])
+    brake = np.full(3, np.inf)
+    a = law.step(obs, law.u, 0.0, pred_mode=mode, pred_held=np.zeros(3), brake=brake,
+                 armed=armed)
+    a_plain = plain.step(obs, plain.u, 0.0, pred_mode=mode, pred_held=np.zeros(3), armed=armed)
+    expected = (0.3 - 2.0 / 3.0) / 1.0
+    assert math.isclose(a[0], expected, rel_tol=1e-12) and a_plain[0] > expected
+    assert brake[0] == a[0]  # its follower hears the opening
+    assert a[1] == a_plain[1] and a[2] == a_plain[2]  # not a chain's front: the law's
+    np.testing.assert_array_equal(law.u, plain.u)
+    far = np.array([[15.0, 0.0, 8.0, -0.5]])  # 6 m short, closing at 0.5 m/s: -2.5, at most B
+    close = PloegController(params)
+    close.reset(1)
+    assert close.step(far, close.u, 0.0, armed=np.array([True]))[0] == -2.0
+    room = np.array([[15.0, 0.0, 2.0 + 0.8 * 15.0 + 0.1, 0.0]])  # at its 0.8 s: the law's
+    for c in (close, plain):
+        c.reset(1)
+    assert close.step(room, close.u, 0.0, armed=np.array([True]))[0] == \
+        plain.step(room, plain.u, 0.0, armed=np.array([True]))[0]
+
+
 def test_an_armed_vehicle_reacts_although_it_hears_a_message():
     """``armed`` (a joiner without room yet): the reaction acts on a follower that hears its
     predecessor; unarmed, the same follower is left to the law; the head is unchanged."""
@@ -463,7 +502,8 @@ def test_ttc_reaction_keeps_the_platoon_of_a_close_start_apart_in_sumo():
 
 def test_gn_never_acts_in_a_plain_run_where_gs_does():
     """The close start above (3.9 m, closing at 2.5 m/s, real plant): ``gs=6`` bounds the head's
-    speed, ``gn=6`` arms nobody in a plain run, so it drives exactly as the law without it."""
+    speed, ``gn=6`` (and ``op=2`` with it) arms nobody in a plain run, so it drives exactly as the
+    law without it."""
     from carl_sumo.control.channel import Impairments
     from carl_sumo.sim.vehicle import REAL_PLANT
 
@@ -474,8 +514,10 @@ def test_gn_never_acts_in_a_plain_run_where_gs_does():
     imp = Impairments(delay_s=0.1, plant=REAL_PLANT)
     law = "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1"
     runs = {name: run_event(cached_sim(NET, "external"), event, 5, ploeg_controller(name),
-                            impairments=imp) for name in (law, law + ":gs=6", law + ":gn=6")}
+                            impairments=imp)
+            for name in (law, law + ":gs=6", law + ":gn=6", law + ":gn=6:op=2")}
     np.testing.assert_array_equal(runs[law + ":gn=6"].speed, runs[law].speed)
+    np.testing.assert_array_equal(runs[law + ":gn=6:op=2"].speed, runs[law].speed)
     assert np.abs(runs[law + ":gs=6"].speed - runs[law].speed).max() > 0.1
 
 
