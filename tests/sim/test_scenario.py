@@ -223,6 +223,44 @@ def test_the_member_a_vehicle_enters_ahead_of_is_armed_until_it_has_room(event, 
         assert armed[-1] + 1 == len(seen) and seen[-1][1] == "joiner"
 
 
+def _opening_run(event, name: str, text: str) -> tuple[ScenarioSim, list]:
+    """f3's (step, gap, speed, acceleration) from the first step the entering vehicle is ahead
+    of it, under the law ``name``, armed as :func:`run_scenario_event` arms it."""
+    _, controller = scenario_controller(name)
+    sim = ScenarioSim(NET, "external")
+    sim.start(event, N, parse_scenario(text).draw(event, N))
+    controller.reset()
+    seen = []
+    while not sim.done:
+        ids, obs, ahead = sim.observe()
+        controller.arm(sim.armed)
+        accel = controller.acceleration(obs, chains_of(ids, ahead), ids, ahead,
+                                        {v: sim.accels[v] for v in ids})
+        sim.advance(dict(zip(ids, accel.tolist())))
+        if sim.ahead["f3"][0] == sim.entering:
+            seen.append((sim.k, sim.ahead["f3"][1], sim.speeds["f3"], sim.accels["f3"]))
+    return sim, seen
+
+
+def test_op_drops_back_behind_a_signalling_human_at_a_bounded_braking(event):
+    """``op=2``: behind a human who signals for 2 s, f3 (armed, at the front of its chain)
+    opens its gap while he signals, braking at no more than 2 m/s² for it, so he lands further
+    ahead of it and it comes less close than the same law without ``op`` (h = 0.6 s, ``gn=6``,
+    the product's base; he takes 30 % of the gap)."""
+    law = "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1:gn=6"
+    text = "cut-in:k=3:t=6:f=0.3:signal=2"
+    plain, plain_seen = _opening_run(event, law, text)
+    sim, seen = _opening_run(event, law + ":op=2", text)
+    assert sim.done_step == plain.done_step and seen[0] == plain_seen[0]  # the same signal
+
+    def landed(run, steps):
+        return next(w[1] for w in steps if w[0] >= run.done_step)
+
+    assert landed(sim, seen) > landed(plain, plain_seen) + 0.8  # m: measured 7.88 against 6.83
+    assert min(w[1] for w in seen) > min(w[1] for w in plain_seen) + 0.3  # 7.22 against 6.83
+    assert min(w[3] for w in seen) >= -2.0 - 1e-3  # m/s²: at most B while it opens
+
+
 @pytest.mark.parametrize("kind", ["cut-in", "join"])
 def test_a_signalled_entry_is_seen_from_the_first_signal_and_gets_room(event, kind):
     """``signal=2``: the human (his left indicator) or the joiner (its request to join) signals
