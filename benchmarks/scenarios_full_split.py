@@ -15,10 +15,11 @@ another pair, ``--stem`` names the files, ``--kinds`` runs some manoeuvres only,
 lets an entering vehicle (cut-in, join) wait at most S s after its drawn time for room
 (``--wait 0``: both controllers meet it at the same moment or not at all); ``--options`` adds
 ``--scenario`` keys to every manoeuvre (``--options signal=2:lc=3``: a signalled, gradual
-cut-in). 8 minutes (real) and 3 (ideal) on 2 cores.
+cut-in); ``--split train`` runs the training split instead, where a design is chosen before the
+test split scores it once. 8 minutes (real) and 3 (ideal) on 2 cores.
 
 Usage: python benchmarks/scenarios_full_split.py DATA [real|ideal] [--base NAME --product PT
-       --stem STEM --kinds cut-in,join --wait S --options KEY=VALUE[:KEY=VALUE]]
+       --stem STEM --kinds cut-in,join --wait S --options KEY=VALUE[:KEY=VALUE] --split train]
 """
 import argparse
 import json
@@ -45,8 +46,9 @@ N_FOLLOWERS = 10
 
 
 def main(data: str, plant: str, controllers: tuple[str, str], stem: str,
-         kinds: tuple[str, ...] = KINDS, wait_s: float | None = None, options: str = "") -> None:
-    events = load_events(data, "test")
+         kinds: tuple[str, ...] = KINDS, wait_s: float | None = None, options: str = "",
+         split: str = "test") -> None:
+    events = load_events(data, split)
     if plant == "real":
         events = [e.with_warmup(REAL_WARMUP_S) for e in events]
     imp = plant_impairments(plant)
@@ -72,18 +74,19 @@ def main(data: str, plant: str, controllers: tuple[str, str], stem: str,
         print(f"{kind}: {time.perf_counter() - start:.0f} s", flush=True)
     wall = time.perf_counter() - start
     start_text = "60 s settled start" if plant == "real" else "the recorded start"
-    head = [f"# Scenarios on the full NGSIM test split, {plant} plant ({len(events)} events)", "",
+    head = [f"# Scenarios on the full NGSIM {split} split, {plant} plant ({len(events)} events)", "",
             f"`python benchmarks/scenarios_full_split.py {data} {plant} --base {controllers[0]} "
             f"--product {controllers[1]} --stem {stem}"
             + (f" --kinds {','.join(kinds)}" if kinds != KINDS else "")
             + (f" --wait {wait_s:g}" if wait_s is not None else "")
-            + (f" --options {options}" if options else "") + f"` ({wall:.0f} s), 10 "
+            + (f" --options {options}" if options else "")
+            + (f" --split {split}" if split != "test" else "") + f"` ({wall:.0f} s), 10 "
             f"followers, {start_text}, scenario seed 0. Manoeuvre columns are paired over "
             "the events in which both controllers did the manoeuvre; `done` is each one's own "
             "count.", ""]
     write_text_atomic(OUT / f"{stem}.md", "\n".join(head + lines))
     write_text_atomic(OUT / f"{stem}.json", json.dumps(
-        {"data": data, "plant": plant, "events": len(events),
+        {"data": data, "plant": plant, "split": split, "events": len(events),
          "wait_s": wait_s, "options": options, "wall_time_s": wall, "tables": tables},
         indent=2, allow_nan=True, default=float))
 
@@ -100,6 +103,9 @@ if __name__ == "__main__":
                         help="an entering vehicle waits at most S s after its time for room")
     parser.add_argument("--options", default="", metavar="KEY=VALUE[:KEY=VALUE]",
                         help="--scenario keys for every manoeuvre, e.g. signal=2:lc=3")
+    parser.add_argument("--split", default="test", choices=("test", "train"),
+                        help="the events: the test split (scored once), or the training split "
+                             "(where a design is chosen)")
     args = parser.parse_args()
     kinds = tuple(args.kinds.split(","))
     if not set(kinds) <= set(KINDS) or (args.wait is not None and args.wait < 0):
@@ -111,4 +117,4 @@ if __name__ == "__main__":
             parser.error(str(exc))
     base, product = CONTROLLERS[args.plant]
     main(args.data, args.plant, (args.base or base, args.product or product),
-         args.stem or f"full_split_{args.plant}", kinds, args.wait, args.options)
+         args.stem or f"full_split_{args.plant}", kinds, args.wait, args.options, args.split)
