@@ -56,6 +56,10 @@ by m = s_open - d_i > 0, it asks for the vehicle ahead to draw away at m/3 s and
 human who signals (``cut-in:signal=S``) or a joiner that announces itself (``join:signal=S``)
 it so makes room before the vehicle is in the lane.
 
+Heavy vehicles (``ht=T`` in a name, with ``aw=1``): a vehicle whose own largest braking is below
+7 m/s² (a truck) keeps the time gap T instead of h in its chain (in e_i, ė_i and the filter); a
+car keeps h, a vehicle without a message ha.
+
 As the base of a learned controller (``carl-sumo train --base ploeg-tuned:h=1``), a learned term
 a_adj,i (m/s²) enters the law as one more feed-forward input beside the predecessor's:
 u_i(k+1) = u_i(k) + (dt/h)·(-u_i(k) + kp·e_i + kd·ė_i + u_{i-1}(k) + a_adj,i). So it passes
@@ -105,6 +109,9 @@ OPEN_TIME_S = 3.0
 """``op=B``: the opening speed it asks for is the missing gap over this time (m / s)."""
 OPEN_SPEED_TIME_S = 1.0
 """``op=B``: it reaches that opening speed with this time constant (s)."""
+HEAVY_BRAKING_MPS2 = 7.0
+"""``ht=T``: a vehicle whose own largest braking is below this (m/s²; a truck's 6, a car's 9),
+known with ``aw=1``, keeps at least the time gap T in its chain."""
 CRUISE_GAIN_PER_S = 0.4
 """k_cc: cruise-control gain of the speed cap a ≤ k_cc·(v0 - v) (1/s)."""
 
@@ -112,7 +119,7 @@ CRUISE_GAIN_PER_S = 0.4
 @njit(cache=True)
 def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc,
                 pred_mode, pred_held, u_min, u_max, ttc_on, margin, lag, armed, a_ahead, safe_b,
-                safe_armed_only, open_b):
+                safe_armed_only, open_b, h_heavy):
     """One step of every follower (head first): updates ``u`` in place, returns a (m/s²);
     ``adj`` (m/s², shape (n,)) is the learned feed-forward term (zeros for the plain law).
     ``pred_mode`` / ``pred_held`` (shape (n,)): how follower i > 0 hears its predecessor's
@@ -135,6 +142,8 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
     for i in range(n):
         alone = i == 0 or pred_mode[i] == 2  # no message from ahead: ACC at h_alone, reacts
         hi = h_alone if alone else h
+        if not alone and -u_min[i] < HEAVY_BRAKING_MPS2:  # ht: a heavy vehicle keeps h_heavy
+            hi = max(h, h_heavy)
         e = obs[i, 2] - s0 - hi * obs[i, 0]
         e_dot = obs[i, 3] - hi * obs[i, 1]
         u_in = u_pred
@@ -302,7 +311,8 @@ class PloegController:
                            np.ascontiguousarray(pred_held, dtype=np.float64), *self._limits(n),
                            p.reaction_ttc_s or 0.0, REACTION_MARGIN_M, REACTION_LAG_S,
                            *self._reaction_inputs(n, armed, a_ahead), p.safe_braking_mps2 or 0.0,
-                           p.safe_new_only, p.opening_braking_mps2 or 0.0)
+                           p.safe_new_only, p.opening_braking_mps2 or 0.0,
+                           p.heavy_gap_s or 0.0)
 
     @staticmethod
     def _reaction_inputs(n: int, armed: np.ndarray | None, a_ahead: np.ndarray | None

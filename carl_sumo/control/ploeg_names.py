@@ -43,6 +43,8 @@ class PloegParams:
                                 # speed for the vehicle ahead braking at this (m/s²; None: off)
     safe_new_only: bool = False  # gn (in place of gs): only a vehicle whose vehicle ahead is new
                                 # (armed: behind a human who cut in, a joiner) until it has room
+    heavy_gap_s: float | None = None  # ht: the time gap (s) of a heavy vehicle in its chain (its
+                                # braking below 7 m/s², known with aw=1; None: h for every class)
     opening_braking_mps2: float | None = None  # op: an armed vehicle at the front of its chain
                                 # opens its gap to 0.8 s braking at up to this (m/s²; None: off)
 
@@ -57,7 +59,8 @@ class PloegParams:
             (f":wo={self.washout_s:g}" if self.washout_s is not None else "") + \
             (f":{'gn' if self.safe_new_only else 'gs'}={self.safe_braking_mps2:g}"
              if self.safe_braking_mps2 is not None else "") + \
-            (f":op={self.opening_braking_mps2:g}" if self.opening_braking_mps2 is not None else "")
+            (f":op={self.opening_braking_mps2:g}" if self.opening_braking_mps2 is not None else "") + \
+            (f":ht={self.heavy_gap_s:g}" if self.heavy_gap_s is not None else "")
 
     @property
     def gap_alone_s(self) -> float:
@@ -157,7 +160,8 @@ def _switches(name: str, opts: dict[str, float]) -> dict:
             "reaction_braking_ahead": _flag(name, opts, "rb", "the reaction counts the braking "
                                                               "of the vehicle ahead"),
             "washout_s": opts.get("wo"), "safe_braking_mps2": opts.get("gs", opts.get("gn")),
-            "safe_new_only": "gn" in opts, "opening_braking_mps2": opts.get("op")}
+            "safe_new_only": "gn" in opts, "opening_braking_mps2": opts.get("op"),
+            "heavy_gap_s": opts.get("ht")}
 
 
 def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal") -> PloegParams:
@@ -168,12 +172,13 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
     law = "acc" if kind.startswith("acc") else "ploeg"
     if kind in ("ploeg", "acc"):
         opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "ttc", "rb", "wo", "gs", "gn",
-                                      "op"))
+                                      "op", "ht"))
         return PloegParams(opts.get("h", TEXTBOOK.time_gap_s), opts.get("kp", TEXTBOOK.kp),
                            opts.get("kd", TEXTBOOK.kd), feed_forward=law == "ploeg",
                            **_switches(name, opts))
     if kind in ("ploeg-tuned", "acc-tuned"):
-        opts = _parse_options(name, ("h", "aw", "ha", "ttc", "rb", "wo", "gs", "gn", "op"))
+        opts = _parse_options(name, ("h", "aw", "ha", "ttc", "rb", "wo", "gs", "gn", "op",
+                                      "ht"))
         if "h" not in opts:
             raise InputError(f"controller {name!r}: name the time gap, e.g. {kind}:h=1")
         entries = [e for e in read_tuned_entries(tuned_file) if e.get("law", "ploeg") == law]

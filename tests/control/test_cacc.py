@@ -440,6 +440,29 @@ def test_op_opens_the_gap_of_an_armed_chain_front_at_a_bounded_braking():
         plain.step(room, plain.u, 0.0, armed=np.array([True]))[0]
 
 
+def test_ht_gives_a_heavy_vehicle_its_own_time_gap_in_the_chain():
+    """``ht=T`` (with ``aw=1``): a vehicle whose own braking is below 7 m/s² (a truck, 6) keeps
+    the time gap T in its chain, a car the law's h; the head, which hears no message, keeps ha.
+    Each at rest at its own gap (no error, no relative speed) applies 0."""
+    base = "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4"
+    params = parse_ploeg(base + ":ht=0.8")
+    assert params.heavy_gap_s == 0.8 and params.name() == base + ":ht=0.8"
+    v = 15.0
+    obs = np.array([[v, 0.0, 2.0 + 1.4 * v, 0.0], [v, 0.0, 2.0 + 0.8 * v, 0.0],
+                    [v, 0.0, 2.0 + 0.6 * v, 0.0]])  # head, a truck at 0.8 s, a car at 0.6 s
+    out = {}
+    for name in (base, base + ":ht=0.8"):
+        law = PloegController(parse_ploeg(name))
+        law.reset(3)
+        law.know_vehicles(np.array([3.0, 1.0, 3.0]), np.array([9.0, 6.0, 9.0]))
+        out[name] = law.step(obs, law.u, 0.0)
+    np.testing.assert_array_equal(out[base + ":ht=0.8"], [0.0, 0.0, 0.0])
+    assert out[base][1] > 0.0 and out[base][0] == out[base][2] == 0.0  # at 0.6 s it closes in
+    law = PloegController(params)  # limits unknown (no aw data): every vehicle at h
+    law.reset(3)
+    np.testing.assert_array_equal(law.step(obs, law.u, 0.0), out[base])
+
+
 def test_an_armed_vehicle_reacts_although_it_hears_a_message():
     """``armed`` (a joiner without room yet): the reaction acts on a follower that hears its
     predecessor; unarmed, the same follower is left to the law; the head is unchanged."""
