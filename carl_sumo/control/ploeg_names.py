@@ -1,5 +1,6 @@
 """The names of the constant-time-gap laws and their parameters: what ``ploeg:h=0.8:kp=0.1:kd=1``,
-``ploeg-tuned:h=0.8``, ``acc:h=2.5`` and their options (``aw``, ``ha``, ``ttc``, ``rb``, ``wo``, ``gs``, ``gn``) stand for
+``ploeg-tuned:h=0.8``, ``acc:h=2.5`` and their options (``aw``, ``ha``, ``ttc``, ``rb``, ``wo``, ``gs``, ``gn``,
+``op``, ``ht``) stand for
 (:class:`PloegParams`), and the tuned-gains files of ``carl-sumo tune``. The law itself, and what
 each option does, is :mod:`carl_sumo.control.cacc`.
 """
