@@ -167,9 +167,10 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
                 else np.inf
             out[i] = max(min(out[i], -need), acc_min, u_min[i])  # at most its own braking
             brake[i] = out[i]  # its follower hears the reaction's braking
-        # gn: only a chain's first vehicle, whose vehicle ahead is not a member it hears (a
-        # human); behind a member of its chain a message is on its way (the V2V delay)
-        guarded = i == 0 and armed[i] if safe_armed_only else armed[i] or alone
+        # gn and op: only a chain's first vehicle, whose vehicle ahead is not a member it hears
+        # (a human); behind a member of its chain a message is on its way (the V2V delay)
+        front_armed = i == 0 and armed[i]
+        guarded = front_armed if safe_armed_only else armed[i] or alone
         if guarded and safe_b > 0.0:
             v, v_ahead = obs[i, 0], max(obs[i, 0] + obs[i, 3], 0.0)
             bl = safe_b * lag
@@ -178,8 +179,7 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
             if v > v_safe:
                 out[i] = max(min(out[i], (v_safe - v) / lag), acc_min, u_min[i])
                 brake[i] = min(brake[i], out[i])
-        # op: an armed chain front opens its gap to OPEN_GAP_S at up to open_b
-        if open_b > 0.0 and i == 0 and armed[i]:
+        if open_b > 0.0 and front_armed:  # op: it opens its gap to OPEN_GAP_S at up to open_b
             short = s0 + OPEN_GAP_S * obs[i, 0] - obs[i, 2]
             if short > 0.0:
                 a_open = max((obs[i, 3] - short / OPEN_TIME_S) / OPEN_SPEED_TIME_S, -open_b)

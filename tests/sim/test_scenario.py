@@ -35,14 +35,17 @@ def event():
     return e
 
 
-def _drive(sim: ScenarioSim, controller, watch) -> list:
-    """Run the sim to its end with a scenario controller; ``watch(sim)`` after every step."""
+def _drive(sim: ScenarioSim, controller, watch, arm: bool = False) -> list:
+    """Run the sim to its end with a scenario controller; ``watch(sim)`` after every step;
+    ``arm``: tell the controller who is armed, as :func:`run_scenario_event` does."""
     import libsumo
 
     seen = []
     controller.reset()
     while not sim.done:
         ids, obs, ahead = sim.observe()
+        if arm:
+            controller.arm(sim.armed)
         accel = controller.acceleration(obs, chains_of(ids, ahead), ids, ahead,
                                         {v: sim.accels[v] for v in ids})
         sim.advance(dict(zip(ids, accel.tolist())))
@@ -229,17 +232,13 @@ def _opening_run(event, name: str, text: str) -> tuple[ScenarioSim, list]:
     _, controller = scenario_controller(name)
     sim = ScenarioSim(NET, "external")
     sim.start(event, N, parse_scenario(text).draw(event, N))
-    controller.reset()
-    seen = []
-    while not sim.done:
-        ids, obs, ahead = sim.observe()
-        controller.arm(sim.armed)
-        accel = controller.acceleration(obs, chains_of(ids, ahead), ids, ahead,
-                                        {v: sim.accels[v] for v in ids})
-        sim.advance(dict(zip(ids, accel.tolist())))
-        if sim.ahead["f3"][0] == sim.entering:
-            seen.append((sim.k, sim.ahead["f3"][1], sim.speeds["f3"], sim.accels["f3"]))
-    return sim, seen
+
+    def watch(s, ls):
+        if s.ahead["f3"][0] != s.entering:
+            return None
+        return s.k, s.ahead["f3"][1], s.speeds["f3"], s.accels["f3"]
+
+    return sim, [w for w in _drive(sim, controller, watch, arm=True) if w is not None]
 
 
 def test_op_drops_back_behind_a_signalling_human_at_a_bounded_braking(event):
