@@ -56,6 +56,7 @@ class RewardConfig:
     w_spacing: float = 0.0         # optional spacing term -w_spacing·min((e/v)², 1); not the paper's
     spacing_gap_s: float = 0.8     # its time gap h_s (s)
     spacing_head_gap_s: float | None = None  # the head's (first follower's) h_s (s; None: h_s)
+    spacing_heavy_gap_s: float | None = None  # a heavy vehicle's h_s (braking < 7 m/s²; None: h_s)
     spacing_standstill_m: float = 2.0  # its standstill gap s0 (m; Ploeg's, control/cacc.py)
     w_critical: float = 0.0        # optional -w_critical per step with 0 < TTC < 1.5 s
     w_amplify: float = 0.0         # optional -w_amplify·max(a_i² - a_{i-1}², 0) (a in m/s²)

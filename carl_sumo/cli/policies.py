@@ -37,13 +37,12 @@ def _add_reward_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lagrange-lr", type=float, default=None,
                    help="RCPO: price close calls at a learned multiplier that rises while they "
                         "are more frequent than the base's (learn/constraint.py; default 0: off)")
-    p.add_argument("--spacing-gap", type=float, default=None,
-                   help="time gap h_s of the spacing term (s; default 0.8)")
+    p.add_argument("--spacing-gap", type=float, default=None, help="spacing term's h_s (s; 0.8)")
     p.add_argument("--spacing-head-gap", type=float, default=None,
-                   help="the head's h_s (s; default: --spacing-gap), e.g. the ha of a degraded "
-                        "CACC base")
-    p.add_argument("--jerk-scale", type=float, default=None,
-                   help="jerk that normalises the comfort term (m/s³)")
+                   help="the head's h_s (s; default: --spacing-gap), e.g. a degraded CACC's ha")
+    p.add_argument("--spacing-heavy-gap", type=float, default=None,
+                   help="h_s of a vehicle braking below 7 m/s² (s; default: --spacing-gap), ht")
+    p.add_argument("--jerk-scale", type=float, default=None, help="the jerk scale (m/s³)")
 
 
 MAX_TRAIN_VEHICLES = 200
@@ -72,7 +71,8 @@ _RANGES = {  # option: (lowest, highest, whether the bounds are allowed), finite
     "w_critical": (0.0, math.inf, True), "w_amplify": (0.0, math.inf, True),
     "lagrange_lr": (0.0, math.inf, True), "smooth_jerk": (0.0, math.inf, True),
     "spacing_gap": (0.0, 5.0, True), "spacing_head_gap": (0.0, 5.0, True),
-    "smooth_accel": (0.0, math.inf, True), "adj_l2": (0.0, math.inf, True),
+    "spacing_heavy_gap": (0.0, 5.0, True), "smooth_accel": (0.0, math.inf, True),
+    "adj_l2": (0.0, math.inf, True),
     "adj_max": (0.0, math.inf, False), "jerk_scale": (0.0, math.inf, False),
     "noise_correlation": (0.0, 1.0, None), "critic_burn_in": (0, math.inf, True),
     "braking_events": (0, math.inf, True), "seed": (0, math.inf, True),
@@ -314,17 +314,17 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
 
 TRAIN_OVERRIDES = ("select", "gate_string_stable", "w_gap", "w_safe", "w_comfort", "w_accel",
                    "w_spacing", "w_critical", "w_amplify", "lagrange_lr", "spacing_gap",
-                   "spacing_head_gap", "jerk_scale", "message_dim", "hidden", "actor_lr",
-                   "critic_lr", "tau", "noise", "noise_correlation", "smooth_jerk",
-                   "smooth_accel", "adj_l2", "eval_events", "val_seed", "val_source",
-                   "val_events", "oversample", "oversample_times", "gamma", "adj_max", "base",
-                   "critic_burn_in", "braking_events", "update_every", "scale_rates", "lr_decay",
-                   "batch_size", "imitate", "imitate_target", "imitate_updates", "init",
-                   "observe_ahead", "shield_ttc", "comm_fallback", "comm_randomize",
-                   "randomize_sensors", "val_impaired", "comm_delay", "comm_loss",
-                   "comm_burst", "comm_timeout", "comm_fade", "warmup", "sensor_noise",
-                   "sensor_filter", "impairment_seed", "plant", "fleet", "vehicle_lag",
-                   "actuation_delay", "plant_randomize", "comm_off")
+                   "spacing_head_gap", "spacing_heavy_gap", "jerk_scale", "message_dim", "hidden",
+                   "actor_lr", "critic_lr", "tau", "noise", "noise_correlation", "smooth_jerk",
+                   "smooth_accel", "adj_l2", "eval_events", "val_seed", "val_source", "val_events",
+                   "oversample", "oversample_times", "gamma", "adj_max", "base", "critic_burn_in",
+                   "braking_events", "update_every", "scale_rates", "lr_decay", "batch_size",
+                   "imitate", "imitate_target", "imitate_updates", "init", "observe_ahead",
+                   "shield_ttc", "comm_fallback", "comm_randomize", "randomize_sensors",
+                   "val_impaired", "comm_delay", "comm_loss", "comm_burst", "comm_timeout",
+                   "comm_fade", "warmup", "sensor_noise", "sensor_filter", "impairment_seed",
+                   "plant", "fleet", "vehicle_lag", "actuation_delay", "plant_randomize",
+                   "comm_off")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 

@@ -62,6 +62,7 @@ class PlatoonEnv(ParallelEnv):
         self._control_params = controllers._params(idm, bounds)
         self._reward = reward_module._platoon_reward
         self._reward_params = reward_module._params(reward)
+        self._spacing_gaps = reward_module.spacing_gaps(reward, n_followers)  # per episode (s)
         self.possible_agents = [f"cacc_{i}" for i in range(n_followers)]
         self.agents: list[str] = []
         high = np.float32(bounds.adj_max_mps2)
@@ -97,6 +98,8 @@ class PlatoonEnv(ParallelEnv):
         self.sim.reset(self.event, self.n_followers, plant=plant,
                        plant_seed=impairments.seed if impairments is not None else 0)
         self._sensors = Sensors.of(impairments, self.event.event_id)
+        b_max = self.sim.powertrains.b_max if self.sim.powertrains is not None else None
+        self._spacing_gaps = reward_module.spacing_gaps(self.reward_cfg, self.n_followers, b_max)
         if self._base is not None:
             self._base.reset(self.n_followers)
             if self.sim.powertrains is not None:
@@ -144,7 +147,8 @@ class PlatoonEnv(ParallelEnv):
         self._first_step = False
         self.sim.step(accel)
         self._obs = self._observe()
-        rewards, collided = self._reward(self._true, prev_acc, *self._reward_params)
+        rewards, collided = self._reward(self._true, prev_acc, self._spacing_gaps,
+                                         *self._reward_params)
         terminated = bool(collided.any())
         return self._obs, rewards, terminated, self.sim.done and not terminated, accel
 

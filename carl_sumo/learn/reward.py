@@ -10,7 +10,8 @@ this project's addition: it rewards attenuating the leader's accelerations (stri
 So is the optional spacing term -w_spacing·min((e/v)², 1) (off by default): e = d - s0 - h_s·v is
 the spacing error of a constant-time-gap policy (m), e/v its time-gap error (s, v floored at 1 m/s);
 the head (row 0, which hears no message from a human leader) may have its own time gap h_head
-(the degraded CACC's ``ha``, control/cacc.py).
+(the degraded CACC's ``ha``, control/cacc.py), and so may a heavy vehicle, one whose own largest
+braking is below 7 m/s² (the law's ``ht``, control/cacc.py; the head keeps h_head).
 It holds a learned term on a CACC base at a chosen time gap instead of the human headway.
 So is the optional critical-TTC term -w_critical per follower and step with 0 < TTC < 1.5 s (off
 by default): the samples that the metric ``ttc_lt_1_5s_count`` counts (sim/metrics.py), priced
@@ -31,6 +32,7 @@ import numpy as np
 from numba import njit
 
 from carl_sumo.config import DT_S, REWARD, RewardConfig
+from carl_sumo.control.cacc import HEAVY_BRAKING_MPS2
 
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
 CRITICAL_TTC_S = 1.5
@@ -45,8 +47,8 @@ def _headway_reward(h: float, mu: float, sigma: float) -> float:
 
 
 @njit(cache=True)
-def _platoon_reward(obs, prev_acc, w_gap, w_safe, w_comfort, w_accel, w_spacing, gap_s,
-                    head_gap_s, standstill_m, mu, sigma, ttc_max, jerk_scale, penalty, dt,
+def _platoon_reward(obs, prev_acc, gap_s, w_gap, w_safe, w_comfort, w_accel, w_spacing,
+                    standstill_m, mu, sigma, ttc_max, jerk_scale, penalty, dt,
                     w_critical, critical_ttc, w_amplify):
     n = obs.shape[0]
     reward = np.empty(n)
@@ -63,8 +65,7 @@ def _platoon_reward(obs, prev_acc, w_gap, w_safe, w_comfort, w_accel, w_spacing,
         jerk = (a - prev_acc[i]) / dt / jerk_scale
         r -= w_comfort * min(jerk * jerk, 1.0) + w_accel * a * a
         if w_spacing > 0.0:
-            h_s = head_gap_s if i == 0 else gap_s
-            gap_error_s = (d - standstill_m - h_s * v) / max(v, 1.0)
+            gap_error_s = (d - standstill_m - gap_s[i] * v) / max(v, 1.0)
             r -= w_spacing * min(gap_error_s * gap_error_s, 1.0)
         if w_amplify > 0.0 and i > 0:
             excess = a * a - obs[i - 1, 1] * obs[i - 1, 1]
@@ -79,9 +80,8 @@ def _platoon_reward(obs, prev_acc, w_gap, w_safe, w_comfort, w_accel, w_spacing,
 
 @lru_cache(maxsize=16)
 def _params(cfg: RewardConfig) -> tuple[float, ...]:
-    head_gap = cfg.spacing_gap_s if cfg.spacing_head_gap_s is None else cfg.spacing_head_gap_s
-    return (cfg.w_gap, cfg.w_safe, cfg.w_comfort, cfg.w_accel, cfg.w_spacing, cfg.spacing_gap_s,
-            head_gap, cfg.spacing_standstill_m, cfg.headway_mu, cfg.headway_sigma,
+    return (cfg.w_gap, cfg.w_safe, cfg.w_comfort, cfg.w_accel, cfg.w_spacing,
+            cfg.spacing_standstill_m, cfg.headway_mu, cfg.headway_sigma,
             cfg.ttc_threshold_s, cfg.jerk_scale_mps3, cfg.collision_penalty, DT_S,
             cfg.w_critical, CRITICAL_TTC_S, cfg.w_amplify)
 
@@ -100,11 +100,25 @@ def headway_reward(headway_s: float, cfg: RewardConfig = REWARD) -> float:
     return _headway_reward(float(headway_s), cfg.headway_mu, cfg.headway_sigma)
 
 
-def platoon_reward(obs: np.ndarray, prev_acc: np.ndarray, cfg: RewardConfig = REWARD
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def spacing_gaps(cfg: RewardConfig, n: int, b_max_mps2: np.ndarray | None = None) -> np.ndarray:
+    """Each follower's time gap h_s in the spacing term (s, shape (n,)): the head's
+    ``spacing_head_gap_s``, a heavy vehicle's (largest braking ``b_max_mps2`` below 7 m/s²; None:
+    no vehicle is heavy) ``spacing_heavy_gap_s``, every other ``spacing_gap_s`` (None: h_s)."""
+    gaps = np.full(n, cfg.spacing_gap_s)
+    if cfg.spacing_heavy_gap_s is not None and b_max_mps2 is not None:
+        gaps[np.asarray(b_max_mps2) < HEAVY_BRAKING_MPS2] = cfg.spacing_heavy_gap_s
+    if n and cfg.spacing_head_gap_s is not None:
+        gaps[0] = cfg.spacing_head_gap_s
+    return gaps
+
+
+def platoon_reward(obs: np.ndarray, prev_acc: np.ndarray, cfg: RewardConfig = REWARD,
+                   b_max_mps2: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Reward of each follower after a step, and which followers collided (d ≤ 0).
 
     ``obs`` rows are [v, a, d, Δv] after the step (float64, shape (n, 4)); ``prev_acc`` is a
-    before it (m/s²).
+    before it (m/s²); ``b_max_mps2`` each follower's largest braking (m/s², for a heavy
+    vehicle's spacing gap; None: none is heavy).
     """
-    return _platoon_reward(obs, prev_acc, *_params(cfg))
+    gaps = spacing_gaps(cfg, obs.shape[0], b_max_mps2)
+    return _platoon_reward(obs, prev_acc, gaps, *_params(cfg))

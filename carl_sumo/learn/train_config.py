@@ -56,6 +56,7 @@ class TrainConfig:
     w_spacing: float = REWARD.w_spacing    # spacing term (reward.py) and its time gap h_s (s)
     spacing_gap: float = REWARD.spacing_gap_s
     spacing_head_gap: float | None = REWARD.spacing_head_gap_s  # the head's h_s (s; None: h_s)
+    spacing_heavy_gap: float | None = REWARD.spacing_heavy_gap_s  # a heavy vehicle's h_s (s)
     w_critical: float = REWARD.w_critical  # penalty per step with 0 < TTC < 1.5 s (reward.py)
     w_amplify: float = REWARD.w_amplify    # amplification term's weight (reward.py)
     lagrange_lr: float = 0.0               # RCPO multiplier step on the close-call cost (0: off)
@@ -131,6 +132,7 @@ class TrainConfig:
         return replace(REWARD, w_gap=self.w_gap, w_safe=self.w_safe, w_comfort=self.w_comfort,
                        w_accel=self.w_accel, w_spacing=self.w_spacing,
                        spacing_gap_s=self.spacing_gap, spacing_head_gap_s=self.spacing_head_gap,
+                       spacing_heavy_gap_s=self.spacing_heavy_gap,
                        w_critical=self.w_critical, w_amplify=self.w_amplify,
                        jerk_scale_mps3=self.jerk_scale)
 

@@ -4,6 +4,7 @@ from pettingzoo.test import parallel_api_test
 
 from carl_sumo.config import ControlBounds
 from carl_sumo.learn.env import PlatoonEnv
+from carl_sumo.learn.reward import platoon_reward
 
 from conftest import NET, braking_event
 
@@ -102,3 +103,23 @@ def test_the_env_runs_through_rllibs_pettingzoo_wrapper():
     assert terminated["__all__"] is False and truncated["__all__"] is False
     assert all(np.isfinite(r) for r in rewards.values())
     env.close()
+
+
+def test_the_spacing_term_holds_each_truck_at_its_own_gap():
+    from dataclasses import replace
+
+    from carl_sumo.config import REWARD
+    from carl_sumo.sim.vehicle import Plant
+
+    cfg = replace(REWARD, w_spacing=1.0, spacing_gap_s=0.6, spacing_head_gap_s=1.4,
+                  spacing_heavy_gap_s=0.8)
+    env = PlatoonEnv([braking_event(n=40)], 4, NET, reward=cfg,
+                     plant=Plant((("car", 0.5), ("truck", 0.5))))
+    env.reset_array(seed=3)
+    b_max = env.sim.powertrains.b_max
+    assert (b_max[1:] < 7.0).any() and (b_max[1:] >= 7.0).any()  # trucks and cars behind the head
+    _, rewards, _, _, accel = env.step_array(np.zeros(4))  # first step: prev a = a
+    with_trucks, _ = platoon_reward(env.true_observation, accel, cfg, b_max)
+    without, _ = platoon_reward(env.true_observation, accel, cfg)
+    np.testing.assert_allclose(rewards, with_trucks)
+    assert not np.allclose(rewards, without)

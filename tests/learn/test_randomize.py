@@ -16,6 +16,7 @@ from carl_sumo.learn.inference import CompiledActor, _communication_aware_act_ch
 from carl_sumo.learn.policy import load_policy
 from carl_sumo.learn.randomize import RandomisedChannels
 from carl_sumo.learn.replay_buffer import ReplayBuffer
+from carl_sumo.learn.reward import platoon_reward
 from carl_sumo.learn.train import TrainConfig, train
 
 from conftest import NET, braking_event
@@ -134,8 +135,8 @@ def test_noisy_sensors_change_what_the_env_sees_not_what_it_rewards():
     assert not np.allclose(o_clean[:, 2:], o_noisy[:, 2:])  # gap and relative speed are not
     seen, rewards, _, _, accel = noisy.step_array(np.zeros(3))
     true = noisy.sim.observation()
-    on_true, _ = noisy._reward(true, accel, *noisy._reward_params)  # first step: prev a = a
-    on_seen, _ = noisy._reward(np.ascontiguousarray(seen[:, :4]), accel, *noisy._reward_params)
+    on_true, _ = platoon_reward(true, accel, noisy.reward_cfg)  # first step: prev a = a
+    on_seen, _ = platoon_reward(np.ascontiguousarray(seen[:, :4]), accel, noisy.reward_cfg)
     np.testing.assert_allclose(rewards, on_true)
     assert not np.allclose(rewards, on_seen)
 

@@ -64,6 +64,23 @@ def test_the_head_may_have_its_own_spacing_gap():
     assert np.allclose(plain - spaced, [0.0, 0.49])
 
 
+def test_a_heavy_vehicle_may_have_its_own_spacing_gap():
+    from dataclasses import replace
+
+    cfg = replace(REWARD, w_spacing=1.0, spacing_gap_s=0.6, spacing_head_gap_s=1.4,
+                  spacing_heavy_gap_s=0.8)
+    # all at 2 + 0.8·10 = 10 m: the heavy follower (b_max 6 m/s²) is at its reference, the car
+    # 0.2 s long; a heavy head keeps the head's gap (0.6 s short)
+    obs = np.array([[10.0, 0.0, 10.0, 0.0], [10.0, 0.0, 10.0, 0.0], [10.0, 0.0, 10.0, 0.0]])
+    b_max = np.array([6.0, 6.0, 9.0])
+    plain, _ = platoon_reward(obs, obs[:, 1].copy())
+    spaced, _ = platoon_reward(obs, obs[:, 1].copy(), cfg, b_max)
+    assert np.allclose(plain - spaced, [0.36, 0.0, 0.04])
+    # without the vehicles' braking, nobody is heavy
+    unknown, _ = platoon_reward(obs, obs[:, 1].copy(), cfg)
+    assert np.allclose(plain - unknown, [0.36, 0.04, 0.04])
+
+
 def test_optional_critical_ttc_term_counts_the_metrics_samples():
     from dataclasses import replace
 
