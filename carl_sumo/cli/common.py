@@ -108,6 +108,9 @@ def add_event_choice(p: argparse.ArgumentParser) -> None:
     p.add_argument("--val-events", default=None, metavar="FILE",
                    help="a file of training event IDs (one per line) held out and validated "
                         "on too, e.g. the hardest (benchmarks/hard_events.py)")
+    p.add_argument("--exclude-events", default=None, metavar="FILE",
+                   help="a file of training event IDs (one per line) left out of training and "
+                        "validation, e.g. recordings that start in a collision")
     p.add_argument("--oversample", default=None, metavar="FILE",
                    help="a file of training event IDs (one per line) drawn --oversample-times "
                         "as often as the others in training, e.g. the hardest ones that "

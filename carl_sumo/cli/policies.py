@@ -324,7 +324,7 @@ TRAIN_OVERRIDES = ("select", "gate_string_stable", "w_gap", "w_safe", "w_comfort
                    "val_impaired", "comm_delay", "comm_loss", "comm_burst", "comm_timeout",
                    "comm_fade", "warmup", "sensor_noise", "sensor_filter", "impairment_seed",
                    "plant", "fleet", "vehicle_lag", "actuation_delay", "plant_randomize",
-                   "comm_off")
+                   "comm_off", "exclude_events")
 """Training options that, when given, override the defaults of TrainConfig."""
 
 

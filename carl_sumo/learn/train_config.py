@@ -39,6 +39,7 @@ class TrainConfig:
     val_seed: int | None = None    # seed choosing those events (None: the training seed)
     val_source: str | None = None  # draw them from this event source only (None: any)
     val_events: str | None = None  # file of training event IDs also validated on (held out)
+    exclude_events: str | None = None  # file of training event IDs left out of both
     oversample: str | None = None  # file of training event IDs drawn more often in training
     oversample_times: int = 4      # ... this many times as often as the others
     braking_events: int = 0        # synthetic hard-braking leaders added (a quarter validates)
@@ -199,7 +200,8 @@ def held_out_split(events: Sequence[Event], cfg: TrainConfig) -> tuple[list[Even
     the events of ``cfg.val_source`` when given (e.g. the source most like the test set), plus
     the events named in ``cfg.val_events`` (e.g. the hardest training events); those named in
     ``cfg.oversample`` appear ``cfg.oversample_times`` times among the training events; with
-    ``cfg.warmup`` every event starts with that many seconds of settling."""
+    ``cfg.warmup`` every event starts with that many seconds of settling; those named in
+    ``cfg.exclude_events`` are then dropped from both (the draws do not change)."""
     val_seed = cfg.seed if cfg.val_seed is None else cfg.val_seed
     train, val = split_validation(events, cfg.eval_events, val_seed, cfg.val_source)
     if cfg.val_events is not None:  # named events (e.g. the hardest ones) validate too
@@ -212,6 +214,11 @@ def held_out_split(events: Sequence[Event], cfg: TrainConfig) -> tuple[list[Even
         braking = braking_events(cfg.braking_events, val_seed)
         k = max(1, cfg.braking_events // 4)
         train, val = train + braking[k:], val + braking[:k]
+    if cfg.exclude_events is not None:  # e.g. recordings that start in a collision; the
+        excluded = set(read_event_ids(cfg.exclude_events))  # draws above stay as without it
+        _check_known("--exclude-events", sorted(excluded), events)
+        train = [e for e in train if e.event_id not in excluded]
+        val = [e for e in val if e.event_id not in excluded]
     if cfg.warmup:  # every episode first settles; validation scores the recorded part
         train = [e.with_warmup(cfg.warmup) for e in train]
         val = [e.with_warmup(cfg.warmup) for e in val]

@@ -82,6 +82,22 @@ def test_named_hardest_events_are_held_out_and_validated_too(tmp_path):
         held_out_split(events, TrainConfig(val_events=str(tmp_path / "missing.txt")))
 
 
+def test_excluded_events_are_neither_trained_nor_validated_on(tmp_path):
+    events = [dataclasses.replace(cruise_event(50), event_id=f"e{i}") for i in range(40)]
+    _, random_val = held_out_split(events, TrainConfig(eval_events=8, seed=0))
+    gone = {random_val[0].event_id, "e39"}  # one the random draw validates on, one it trains on
+    ids = tmp_path / "overlap.txt"
+    ids.write_text("\n".join(sorted(gone)) + "\n")
+    train_ev, val_ev = held_out_split(events, TrainConfig(eval_events=8, seed=0,
+                                                          exclude_events=str(ids)))
+    kept = [e.event_id for e in [*train_ev, *val_ev]]
+    assert not gone & set(kept) and len(kept) == 38
+    assert [e.event_id for e in val_ev] == [e.event_id for e in random_val[1:]]  # the same draw
+    ids.write_text("nope\n")
+    with pytest.raises(InputError, match="--exclude-events: 1 event ID.*'nope'"):
+        held_out_split(events, TrainConfig(exclude_events=str(ids)))
+
+
 def test_oversampled_events_are_drawn_k_times_as_often_and_never_validation_events(tmp_path):
     events = [dataclasses.replace(cruise_event(50), event_id=f"e{i}") for i in range(40)]
     val_ids = {e.event_id for e in held_out_split(events, TrainConfig(eval_events=8, seed=0))[1]}
