@@ -18,3 +18,4 @@ carl-sumo study $common --controller ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=
 carl-sumo study $common --controller policies/ca_td3_real_react_10.pt --out $out/ca_td3_real_react_10
 carl-sumo study $common --controller policies/ca_td3_real_gap06_10.pt --out $out/ca_td3_real_gap06_10
 carl-sumo study $common --controller policies/ca_td3_real_two_10.pt --out $out/ca_td3_real_two_10
+carl-sumo study $common --controller policies/ca_td3_real_truck_10.pt --out $out/ca_td3_real_truck_10
