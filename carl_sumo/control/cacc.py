@@ -43,18 +43,18 @@ Safe speed (``gs=B`` in a name): a vehicle that hears no V2V message also keeps 
 safe speed v_safe for the vehicle ahead, the speed from which it stops behind it when both brake
 at B m/s² after its 0.5 s of lag, applying at most (v_safe - v)/0.5 s. ``gn=B`` does the same
 only for an armed vehicle at the front of its V2V chain: one whose vehicle ahead is new and is no
-member it hears (a human who just cut in or signals to, a joiner that announces itself before it
-is in the lane) until it has room (carl_sumo.sim.scenario_sim), never for a platoon's head. Behind
-a joiner in its chain the member is left to its law and its reaction layer, also in the steps
-before the joiner's first message arrives (the V2V delay).
+member it hears (a human who just cut in or signals to) until it has room
+(carl_sumo.sim.scenario_sim), never for a platoon's head. Behind a joiner the member is left to
+its law and its reaction layer: while an announced joiner signals beside its gap (it is not armed
+then) and once the joiner is in its chain, also in the steps before the joiner's first message
+arrives (the V2V delay).
 
 Opening (``op=B`` in a name): the same armed vehicle at the front of its chain opens its gap to
 the 0.8 s at which it stops being armed, instead of leaving the gap to its law (whose robust
 kp = 0.0445 1/s² answers a 10 m spacing error with -0.4 m/s²). Short of s_open = s0 + 0.8 s·v
 by m = s_open - d_i > 0, it asks for the vehicle ahead to draw away at m/3 s and applies at most
 (Δv_i - m/3 s)/1 s, never below -B; its follower hears it as a reaction's braking. Behind a
-human who signals (``cut-in:signal=S``) or a joiner that announces itself (``join:signal=S``)
-it so makes room before the vehicle is in the lane.
+human who signals (``cut-in:signal=S``) it so makes room before he is in the lane.
 
 Heavy vehicles (``ht=T`` in a name, with ``aw=1``): a vehicle whose own largest braking is below
 7 m/s² (a truck) keeps the time gap T instead of h in its chain (in e_i, ė_i and the filter); a

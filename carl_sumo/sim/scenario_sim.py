@@ -15,8 +15,13 @@ lane change into the platoon lane is done. It hears the chain's messages from th
 ``joining`` (its reaction layer armed, if its law has one: carl_sumo.control.cacc) until it is
 no longer closing in on the vehicle ahead and its spacing (d - 2 m)/v has reached
 :data:`JOIN_LINK_GAP_S`: it entered at a share of a gap kept for one vehicle. The member behind a
-vehicle that enters (a joiner or a human who cuts in) is armed the same way, from the first step
-it has that vehicle ahead until it has that room. A human who cuts
+vehicle that enters is armed the same way until it has that room: behind a human who cuts in from
+the first step it has him ahead (his landing, or his first signal), behind a joiner from the step
+the joiner is in the lane. A joiner that announces itself (``join:signal=S``) keeps pace beside
+its gap and brakes only as its chain does, so until it is in the lane the member meets it on radar
+with its law and reaction layer alone, without a human's guards (carl_sumo.control.cacc's ``gn=B``
+and ``op=B``: on the training split they cost 0.9 m/s² more peak braking over an announced join,
+docs/scenarios.md). A human who cuts
 in is never a member: it is driven by SUMO's Krauss model (``human_krauss``) from the step it is
 in the platoon lane, and it sends no V2V.
 """
@@ -229,15 +234,16 @@ class ScenarioSim(PlatoonSim):
         return self.joining | self.new_ahead
 
     def _settle(self) -> None:
-        """A member gets a vehicle that enters ahead of it (a human who cuts in or a joiner, from
-        the step it is ahead: its landing, or its first signal): it is new to that vehicle until
-        it has room. The joiner stops joining, and such a member being new, once it has room
+        """A member gets a vehicle that enters ahead of it (a human who cuts in, from the step he
+        is ahead: his landing or his first signal; a joiner, from the step it is in the lane and
+        in the chain): it is new to that vehicle until it has room. The joiner stops joining, and such a member being new, once it has room
         (:data:`JOIN_LINK_GAP_S`) or, for the member, once the entering vehicle is no longer
         ahead of it."""
         entering = self.entering  # None for a cut-out or a merge
+        announced_joiner = entering == "joiner" and entering not in self.members
         for vid in self.members:
             if entering is not None and vid != entering and self.ahead[vid][0] == entering \
-                    and vid not in self._met_entering:
+                    and vid not in self._met_entering and not announced_joiner:
                 self._met_entering.add(vid)
                 self.new_ahead.add(vid)
         for vid in list(self.armed):

@@ -196,10 +196,10 @@ def _signal_run(event, text: str) -> tuple[ScenarioSim, list]:
 @pytest.mark.parametrize("text", ["cut-in:k=3:t=6:f=0.5", "cut-in:k=3:t=6:f=0.5:signal=2",
                                   "join:k=3:t=6:f=0.5", "join:k=3:t=6:f=0.5:signal=2"])
 def test_the_member_a_vehicle_enters_ahead_of_is_armed_until_it_has_room(event, text):
-    """From the first step the human or the joiner is ahead of f3 (its landing, or its first
-    signal) f3 is armed (the law's ``gn=B`` acts on it), in one stretch that ends the first step
-    it is not closing in and (d - 2 m)/v ≥ 0.8 s; no other member is ever armed but the joiner
-    itself (joining)."""
+    """From the first step the human is ahead of f3 (his landing, or his first signal), or the
+    joiner is in the lane ahead of it (an announced joiner: not while it signals), f3 is armed
+    (the law's ``gn=B`` acts on it), in one stretch that ends the first step it is not closing in
+    and (d - 2 m)/v ≥ 0.8 s; no other member is ever armed but the joiner itself (joining)."""
     _, controller = scenario_controller(ROBUST_HA + ":ttc=2")  # behind him: an ACC at 1.4 s
     sim = ScenarioSim(NET, "external")
     sim.start(event, N, parse_scenario(text).draw(event, N))
@@ -207,10 +207,16 @@ def test_the_member_a_vehicle_enters_ahead_of_is_armed_until_it_has_room(event, 
 
     def watch(s, ls):
         pred, gap = s.ahead["f3"]
-        return set(s.armed), pred, gap, s.speeds["f3"], s.speeds.get(pred, np.inf)
+        return set(s.armed), pred, gap, s.speeds["f3"], s.speeds.get(pred, np.inf), \
+            entering in s.members
 
     seen = _drive(sim, controller, watch)
     first = next(i for i, w in enumerate(seen) if w[1] == entering)
+    if entering == "joiner":  # seen from its first signal, armed from its lane change
+        joined = next(i for i, w in enumerate(seen) if w[5])
+        assert (joined > first + 10) == ("signal" in text)
+        assert not any("f3" in w[0] for w in seen[:joined])
+        first = joined
     armed = [i for i, w in enumerate(seen) if "f3" in w[0]]
     assert armed[0] == first and armed == list(range(first, armed[-1] + 1))
     assert all(w[0] - {"joiner"} == {"f3"} for w in seen[first:armed[-1] + 1])
