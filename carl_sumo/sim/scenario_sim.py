@@ -20,7 +20,7 @@ the first step it has him ahead (his landing, or his first signal), behind a joi
 the joiner is in the lane. A joiner that announces itself (``join:signal=S``) keeps pace beside
 its gap and brakes only as its chain does, so until it is in the lane the member meets it on radar
 with its law and reaction layer alone, without a human's guards (carl_sumo.control.cacc's ``gn=B``
-and op=B``: on the training split they cost the product 1.04 m/s² more peak braking over an
+and ``op=B``: on the training split they cost the product 1.04 m/s² more peak braking over an
 announced join, docs/scenarios.md). A human who cuts
 in is never a member: it is driven by SUMO's Krauss model (``human_krauss``) from the step it is
 in the platoon lane, and it sends no V2V.
