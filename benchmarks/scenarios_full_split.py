@@ -1,9 +1,9 @@
 """Issue 35's criterion on the full NGSIM test split: the product CA-RL against its own tuned
 CACC through every manoeuvre, 10 followers, scenario seed 0; manoeuvre columns paired over the
 events in which both did the manoeuvre (as ``evaluate --suite scenarios``). Real plant
-(``--plant real --warmup 60``): ``policies/ca_td3_real_react_10.pt`` against the reaction-layer
-base ``ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2``; ideal plant (the recorded start):
-``policies/ca_td3_ploeg_10.pt`` against ``ploeg-tuned:h=0.8``.
+(``--plant real --warmup 60``): ``policies/ca_td3_real_truck_10.pt`` against the tuned CACC with
+the same layers at h = 0.8 s, ``ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1``; ideal plant
+(the recorded start): ``policies/ca_td3_ploeg_10.pt`` against ``ploeg-tuned:h=0.8``.
 
 Beside each table, the bar event by event (:mod:`carl_sumo.study.scenario_criterion`): the
 product's collisions and TTC < 1.5 s events where the base has none, and its peak deceleration
@@ -16,7 +16,8 @@ lets an entering vehicle (cut-in, join) wait at most S s after its drawn time fo
 (``--wait 0``: both controllers meet it at the same moment or not at all); ``--options`` adds
 ``--scenario`` keys to every manoeuvre (``--options signal=2:lc=3``: a signalled, gradual
 cut-in); ``--split train`` runs the training split instead, where a design is chosen before the
-test split scores it once. 8 minutes (real) and 3 (ideal) on 2 cores.
+test split scores it once. 5 minutes (real: 69 s of cut-ins, 214 s for the rest) and 2 (ideal:
+97 s) on 2 free cores.
 
 Usage: python benchmarks/scenarios_full_split.py DATA [real|ideal] [--base NAME --product PT
        --stem STEM --kinds cut-in,join --wait S --options KEY=VALUE[:KEY=VALUE] --split train]
@@ -40,7 +41,7 @@ from carl_sumo.study.scenario_tables import (ROBUST_TTC, markdown_scenario_table
 from carl_sumo.study.scenario_criterion import criterion_lines, manoeuvre_criterion
 
 OUT = Path("docs/results_scenarios")
-CONTROLLERS = {"real": (ROBUST_TTC, "policies/ca_td3_real_react_10.pt"),
+CONTROLLERS = {"real": (ROBUST_TTC + ":rb=1", "policies/ca_td3_real_truck_10.pt"),
                "ideal": ("ploeg-tuned:h=0.8", "policies/ca_td3_ploeg_10.pt")}
 N_FOLLOWERS = 10
 

@@ -39,13 +39,16 @@ ACC at the time gap 1.4 s."""
 ROBUST_TTC = ROBUST_HA + ":ttc=2"
 """:data:`ROBUST_HA` with its reaction layer: a vehicle that hears no message brakes at once when
 its time to collision drops below 2 s (:mod:`carl_sumo.control.cacc`)."""
+PRODUCT_BASE = "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1:wo=5:gn=6:op=2:ht=0.8"
+"""The real-plant product's base (``policies/ca_td3_real_truck_10.pt`` without its learned term):
+the tuned CACC at the product's gaps, h = 0.6 s and trucks at 0.8 s, with its layers."""
 PLANT_CONTROLLERS = {
     "ideal": ("idm", "sumo-cacc", "acc:h=2.5:kp=0.45:kd=1.5", "ploeg-tuned:h=0.8",
               "ca_td3_10.pt", "ca_td3_ploeg_10.pt", "ca_td3_real_10.pt", "maddpg_10.pt"),
     "real": ("idm-external", "acc-tuned:h=2.5", "ploeg-tuned:h=0.8", ROBUST_AW, ROBUST_HA,
              ROBUST_TTC, "ca_td3_10.pt", "ca_td3_ploeg_10.pt", "ca_td3_real_10.pt",
              "ca_td3_real_aw_10.pt", "ca_td3_real_ha_10.pt", "ca_td3_real_react_10.pt",
-             "ca_td3_real_truck_10.pt", "maddpg_10.pt"),
+             PRODUCT_BASE, "ca_td3_real_truck_10.pt", "maddpg_10.pt"),
 }
 """The controllers of each plant's tables (policy files in the policies folder): SUMO's IDM (run
 by carl-sumo on the real plant, whose vehicles SUMO's models cannot drive) and SUMO's CACC (the
@@ -55,8 +58,8 @@ at h = 0.8 s (the gains tuned for each plant; on the real plant also with anti-w
 layer, :data:`ROBUST_TTC`), the paper's CA-TD3 on IDM, the product CA-TD3 on the tuned CACC for
 the ideal and for the real plant (and the real plant's on :data:`ROBUST_AW`, on
 :data:`ROBUST_HA` and on :data:`ROBUST_TTC`; the product, its two-ahead feed-forward on the
-CACC at h = 0.6 s with those layers, ``gn=6``, ``op=2`` and trucks at 0.8 s, ``ht=0.8``), and
-MADDPG (n/a: fixed size)."""
+CACC at h = 0.6 s with those layers, ``gn=6``, ``op=2`` and trucks at 0.8 s, ``ht=0.8``, beside
+that CACC without it, :data:`PRODUCT_BASE`), and MADDPG (n/a: fixed size)."""
 LABELS = {"idm": "IDM (SUMO)", "idm-external": "IDM (carl-sumo, on the plant)",
           "sumo-cacc": "CACC (SUMO)", "acc:h=2.5:kp=0.45:kd=1.5": "ACC h=2.5 s (fleet gains)",
           "acc-tuned:h=2.5": "ACC tuned h=2.5 s", "ploeg-tuned:h=0.8": "Ploeg tuned h=0.8 s",
@@ -67,6 +70,7 @@ LABELS = {"idm": "IDM (SUMO)", "idm-external": "IDM (carl-sumo, on the plant)",
           ROBUST_TTC: "the same with its reaction layer ttc=2 s",
           "ca_td3_real_ha_10.pt": "CA-TD3 product (real, ha=1.4)",
           "ca_td3_real_react_10.pt": "CA-TD3 product (real, ha=1.4, ttc=2)",
+          PRODUCT_BASE: "Ploeg tuned h=0.6 s, trucks 0.8 s, its layers (the product's base)",
           "ca_td3_real_truck_10.pt": "CA-TD3 product (real, h=0.6 s, trucks 0.8 s, two-ahead)",
           "maddpg_10.pt": "MADDPG"}
 TABLE_COLUMNS = (
