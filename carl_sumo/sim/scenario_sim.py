@@ -21,9 +21,9 @@ the joiner is in the lane. A joiner that announces itself (``join:signal=S``) ke
 its gap and brakes only as its chain does, so until it is in the lane the member meets it on radar
 with its law and reaction layer alone, without a human's guards (carl_sumo.control.cacc's ``gn=B``
 and ``op=B``: on the training split they cost the product 1.04 m/s² more peak braking over an
-announced join, docs/scenarios.md). A human who cuts
-in is never a member: it is driven by SUMO's Krauss model (``human_krauss``) from the step it is
-in the platoon lane, and it sends no V2V.
+announced join, docs/scenarios.md). A human who cuts in is never a member: it is driven by
+SUMO's Krauss model (``human_krauss``) from the step it is in the platoon lane, and it sends no
+V2V.
 """
 
 from __future__ import annotations
@@ -236,9 +236,9 @@ class ScenarioSim(PlatoonSim):
     def _settle(self) -> None:
         """A member gets a vehicle that enters ahead of it (a human who cuts in, from the step he
         is ahead: his landing or his first signal; a joiner, from the step it is in the lane and
-        in the chain): it is new to that vehicle until it has room. The joiner stops joining, and such a member being new, once it has room
-        (:data:`JOIN_LINK_GAP_S`) or, for the member, once the entering vehicle is no longer
-        ahead of it."""
+        in the chain): it is new to that vehicle until it has room. The joiner stops joining, and
+        such a member being new, once it has room (:data:`JOIN_LINK_GAP_S`) or, for the member,
+        once the entering vehicle is no longer ahead of it."""
         entering = self.entering  # None for a cut-out or a merge
         announced_joiner = entering == "joiner" and entering not in self.members
         for vid in self.members:

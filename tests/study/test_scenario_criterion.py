@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from carl_sumo.data import load_events
+from carl_sumo.learn.policy import read_policy_payload
 from carl_sumo.sim.scenario import ScenarioSpec
 from carl_sumo.study.scenario_criterion import criterion_lines, manoeuvre_criterion
-from carl_sumo.study.scenario_tables import result_of, run_jobs
+from carl_sumo.study.scenario_tables import (PLANT_CONTROLLERS, PRODUCT_BASE, result_of,
+                                             run_jobs)
 
 from conftest import NET
 
@@ -73,3 +76,12 @@ def test_collisions_and_close_calls_count_only_where_the_reference_has_none():
     assert c["collision_events_where_reference_none"] == [0]
     assert (c["ttc_where_reference_none"], c["reference_ttc_where_none"]) == (1, 1)
     assert c["settle_s"]["events"] == 0 and math.isnan(c["settle_s"]["difference"])
+
+
+def test_the_suites_product_base_is_the_shipped_products_base():
+    """The scenario suite's row for the product's base is the law the shipped product runs its
+    learned term on, so the two rows differ by that term alone."""
+    payload = read_policy_payload(Path("policies/ca_td3_real_truck_10.pt"))
+    assert payload["agent_config"]["base"] == PRODUCT_BASE
+    real = PLANT_CONTROLLERS["real"]
+    assert real.index(PRODUCT_BASE) + 1 == real.index("ca_td3_real_truck_10.pt")
