@@ -44,6 +44,8 @@ DESIGNS = (  # (label, CA file stem, CA-off file stem or None)
      "learned_test_ca_td3_real_hp_10", "learned_test_ca_td3_real_hp_nocomm_10"),
     ("`REAL_TWO`: `REAL_GATED`, CA first copies the two-ahead feed-forward (`--imitate two-ahead:c=0.3`)",
      "learned_test_ca_td3_real_two_10", "learned_test_ca_td3_real_two_nocomm_10"),
+    ("`REAL_TRUCK`: `REAL_TWO` with `gn=6`, `op=2` and trucks at 0.8 s `ht=0.8` (the product)",
+     "learned_test_ca_td3_real_truck_10", "learned_test_ca_td3_real_truck_nocomm_10"),
     ("`REAL_ACC_SPACING`: radar-only ACC base, CA copies the CACC",
      "learned_test_ca_td3_real_accsp_10", "learned_test_ca_td3_real_accsp_nocomm_10"),
     ("`REAL_ACC_CMD`: the same, copying the predecessor's command",
