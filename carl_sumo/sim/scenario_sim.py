@@ -20,10 +20,10 @@ the first step it has him ahead (his landing, or his first signal), behind a joi
 the joiner is in the lane. A joiner that announces itself (``join:signal=S``) keeps pace beside
 its gap and brakes only as its chain does, so until it is in the lane the member meets it on radar
 with its law and reaction layer alone, without a human's guards (carl_sumo.control.cacc's ``gn=B``
-and ``op=B``: on the training split they cost the product 1.04 m/s² more peak braking over an
-announced join, docs/scenarios.md). A human who cuts in is never a member: it is driven by
-SUMO's Krauss model (``human_krauss``) from the step it is in the platoon lane, and it sends no
-V2V.
+and ``op=B``: before commit a863041 they acted there and cost the product 1.04 m/s² more peak
+braking over an announced join on the training split, docs/scenarios.md). A human who cuts in is
+never a member: it is driven by SUMO's Krauss model (``human_krauss``) from the step it is in the
+platoon lane, and it sends no V2V.
 """
 
 from __future__ import annotations
@@ -240,10 +240,10 @@ class ScenarioSim(PlatoonSim):
         such a member being new, once it has room (:data:`JOIN_LINK_GAP_S`) or, for the member,
         once the entering vehicle is no longer ahead of it."""
         entering = self.entering  # None for a cut-out or a merge
-        announced_joiner = entering == "joiner" and entering not in self.members
+        joiner_outside_chain = entering == "joiner" and entering not in self.members
         for vid in self.members:
             if entering is not None and vid != entering and self.ahead[vid][0] == entering \
-                    and vid not in self._met_entering and not announced_joiner:
+                    and vid not in self._met_entering and not joiner_outside_chain:
                 self._met_entering.add(vid)
                 self.new_ahead.add(vid)
         for vid in list(self.armed):
