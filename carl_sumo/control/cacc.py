@@ -47,7 +47,11 @@ member it hears (a human who just cut in or signals to) until it has room
 (carl_sumo.sim.scenario_sim), never for a platoon's head. Behind a joiner the member is left to
 its law and its reaction layer: while an announced joiner signals beside its gap (it is not armed
 then) and once the joiner is in its chain, also in the steps before the joiner's first message
-arrives (the V2V delay).
+arrives (the V2V delay). At a zipper merge in traffic (carl_sumo.study.run) a vehicle whose
+vehicle ahead is still on the other feeding lane, nearer to the merge point, hears it but is
+guarded as such an armed vehicle until that vehicle is in its lane (:meth:`PloegChains.merge_behind`):
+beside it, the law's robust gains answer a gap far too short, even negative, while the other
+vehicle draws away, with kd·ė against kp·e, and it would reach the merge point alongside.
 
 Opening (``op=B`` in a name): the same armed vehicle at the front of its chain opens its gap to
 the 0.8 s at which it stops being armed, instead of leaving the gap to its law (whose robust
@@ -119,7 +123,7 @@ CRUISE_GAIN_PER_S = 0.4
 @njit(cache=True)
 def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc,
                 pred_mode, pred_held, u_min, u_max, ttc_on, margin, lag, armed, a_ahead, safe_b,
-                safe_armed_only, open_b, h_heavy):
+                safe_armed_only, open_b, h_heavy, beside):
     """One step of every follower (head first): updates ``u`` in place, returns a (m/s²);
     ``adj`` (m/s², shape (n,)) is the learned feed-forward term (zeros for the plain law).
     ``pred_mode`` / ``pred_held`` (shape (n,)): how follower i > 0 hears its predecessor's
@@ -135,7 +139,10 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
     ``safe_b`` (m/s²; 0: off): such a vehicle applies at most (v_safe - v)/lag, v_safe the speed
     from which it stops behind the vehicle ahead when both brake at safe_b after its lag
     (Gipps), and ``brake`` holds that too; ``safe_armed_only`` (``gn=B``): only an armed vehicle
-    at the front of its chain (i = 0: the vehicle ahead is no member it hears, a human) does."""
+    at the front of its chain (i = 0: the vehicle ahead is no member it hears, a human) does.
+    ``beside`` (bool, shape (n,)): vehicles whose vehicle ahead is still in another lane (a zipper
+    merge's vehicle from the other feeding lane, nearer to the merge point); ``gn``/``gs`` and
+    ``op`` guard them as an armed vehicle at the front of its chain, although they hear it."""
     n = obs.shape[0]
     out = np.empty(n)
     u_pred = u_lead
@@ -169,8 +176,8 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
             brake[i] = out[i]  # its follower hears the reaction's braking
         # gn and op: only a chain's first vehicle, whose vehicle ahead is not a member it hears
         # (a human); behind a member of its chain a message is on its way (the V2V delay)
-        front_armed = i == 0 and armed[i]
-        guarded = front_armed if safe_armed_only else armed[i] or alone
+        front_armed = (i == 0 and armed[i]) or beside[i]  # beside: not yet in its lane
+        guarded = front_armed if safe_armed_only else armed[i] or alone or beside[i]
         if guarded and safe_b > 0.0:
             v, v_ahead = obs[i, 0], max(obs[i, 0] + obs[i, 3], 0.0)
             bl = safe_b * lag
@@ -198,11 +205,11 @@ def _no_limits(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 @lru_cache(maxsize=64)
-def _no_reaction_inputs(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """No vehicle of ``n`` armed and no braking ahead measured, read-only (shared)."""
+def _no_reaction_inputs(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """No vehicle of ``n`` armed, none beside and no braking ahead measured, read-only (shared)."""
     armed, a_ahead = np.zeros(n, dtype=np.bool_), np.zeros(n)
     armed.flags.writeable = a_ahead.flags.writeable = False
-    return armed, a_ahead
+    return armed, a_ahead, armed
 
 
 class PloegController:
@@ -284,8 +291,8 @@ class PloegController:
     def step(self, obs: np.ndarray, u: np.ndarray, u_lead: float,
              adjustment: np.ndarray | None = None, pred_mode: np.ndarray | None = None,
              pred_held: np.ndarray | None = None, brake: np.ndarray | None = None,
-             armed: np.ndarray | None = None, a_ahead: np.ndarray | None = None
-             ) -> np.ndarray:
+             armed: np.ndarray | None = None, a_ahead: np.ndarray | None = None,
+             beside: np.ndarray | None = None) -> np.ndarray:
         """One step of the law on a chain (head first): updates the states ``u`` in place; the
         head hears ``u_lead`` (m/s²); ``adjustment``: the learned feed-forward term (m/s²);
         ``pred_mode`` / ``pred_held``: how each follower hears its predecessor (default: this
@@ -293,7 +300,8 @@ class PloegController:
         none; its message is min(u, brake)), updated in place (default: none); ``armed``: the
         vehicles whose reaction layer acts although they hear a message (default: none);
         ``a_ahead``: the acceleration of each vehicle's vehicle ahead as its radar measures it
-        (m/s², for the reaction; default: 0).
+        (m/s², for the reaction; default: 0); ``beside``: the vehicles whose vehicle ahead is
+        still in another lane, which ``gn``/``gs`` and ``op`` guard (default: none).
         Returns a (m/s²)."""
         p, b = self.params, self.bounds
         n = obs.shape[0]
@@ -304,23 +312,26 @@ class PloegController:
         elif pred_mode is None:
             pred_mode, pred_held = np.zeros(n, dtype=np.int64), np.zeros(n)
         brake = np.full(n, np.inf) if brake is None else brake
+        armed, a_ahead, beside = self._reaction_inputs(n, armed, a_ahead, beside)
         return _ploeg_step(obs, u, brake, u_lead, adj, p.time_gap_s, p.gap_alone_s, p.kp, p.kd,
                            p.standstill_gap_m,
                            DT_S, b.acc_min_mps2, b.acc_max_mps2, IDM.desired_speed_mps,
                            CRUISE_GAIN_PER_S, np.ascontiguousarray(pred_mode, dtype=np.int64),
                            np.ascontiguousarray(pred_held, dtype=np.float64), *self._limits(n),
                            p.reaction_ttc_s or 0.0, REACTION_MARGIN_M, REACTION_LAG_S,
-                           *self._reaction_inputs(n, armed, a_ahead), p.safe_braking_mps2 or 0.0,
+                           armed, a_ahead, p.safe_braking_mps2 or 0.0,
                            p.safe_new_only, p.opening_braking_mps2 or 0.0,
-                           p.heavy_gap_s or 0.0)
+                           p.heavy_gap_s or 0.0, beside)
 
     @staticmethod
-    def _reaction_inputs(n: int, armed: np.ndarray | None, a_ahead: np.ndarray | None
-                         ) -> tuple[np.ndarray, np.ndarray]:
-        """The kernel's ``armed`` and ``a_ahead`` (none armed, 0 where not given)."""
-        no_armed, zero = _no_reaction_inputs(n)
+    def _reaction_inputs(n: int, armed: np.ndarray | None, a_ahead: np.ndarray | None,
+                         beside: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The kernel's ``armed``, ``a_ahead`` and ``beside`` (none armed or beside, 0 where
+        not given)."""
+        no_armed, zero, no_beside = _no_reaction_inputs(n)
         return (no_armed if armed is None else np.ascontiguousarray(armed, dtype=np.bool_),
-                zero if a_ahead is None else np.ascontiguousarray(a_ahead, dtype=np.float64))
+                zero if a_ahead is None else np.ascontiguousarray(a_ahead, dtype=np.float64),
+                no_beside if beside is None else np.ascontiguousarray(beside, dtype=np.bool_))
 
     def _limits(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """(u_min, u_max) of a chain of ``n`` (m/s²): the known vehicles' limits, else none
@@ -364,6 +375,7 @@ class PloegChains:
         self.limits: dict[str, tuple[float, float]] = {}  # ID: (a_max, b_max) (m/s²)
         self.links: KeyedChannel | None = None
         self.armed: set[str] = set()  # IDs whose reaction acts although they hear a message
+        self.beside: set[str] = set()  # IDs whose vehicle ahead is still in another lane
         self._dv: dict[str, tuple[str | None, float]] = {}
         self._k = 0
         self.adj_mean: dict[str, float] = {}  # ID: its running mean of a_adj (m/s², ``wo=T``)
@@ -372,11 +384,16 @@ class PloegChains:
         """Forget every state, limit and link: a new run starts (every vehicle's u at 0)."""
         self.u, self.brake, self.limits, self.links, self._k = {}, {}, {}, None, 0
         self.adj_mean = {}
-        self.armed, self._dv = set(), {}
+        self.armed, self.beside, self._dv = set(), set(), {}
 
     def arm(self, vehicle_ids: set[str]) -> None:
         """Arm these vehicles' reaction layer (``ttc=T``) although they hear a message."""
         self.armed = set(vehicle_ids)
+
+    def merge_behind(self, vehicle_ids: set[str]) -> None:
+        """These vehicles' vehicle ahead is still in another lane (a zipper merge's vehicle
+        from the other feeding lane): ``gn``/``gs`` and ``op`` guard them although they hear it."""
+        self.beside = set(vehicle_ids)
 
     def know_vehicle(self, vehicle_id: str, a_max_mps2: float, b_max_mps2: float) -> None:
         """What one vehicle's powertrain can do (:meth:`PloegController.know_vehicles`; only a
@@ -448,9 +465,10 @@ class PloegChains:
                     self.links.send(self._k, pairs, np.minimum(u, brake)[:-1, None])
             self._set_limits([ids[i] for i in chain])
             armed = [ids[i] in self.armed for i in chain] if self.armed else None
+            beside = [ids[i] in self.beside for i in chain] if self.beside else None
             a_ahead = self._radar_ahead(obs, chain, ids, ahead, dv_new)
             out[chain] = self.controller.step(np.ascontiguousarray(obs[chain]), u, a_pred, adj,
-                                              mode, held, brake, armed, a_ahead)
+                                              mode, held, brake, armed, a_ahead, beside)
             u_new.update(zip((ids[i] for i in chain), u.tolist()))
             brake_new.update(zip((ids[i] for i in chain), brake.tolist()))
         if commit:

@@ -4,7 +4,8 @@ A chain is a run of consecutive CACC vehicles in one lane, each within the V2V r
 ahead (:func:`form_chains`); a human or a longer gap ends it. The observations come from SUMO's
 ``getLeader`` (:func:`cacc_observations`), and at a zipper merge a vehicle on the other feeding
 lane nearer to the merge point counts as the vehicle ahead (:func:`merging_lanes`,
-:func:`zipper_ahead`). Used by the study loop of :mod:`carl_sumo.study.run`.
+:func:`zipper_ahead`; :func:`zipper_aheads` for all of them, and which vehicles have that vehicle
+beside them). Used by the study loop of :mod:`carl_sumo.study.run`.
 """
 
 from __future__ import annotations
@@ -121,3 +122,20 @@ def zipper_ahead(ls, vid: str, lane: str, siblings: tuple[str, ...],
     if best is None or (item is not None and item[0] != "" and item[1] <= best[1]):
         return item
     return best
+
+
+def zipper_aheads(ls, cids: Sequence[str], ahead: list[tuple[str, float] | None],
+                  merging: dict[str, tuple[str, ...]], min_gap: dict[str, float],
+                  range_m: float) -> set[str]:
+    """:func:`zipper_ahead` for every CACC vehicle ``cids`` on a merging lane, ``ahead`` (its
+    ``getLeader`` answers) updated in place. Returns the vehicles whose vehicle ahead is now one
+    on the other feeding lane: beside them until it is in their lane."""
+    beside = set()
+    for row, vid in enumerate(cids):
+        lane = ls.vehicle.getLaneID(vid)
+        if lane in merging:
+            own = ahead[row]
+            ahead[row] = zipper_ahead(ls, vid, lane, merging[lane], own, min_gap[vid], range_m)
+            if ahead[row] is not own:
+                beside.add(vid)
+    return beside

@@ -88,6 +88,12 @@ class ChainController:
         if self.base is not None:
             self.base.arm(vehicle_ids)
 
+    def merge_behind(self, vehicle_ids: set[str]) -> None:
+        """Tell a classical base which vehicles have their vehicle ahead still in another lane
+        (PloegChains.merge_behind)."""
+        if self.base is not None:
+            self.base.merge_behind(vehicle_ids)
+
     def connect(self, impairments: Impairments, run_id: str) -> None:
         """Carry the CA messages (streams 2 and 3 of ``run_id``) and a classical base's
         predecessor states over impaired vehicle-keyed links (:class:`KeyedChannel`)."""

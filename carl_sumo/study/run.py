@@ -59,7 +59,7 @@ from carl_sumo.errors import InputError
 from carl_sumo.control.sensors import Sensors
 from carl_sumo.files import check_xml, output_error, write_text_atomic
 from carl_sumo.study.controllers import ChainController, know_vehicle, resolve_study_controller
-from carl_sumo.study.chains import cacc_observations, form_chains, merging_lanes, zipper_ahead
+from carl_sumo.study.chains import cacc_observations, form_chains, merging_lanes, zipper_aheads
 from carl_sumo.study.results import RunResult, markdown_table, run_name, summarise, write_csv
 from carl_sumo.sim.sumo import DEFAULT_NET, VTYPES_FILE, close_sumo, lane_route, start_sumo
 from carl_sumo.sim.traffic import (CACC_TYPES, DEFAULT_DEMAND, HUMAN_TYPES, MAIN_EDGE, Demand,
@@ -327,11 +327,9 @@ def _drive_cacc(ls, cfg: StudyConfig, controller: ChainController | PloegChains,
     lookahead = max(cfg.v2v_range_m, SENSOR_RANGE_M)
     if cahead is None:
         cahead = [vehicle.getLeader(v, lookahead) for v in cids]
-    for row, vid in enumerate(cids):
-        lane = vehicle.getLaneID(vid)
-        if lane in merging:
-            cahead[row] = zipper_ahead(ls, vid, lane, merging[lane], cahead[row], min_gap[vid],
-                                       lookahead)
+    beside = zipper_aheads(ls, cids, cahead, merging, min_gap, lookahead)
+    if hasattr(controller, "merge_behind"):  # guarded until that vehicle is in their lane
+        controller.merge_behind(beside)
     obs, chain_ahead = cacc_observations(cids, speeds, accel, cahead, speed_of, min_gap, lookahead)
     chains = form_chains(cids, chain_ahead, cfg.v2v_range_m)
     if sensors is not None:  # a track per vehicle and its current predecessor

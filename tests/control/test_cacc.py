@@ -440,6 +440,36 @@ def test_op_opens_the_gap_of_an_armed_chain_front_at_a_bounded_braking():
         plain.step(room, plain.u, 0.0, armed=np.array([True]))[0]
 
 
+def test_a_vehicle_beside_its_vehicle_ahead_is_guarded_although_it_hears_it():
+    """``beside`` (a zipper merge: the vehicle ahead is still on the other feeding lane): ``gn``
+    and ``op`` guard a follower that hears that vehicle, as an armed chain front; without them
+    (the law at 0.8 s with its reaction layer) nothing changes. The recorded case of
+    docs/study.md: a car 4.2 m *behind the front* of a truck beside it (bumper gap -4.2 m), 1.1
+    m/s slower; the law alone brakes at about 0.1 m/s² and reaches the merge point alongside."""
+    product = "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1:wo=5:gn=6:op=2:ht=0.8"
+    law = PloegController(parse_ploeg(product))
+    obs = np.array([[32.2, 0.0, 30.0, 0.0], [31.1, 0.0, -4.2 + 2.0, 1.1]])  # truck, car
+    mode, held = np.zeros(2, dtype=np.int64), np.zeros(2)
+    out = {}
+    for flag in (False, True):
+        law.reset(2)
+        brake = np.full(2, np.inf)
+        out[flag] = law.step(obs, law.u, 0.0, pred_mode=mode, pred_held=held, brake=brake,
+                             beside=np.array([False, flag]))
+        assert brake[1] == (out[flag][1] if flag else np.inf)  # its follower hears the guard
+    assert out[True][0] == out[False][0] and abs(out[False][1]) < 0.2
+    bl = 6.0 * 0.5  # gn=6: Gipps' safe speed with no room left, after 0.5 s of lag
+    v_safe = -bl + math.sqrt(bl * bl + 32.2 ** 2)
+    assert math.isclose(out[True][1], max((v_safe - 31.1) / 0.5, -9.0), rel_tol=1e-12)
+    assert out[True][1] < -2.0  # harder than op's 2 m/s²: Gipps binds first
+    plain = PloegController(parse_ploeg("ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1"))
+    for flag in (False, True):
+        plain.reset(2)
+        out[flag] = plain.step(obs, plain.u, 0.0, pred_mode=mode, pred_held=held,
+                               beside=np.array([False, flag]))
+    np.testing.assert_array_equal(out[True], out[False])
+
+
 def test_ht_gives_a_heavy_vehicle_its_own_time_gap_in_the_chain():
     """``ht=T`` (with ``aw=1``): a vehicle whose own braking is below 7 m/s² (a truck, 6) keeps
     the time gap T in its chain, a car the law's h; the head, which hears no message, keeps ha.

@@ -17,7 +17,8 @@ from carl_sumo.errors import InputError
 from carl_sumo.learn.policy import save_policy
 from carl_sumo.study.controllers import ChainController
 from carl_sumo.study.run import StudyConfig, run_one, _sumo_study_args
-from carl_sumo.study.chains import cacc_observations, form_chains, merging_lanes, zipper_ahead
+from carl_sumo.study.chains import (cacc_observations, form_chains, merging_lanes,
+                                   zipper_ahead, zipper_aheads)
 from carl_sumo.sim.sumo import close_sumo, start_sumo, sumo_args
 from carl_sumo.sim.traffic import DEFAULT_DEMAND, Demand, write_routes
 
@@ -117,6 +118,10 @@ def test_zipper_merge_gives_a_virtual_vehicle_ahead():
         # the foe, nearer to the merge point, does not yield to the ego
         assert zipper_ahead(ls, "foe", "i80_merge_0", merging["i80_merge_0"], None, 2.0,
                             300.0) is None
+        # for every CACC vehicle at once: the ego has the foe beside it (the law guards it)
+        ahead = [ls.vehicle.getLeader("ego", 300.0)]
+        assert zipper_aheads(ls, ["ego"], ahead, merging, {"ego": 2.0}, 300.0) == {"ego"}
+        assert ahead == [item]
     finally:
         close_sumo()
 
