@@ -47,11 +47,16 @@ member it hears (a human who just cut in or signals to) until it has room
 (carl_sumo.sim.scenario_sim), never for a platoon's head. Behind a joiner the member is left to
 its law and its reaction layer: while an announced joiner signals beside its gap (it is not armed
 then) and once the joiner is in its chain, also in the steps before the joiner's first message
-arrives (the V2V delay). At a zipper merge in traffic (carl_sumo.study.run) a vehicle whose
-vehicle ahead is still on the other feeding lane, nearer to the merge point, hears it but is
-guarded as such an armed vehicle until that vehicle is in its lane (:meth:`PloegChains.merge_behind`):
-beside it, the law's robust gains answer a gap far too short, even negative, while the other
-vehicle draws away, with kd·ė against kp·e, and it would reach the merge point alongside.
+arrives (the V2V delay).
+
+Merge point (with ``gs`` or ``gn``): at a zipper merge in traffic (carl_sumo.study.run) a vehicle
+whose vehicle ahead is still on the other feeding lane, nearer to the merge point, hears it, and
+its law runs on the gap it will have behind it. Beside it that gap is short, often negative, and
+while the other vehicle draws away the law's robust gains answer it with almost nothing (kd·ė
+against kp·e): it can reach the merge point alongside. So it also keeps at most the constant
+acceleration with which it reaches the merge point, R metres ahead, s0 behind that vehicle:
+2·(d - s0 + Δv·t)/t², t = R/v (:meth:`PloegChains.merge_behind`), and tells its follower. Far from
+the merge point that is a gentle braking; it binds only when the gap would not open in time.
 
 Opening (``op=B`` in a name): the same armed vehicle at the front of its chain opens its gap to
 the 0.8 s at which it stops being armed, instead of leaving the gap to its law (whose robust
@@ -113,6 +118,9 @@ OPEN_TIME_S = 3.0
 """``op=B``: the opening speed it asks for is the missing gap over this time (m / s)."""
 OPEN_SPEED_TIME_S = 1.0
 """``op=B``: it reaches that opening speed with this time constant (s)."""
+MERGE_MIN_SPEED_MPS = 0.5
+"""Merge point: the speed below which the time to the merge point is taken at this speed (m/s),
+so a vehicle at a near stop beside the merge point is bounded by a finite time."""
 HEAVY_BRAKING_MPS2 = 7.0
 """``ht=T``: a vehicle whose own largest braking is below this (m/s²; a truck's 6, a car's 9),
 known with ``aw=1``, keeps at least the time gap T in its chain."""
@@ -123,7 +131,7 @@ CRUISE_GAIN_PER_S = 0.4
 @njit(cache=True)
 def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc,
                 pred_mode, pred_held, u_min, u_max, ttc_on, margin, lag, armed, a_ahead, safe_b,
-                safe_armed_only, open_b, h_heavy, beside):
+                safe_armed_only, open_b, h_heavy, merge_m):
     """One step of every follower (head first): updates ``u`` in place, returns a (m/s²);
     ``adj`` (m/s², shape (n,)) is the learned feed-forward term (zeros for the plain law).
     ``pred_mode`` / ``pred_held`` (shape (n,)): how follower i > 0 hears its predecessor's
@@ -140,9 +148,10 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
     from which it stops behind the vehicle ahead when both brake at safe_b after its lag
     (Gipps), and ``brake`` holds that too; ``safe_armed_only`` (``gn=B``): only an armed vehicle
     at the front of its chain (i = 0: the vehicle ahead is no member it hears, a human) does.
-    ``beside`` (bool, shape (n,)): vehicles whose vehicle ahead is still in another lane (a zipper
-    merge's vehicle from the other feeding lane, nearer to the merge point); ``gn``/``gs`` and
-    ``op`` guard them as an armed vehicle at the front of its chain, although they hear it."""
+    ``merge_m`` (m, shape (n,); inf: none): the distance to the merge point of a vehicle whose
+    vehicle ahead is still on the other feeding lane of a zipper merge; with ``safe_b`` > 0 it
+    applies at most 2·(d - s0 + Δv·t)/t², t = its distance over its speed (the module
+    docstring), and ``brake`` holds that too."""
     n = obs.shape[0]
     out = np.empty(n)
     u_pred = u_lead
@@ -176,8 +185,8 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
             brake[i] = out[i]  # its follower hears the reaction's braking
         # gn and op: only a chain's first vehicle, whose vehicle ahead is not a member it hears
         # (a human); behind a member of its chain a message is on its way (the V2V delay)
-        front_armed = (i == 0 and armed[i]) or beside[i]  # beside: not yet in its lane
-        guarded = front_armed if safe_armed_only else armed[i] or alone or beside[i]
+        front_armed = i == 0 and armed[i]
+        guarded = front_armed if safe_armed_only else armed[i] or alone
         if guarded and safe_b > 0.0:
             v, v_ahead = obs[i, 0], max(obs[i, 0] + obs[i, 3], 0.0)
             bl = safe_b * lag
@@ -193,6 +202,12 @@ def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min,
                 if a_open < out[i]:
                     out[i] = max(a_open, acc_min, u_min[i])
                     brake[i] = min(brake[i], out[i])
+        if safe_b > 0.0 and merge_m[i] < np.inf:  # reach the merge point s0 behind the other
+            t = merge_m[i] / max(obs[i, 0], MERGE_MIN_SPEED_MPS)
+            a_merge = 2.0 * (obs[i, 2] - s0 + obs[i, 3] * t) / (t * t)
+            if a_merge < out[i]:
+                out[i] = max(a_merge, acc_min, u_min[i])
+                brake[i] = min(brake[i], out[i])
     return out
 
 
@@ -206,10 +221,13 @@ def _no_limits(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 @lru_cache(maxsize=64)
 def _no_reaction_inputs(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """No vehicle of ``n`` armed, none beside and no braking ahead measured, read-only (shared)."""
+    """No vehicle of ``n`` armed, no braking ahead measured and no merge point, read-only
+    (shared)."""
     armed, a_ahead = np.zeros(n, dtype=np.bool_), np.zeros(n)
     armed.flags.writeable = a_ahead.flags.writeable = False
-    return armed, a_ahead, armed
+    merge_m = np.full(n, np.inf)
+    merge_m.flags.writeable = False
+    return armed, a_ahead, merge_m
 
 
 class PloegController:
@@ -292,7 +310,7 @@ class PloegController:
              adjustment: np.ndarray | None = None, pred_mode: np.ndarray | None = None,
              pred_held: np.ndarray | None = None, brake: np.ndarray | None = None,
              armed: np.ndarray | None = None, a_ahead: np.ndarray | None = None,
-             beside: np.ndarray | None = None) -> np.ndarray:
+             merge_m: np.ndarray | None = None) -> np.ndarray:
         """One step of the law on a chain (head first): updates the states ``u`` in place; the
         head hears ``u_lead`` (m/s²); ``adjustment``: the learned feed-forward term (m/s²);
         ``pred_mode`` / ``pred_held``: how each follower hears its predecessor (default: this
@@ -300,8 +318,9 @@ class PloegController:
         none; its message is min(u, brake)), updated in place (default: none); ``armed``: the
         vehicles whose reaction layer acts although they hear a message (default: none);
         ``a_ahead``: the acceleration of each vehicle's vehicle ahead as its radar measures it
-        (m/s², for the reaction; default: 0); ``beside``: the vehicles whose vehicle ahead is
-        still in another lane, which ``gn``/``gs`` and ``op`` guard (default: none).
+        (m/s², for the reaction; default: 0); ``merge_m``: each vehicle's distance to a zipper
+        merge's point while its vehicle ahead is still on the other feeding lane (m; inf: none,
+        the default).
         Returns a (m/s²)."""
         p, b = self.params, self.bounds
         n = obs.shape[0]
@@ -312,7 +331,7 @@ class PloegController:
         elif pred_mode is None:
             pred_mode, pred_held = np.zeros(n, dtype=np.int64), np.zeros(n)
         brake = np.full(n, np.inf) if brake is None else brake
-        armed, a_ahead, beside = self._reaction_inputs(n, armed, a_ahead, beside)
+        armed, a_ahead, merge_m = self._reaction_inputs(n, armed, a_ahead, merge_m)
         return _ploeg_step(obs, u, brake, u_lead, adj, p.time_gap_s, p.gap_alone_s, p.kp, p.kd,
                            p.standstill_gap_m,
                            DT_S, b.acc_min_mps2, b.acc_max_mps2, IDM.desired_speed_mps,
@@ -321,17 +340,18 @@ class PloegController:
                            p.reaction_ttc_s or 0.0, REACTION_MARGIN_M, REACTION_LAG_S,
                            armed, a_ahead, p.safe_braking_mps2 or 0.0,
                            p.safe_new_only, p.opening_braking_mps2 or 0.0,
-                           p.heavy_gap_s or 0.0, beside)
+                           p.heavy_gap_s or 0.0, merge_m)
 
     @staticmethod
     def _reaction_inputs(n: int, armed: np.ndarray | None, a_ahead: np.ndarray | None,
-                         beside: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The kernel's ``armed``, ``a_ahead`` and ``beside`` (none armed or beside, 0 where
-        not given)."""
-        no_armed, zero, no_beside = _no_reaction_inputs(n)
+                         merge_m: np.ndarray | None
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The kernel's ``armed``, ``a_ahead`` and ``merge_m`` (none armed, 0 and no merge
+        point where not given)."""
+        no_armed, zero, no_merge = _no_reaction_inputs(n)
         return (no_armed if armed is None else np.ascontiguousarray(armed, dtype=np.bool_),
                 zero if a_ahead is None else np.ascontiguousarray(a_ahead, dtype=np.float64),
-                no_beside if beside is None else np.ascontiguousarray(beside, dtype=np.bool_))
+                no_merge if merge_m is None else np.ascontiguousarray(merge_m, dtype=np.float64))
 
     def _limits(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """(u_min, u_max) of a chain of ``n`` (m/s²): the known vehicles' limits, else none
@@ -375,7 +395,7 @@ class PloegChains:
         self.limits: dict[str, tuple[float, float]] = {}  # ID: (a_max, b_max) (m/s²)
         self.links: KeyedChannel | None = None
         self.armed: set[str] = set()  # IDs whose reaction acts although they hear a message
-        self.beside: set[str] = set()  # IDs whose vehicle ahead is still in another lane
+        self.merge_m: dict[str, float] = {}  # ID: its distance to a zipper merge's point (m)
         self._dv: dict[str, tuple[str | None, float]] = {}
         self._k = 0
         self.adj_mean: dict[str, float] = {}  # ID: its running mean of a_adj (m/s², ``wo=T``)
@@ -384,16 +404,17 @@ class PloegChains:
         """Forget every state, limit and link: a new run starts (every vehicle's u at 0)."""
         self.u, self.brake, self.limits, self.links, self._k = {}, {}, {}, None, 0
         self.adj_mean = {}
-        self.armed, self.beside, self._dv = set(), set(), {}
+        self.armed, self.merge_m, self._dv = set(), {}, {}
 
     def arm(self, vehicle_ids: set[str]) -> None:
         """Arm these vehicles' reaction layer (``ttc=T``) although they hear a message."""
         self.armed = set(vehicle_ids)
 
-    def merge_behind(self, vehicle_ids: set[str]) -> None:
-        """These vehicles' vehicle ahead is still in another lane (a zipper merge's vehicle
-        from the other feeding lane): ``gn``/``gs`` and ``op`` guard them although they hear it."""
-        self.beside = set(vehicle_ids)
+    def merge_behind(self, merge_m: dict[str, float]) -> None:
+        """ID: distance to a zipper merge's point (m) of the vehicles whose vehicle ahead is still
+        on the other feeding lane; a law with ``gs``/``gn`` reaches that point behind it (the
+        module docstring)."""
+        self.merge_m = dict(merge_m)
 
     def know_vehicle(self, vehicle_id: str, a_max_mps2: float, b_max_mps2: float) -> None:
         """What one vehicle's powertrain can do (:meth:`PloegController.know_vehicles`; only a
@@ -465,10 +486,10 @@ class PloegChains:
                     self.links.send(self._k, pairs, np.minimum(u, brake)[:-1, None])
             self._set_limits([ids[i] for i in chain])
             armed = [ids[i] in self.armed for i in chain] if self.armed else None
-            beside = [ids[i] in self.beside for i in chain] if self.beside else None
+            merge_m = [self.merge_m.get(ids[i], np.inf) for i in chain] if self.merge_m else None
             a_ahead = self._radar_ahead(obs, chain, ids, ahead, dv_new)
             out[chain] = self.controller.step(np.ascontiguousarray(obs[chain]), u, a_pred, adj,
-                                              mode, held, brake, armed, a_ahead, beside)
+                                              mode, held, brake, armed, a_ahead, merge_m)
             u_new.update(zip((ids[i] for i in chain), u.tolist()))
             brake_new.update(zip((ids[i] for i in chain), brake.tolist()))
         if commit:

@@ -4,8 +4,8 @@ A chain is a run of consecutive CACC vehicles in one lane, each within the V2V r
 ahead (:func:`form_chains`); a human or a longer gap ends it. The observations come from SUMO's
 ``getLeader`` (:func:`cacc_observations`), and at a zipper merge a vehicle on the other feeding
 lane nearer to the merge point counts as the vehicle ahead (:func:`merging_lanes`,
-:func:`zipper_ahead`; :func:`zipper_aheads` for all of them, and which vehicles have that vehicle
-beside them). Used by the study loop of :mod:`carl_sumo.study.run`.
+:func:`zipper_ahead`; :func:`zipper_aheads` for all of them, with the distance to the merge
+point of those that have such a vehicle ahead). Used by the study loop of :mod:`carl_sumo.study.run`.
 """
 
 from __future__ import annotations
@@ -126,16 +126,16 @@ def zipper_ahead(ls, vid: str, lane: str, siblings: tuple[str, ...],
 
 def zipper_aheads(ls, cids: Sequence[str], ahead: list[tuple[str, float] | None],
                   merging: dict[str, tuple[str, ...]], min_gap: dict[str, float],
-                  range_m: float) -> set[str]:
+                  range_m: float) -> dict[str, float]:
     """:func:`zipper_ahead` for every CACC vehicle ``cids`` on a merging lane, ``ahead`` (its
-    ``getLeader`` answers) updated in place. Returns the vehicles whose vehicle ahead is now one
-    on the other feeding lane: beside them until it is in their lane."""
-    beside = set()
+    ``getLeader`` answers) updated in place. Returns, for the vehicles whose vehicle ahead is now
+    one on the other feeding lane, their distance to the merge point (m): the end of their lane."""
+    merge_m: dict[str, float] = {}
     for row, vid in enumerate(cids):
         lane = ls.vehicle.getLaneID(vid)
         if lane in merging:
             own = ahead[row]
             ahead[row] = zipper_ahead(ls, vid, lane, merging[lane], own, min_gap[vid], range_m)
             if ahead[row] is not own:
-                beside.add(vid)
-    return beside
+                merge_m[vid] = ls.lane.getLength(lane) - ls.vehicle.getLanePosition(vid)
+    return merge_m

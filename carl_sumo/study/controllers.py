@@ -88,11 +88,11 @@ class ChainController:
         if self.base is not None:
             self.base.arm(vehicle_ids)
 
-    def merge_behind(self, vehicle_ids: set[str]) -> None:
-        """Tell a classical base which vehicles have their vehicle ahead still in another lane
-        (PloegChains.merge_behind)."""
+    def merge_behind(self, merge_m: dict[str, float]) -> None:
+        """Tell a classical base each vehicle's distance to a zipper merge's point while its
+        vehicle ahead is still on the other feeding lane (PloegChains.merge_behind)."""
         if self.base is not None:
-            self.base.merge_behind(vehicle_ids)
+            self.base.merge_behind(merge_m)
 
     def connect(self, impairments: Impairments, run_id: str) -> None:
         """Carry the CA messages (streams 2 and 3 of ``run_id``) and a classical base's

@@ -327,9 +327,9 @@ def _drive_cacc(ls, cfg: StudyConfig, controller: ChainController | PloegChains,
     lookahead = max(cfg.v2v_range_m, SENSOR_RANGE_M)
     if cahead is None:
         cahead = [vehicle.getLeader(v, lookahead) for v in cids]
-    beside = zipper_aheads(ls, cids, cahead, merging, min_gap, lookahead)
-    if hasattr(controller, "merge_behind"):  # guarded until that vehicle is in their lane
-        controller.merge_behind(beside)
+    merge_m = zipper_aheads(ls, cids, cahead, merging, min_gap, lookahead)
+    if hasattr(controller, "merge_behind"):  # a law with gs/gn reaches the merge point behind
+        controller.merge_behind(merge_m)
     obs, chain_ahead = cacc_observations(cids, speeds, accel, cahead, speed_of, min_gap, lookahead)
     chains = form_chains(cids, chain_ahead, cfg.v2v_range_m)
     if sensors is not None:  # a track per vehicle and its current predecessor

@@ -440,34 +440,47 @@ def test_op_opens_the_gap_of_an_armed_chain_front_at_a_bounded_braking():
         plain.step(room, plain.u, 0.0, armed=np.array([True]))[0]
 
 
-def test_a_vehicle_beside_its_vehicle_ahead_is_guarded_although_it_hears_it():
-    """``beside`` (a zipper merge: the vehicle ahead is still on the other feeding lane): ``gn``
-    and ``op`` guard a follower that hears that vehicle, as an armed chain front; without them
+def test_a_law_with_gn_reaches_a_zipper_merge_point_behind_the_vehicle_ahead():
+    """``merge_m`` (a zipper merge; the vehicle ahead is still on the other feeding lane): a law
+    with ``gn``/``gs`` applies at most 2·(d - s0 + Δv·t)/t², t = R/v, so that it reaches the
+    merge point R ahead s0 behind that vehicle, and tells its follower; without ``gn``/``gs``
     (the law at 0.8 s with its reaction layer) nothing changes. The recorded case of
-    docs/study.md: a car 4.2 m *behind the front* of a truck beside it (bumper gap -4.2 m), 1.1
-    m/s slower; the law alone brakes at about 0.1 m/s² and reaches the merge point alongside."""
+    docs/study.md: a car whose bumper gap to a truck beside it is -4.2 m, 1.1 m/s slower; the law
+    alone brakes at about 0.1 m/s² and reaches the merge point alongside."""
     product = "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1:wo=5:gn=6:op=2:ht=0.8"
     law = PloegController(parse_ploeg(product))
-    obs = np.array([[32.2, 0.0, 30.0, 0.0], [31.1, 0.0, -4.2 + 2.0, 1.1]])  # truck, car
+    obs = np.array([[32.2, 0.0, 30.0, 0.0], [31.1, 0.0, -4.2, 1.1]])  # truck, car
     mode, held = np.zeros(2, dtype=np.int64), np.zeros(2)
     out = {}
-    for flag in (False, True):
+    for rest in (np.inf, 57.0):  # no merge point; 57 m before it (the recorded case)
         law.reset(2)
         brake = np.full(2, np.inf)
-        out[flag] = law.step(obs, law.u, 0.0, pred_mode=mode, pred_held=held, brake=brake,
-                             beside=np.array([False, flag]))
-        assert brake[1] == (out[flag][1] if flag else np.inf)  # its follower hears the guard
-    assert out[True][0] == out[False][0] and abs(out[False][1]) < 0.2
-    bl = 6.0 * 0.5  # gn=6: Gipps' safe speed with no room left, after 0.5 s of lag
-    v_safe = -bl + math.sqrt(bl * bl + 32.2 ** 2)
-    assert math.isclose(out[True][1], max((v_safe - 31.1) / 0.5, -9.0), rel_tol=1e-12)
-    assert out[True][1] < -2.0  # harder than op's 2 m/s²: Gipps binds first
+        out[rest] = law.step(obs, law.u, 0.0, pred_mode=mode, pred_held=held, brake=brake,
+                             merge_m=np.array([np.inf, rest]))
+        assert brake[1] == (out[rest][1] if rest < np.inf else np.inf)  # its follower hears it
+        assert out[rest][0] == out[np.inf][0]
+    assert abs(out[np.inf][1]) < 0.2  # the law alone
+    t = 57.0 / 31.1
+    assert math.isclose(out[57.0][1], 2.0 * (-4.2 - 2.0 + 1.1 * t) / t ** 2, rel_tol=1e-12)
+    assert out[57.0][1] < -2.0  # late: hard
+    # the same car 8.8 m further back at the start of the 300 m merging lane: a gentle braking
+    early = obs.copy()
+    early[1, 2] = -13.0
+    law.reset(2)
+    a = law.step(early, law.u, 0.0, pred_mode=mode, pred_held=held,
+                 merge_m=np.array([np.inf, 300.0]))
+    t = 300.0 / 31.1
+    assert math.isclose(a[1], 2.0 * (-13.0 - 2.0 + 1.1 * t) / t ** 2, rel_tol=1e-12)
+    assert -0.1 < a[1] < 0.0
+    law.reset(2)  # where the gap opens in time by itself (-4.2 m, 300 m ahead): the law's
+    assert np.array_equal(law.step(obs, law.u, 0.0, pred_mode=mode, pred_held=held,
+                                   merge_m=np.array([np.inf, 300.0])), out[np.inf])
     plain = PloegController(parse_ploeg("ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1"))
-    for flag in (False, True):
+    for rest in (np.inf, 57.0):
         plain.reset(2)
-        out[flag] = plain.step(obs, plain.u, 0.0, pred_mode=mode, pred_held=held,
-                               beside=np.array([False, flag]))
-    np.testing.assert_array_equal(out[True], out[False])
+        out[rest] = plain.step(obs, plain.u, 0.0, pred_mode=mode, pred_held=held,
+                               merge_m=np.array([np.inf, rest]))
+    np.testing.assert_array_equal(out[57.0], out[np.inf])
 
 
 def test_ht_gives_a_heavy_vehicle_its_own_time_gap_in_the_chain():

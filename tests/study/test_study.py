@@ -118,9 +118,10 @@ def test_zipper_merge_gives_a_virtual_vehicle_ahead():
         # the foe, nearer to the merge point, does not yield to the ego
         assert zipper_ahead(ls, "foe", "i80_merge_0", merging["i80_merge_0"], None, 2.0,
                             300.0) is None
-        # for every CACC vehicle at once: the ego has the foe beside it (the law guards it)
+        # for every CACC vehicle at once, with the ego's distance to the merge point
         ahead = [ls.vehicle.getLeader("ego", 300.0)]
-        assert zipper_aheads(ls, ["ego"], ahead, merging, {"ego": 2.0}, 300.0) == {"ego"}
+        assert zipper_aheads(ls, ["ego"], ahead, merging, {"ego": 2.0}, 300.0) == \
+            {"ego": pytest.approx(ego_rest)}
         assert ahead == [item]
     finally:
         close_sumo()
