@@ -269,6 +269,28 @@ def test_residual_policy_on_chains_starts_as_its_classical_base(tmp_path):
     assert controller.base.u == pytest.approx(reference.u)
 
 
+def test_merge_point_bound_reaches_a_policys_base_on_chains(tmp_path):
+    """ChainController.merge_behind hands each vehicle's distance to a zipper merge's point to its
+    classical base: a fresh policy on a ``gn`` law brakes as that law does (PloegChains), harder
+    than without it for a car beside a faster truck; a base without ``gn`` ignores it."""
+    from carl_sumo.control.cacc import PloegChains, parse_ploeg
+
+    obs = np.array([[32.2, 0.0, 30.0, 0.0], [31.1, 0.0, -4.2, 1.1]])  # truck, car beside it
+    ids, chains, ahead, last = ["truck", "car"], [[0, 1]], [("x", 28.0), ("truck", -6.2)], {}
+    for base, bounded in (("ploeg:h=0.6:kp=0.0445:kd=1:gn=6", True), ("ploeg:h=0.6", False)):
+        save_policy(Agent(AgentConfig(algo="ca-td3", base=base)), tmp_path / "p.pt", {})
+        controller = ChainController(str(tmp_path / "p.pt"))
+        free = controller.acceleration(obs, chains, ids, ahead, last)
+        controller.reset()
+        controller.merge_behind({"car": 57.0})
+        a = controller.acceleration(obs, chains, ids, ahead, last)
+        reference = PloegChains(parse_ploeg(base))
+        reference.merge_behind({"car": 57.0})
+        assert np.allclose(a, reference.acceleration(obs, chains, ids, ahead, last))
+        assert a[0] == free[0]
+        assert (a[1] < free[1] - 1.0) if bounded else a[1] == free[1]
+
+
 def test_every_cacc_controller_is_inserted_like_sumos_cacc():
     from carl_sumo.study.run import insertion_tau_s
 
