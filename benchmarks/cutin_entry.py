@@ -5,7 +5,8 @@ step from its drawn time at which the gap has room (docs/scenarios.md), so a con
 follows closer meets it later, at another speed: the events in which only one of two controllers
 collides are read with this beside the criterion of ``benchmarks/scenarios_full_split.py``.
 
-Real plant, 60 s settled start, 10 followers, scenario seed 0 (as the full-split tables).
+Real plant, 60 s settled start, 10 followers, scenario seed 0 (as the full-split tables); the
+events of the test or the training split, by ID.
 
 Usage: python benchmarks/cutin_entry.py DATA CONTROLLER_A CONTROLLER_B EVENT_ID[,EVENT_ID...]
 """
@@ -44,7 +45,8 @@ def entry(name: str, events: list, spec: ScenarioSpec) -> dict[str, dict]:
 
 def main() -> None:
     data, a, b, ids = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4].split(",")
-    events = [e.with_warmup(REAL_WARMUP_S) for e in load_events(data, "test") if e.event_id in ids]
+    events = [e.with_warmup(REAL_WARMUP_S) for split in ("test", "train")
+              for e in load_events(data, split) if e.event_id in ids]  # either split's IDs
     spec = ScenarioSpec("cut-in", seed=0)
     rows = {name: entry(name, events, spec) for name in (a, b)}
     print("| event | controller | t_m (s) | speed (m/s) | gap left (m) | smallest gap (m) | collides |")
