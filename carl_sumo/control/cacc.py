@@ -55,8 +55,8 @@ its law runs on the gap it will have behind it. Beside it that gap is short, oft
 while the other vehicle draws away the law's robust gains answer it with almost nothing (kd·ė
 against kp·e): it can reach the merge point alongside. So it also keeps at most the constant
 acceleration with which it reaches the merge point, R metres ahead, s0 behind that vehicle:
-2·(d - s0 + Δv·t)/t², t = R/v (:meth:`PloegChains.merge_behind`), and tells its follower. Far from
-the merge point that is a gentle braking; it binds only when the gap would not open in time.
+2·(d - s0 + Δv·t)/t², t = R/v (:meth:`PloegChains.merge_behind`), and tells its follower. Far
+from the merge point that is a gentle braking; it binds only when the gap would not open in time.
 
 Opening (``op=B`` in a name): the same armed vehicle at the front of its chain opens its gap to
 the 0.8 s at which it stops being armed, instead of leaving the gap to its law (whose robust

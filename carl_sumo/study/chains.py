@@ -5,7 +5,8 @@ ahead (:func:`form_chains`); a human or a longer gap ends it. The observations c
 ``getLeader`` (:func:`cacc_observations`), and at a zipper merge a vehicle on the other feeding
 lane nearer to the merge point counts as the vehicle ahead (:func:`merging_lanes`,
 :func:`zipper_ahead`; :func:`zipper_aheads` for all of them, with the distance to the merge
-point of those that have such a vehicle ahead). Used by the study loop of :mod:`carl_sumo.study.run`.
+point of those that have such a vehicle ahead). Used by the study loop of
+:mod:`carl_sumo.study.run`.
 """
 
 from __future__ import annotations
