@@ -22,7 +22,10 @@ CACC vehicles (controller ``idm-external`` or a policy file) are driven by carl-
 Controllers ``ploeg``, ``ploeg:h=..`` and ``ploeg-tuned:h=..``: Ploeg's CACC
 (:class:`carl_sumo.control.cacc.PloegChains`) on the same chains, applied the same way; a chain's head
 takes the acceleration of the vehicle ahead over the last step where a platoon's first follower
-takes the leader's.
+takes the leader's. At a zipper merge a law with ``gs``/``gn`` (and a policy on such a base) is
+told each vehicle's distance to the merge point while its vehicle ahead is still on the other
+feeding lane, and reaches that point behind it
+(:meth:`carl_sumo.control.cacc.PloegChains.merge_behind`).
 
 Controller ``sumo-cacc``: CACC vehicles are of type ``cacc_sumo`` (SUMO's CACC car-following
 model) and SUMO drives them; only their lane changes are switched off.
