@@ -20,10 +20,8 @@ the first step it has him ahead (his landing, or his first signal), behind a joi
 the joiner is in the lane. A joiner that announces itself (``join:signal=S``) keeps pace beside
 its gap and brakes only as its chain does, so until it is in the lane the member meets it on radar
 with its law and reaction layer alone, without a human's guards (carl_sumo.control.cacc's ``gn=B``
-and ``op=B``: before commit a863041 they acted there and cost the product 1.04 m/s² more peak
-braking over an announced join on the training split, docs/scenarios.md). A human who cuts in is
-never a member: it is driven by SUMO's Krauss model (``human_krauss``) from the step it is in the
-platoon lane, and it sends no V2V.
+and ``op=B``; docs/scenarios.md). A human who cuts in is never a member: it is driven by SUMO's
+Krauss model (``human_krauss``) from the step it is in the platoon lane, and it sends no V2V.
 """
 
 from __future__ import annotations
