@@ -513,3 +513,144 @@ def test_a_negative_impairment_seed_is_one_line(tmp_path, monkeypatch, capsys, a
     code = main(argv + ["--events", "1"] * (argv[0] == "simulate") + ["--impairment-seed", "-1"])
     one_line_exit_2(code, capsys.readouterr().err, "--impairment-seed must be 0 or more")
     assert list(tmp_path.iterdir()) == []
+
+
+# --- controllers of the user (issue 56) --------------------------------------------------------
+
+USER_CONTROLLERS = '''
+import sys
+import numpy as np
+
+
+class Law:
+    """Output ``OUT[kind]`` from step 5 on (a finite, zero output before)."""
+    kind = "nan"
+
+    def reset(self, n):
+        self.n, self.k = n, 0
+
+    def acceleration(self, obs):
+        self.k += 1
+        if self.k <= 5:
+            return np.zeros(obs.shape[0])
+        return OUT[self.kind](obs)
+
+
+OUT = {"nan": lambda o: np.full(o.shape[0], np.nan), "inf": lambda o: np.full(o.shape[0], np.inf),
+       "long": lambda o: np.zeros(o.shape[0] + 1), "scalar": lambda o: 0.0,
+       "short_list": lambda o: [0.0] * (o.shape[0] - 1), "none": lambda o: None,
+       "text": lambda o: "fast", "type_error": lambda o: len(5),
+       "recursion": lambda o: OUT["recursion"](o), "memory": lambda o: bytearray(1 << 62),
+       "exit": lambda o: sys.exit(7)}
+for _kind in OUT:
+    globals()[_kind] = type(_kind, (Law,), {"kind": _kind})
+
+
+class Adjust:
+    def reset(self, n):
+        pass
+
+    def adjustment(self, obs):
+        return np.full(obs.shape[0], np.nan)
+
+
+class NeedsArgument(Law):
+    def __init__(self, gain):
+        self.gain = gain
+
+
+class ResetRaises(Law):
+    def reset(self, n):
+        raise ValueError("no reset today")
+
+
+class ListOk:
+    def reset(self, n):
+        pass
+
+    def acceleration(self, obs):
+        return [0.0] * obs.shape[0]
+
+
+def function_nan(obs):
+    return np.full(obs.shape[0], np.nan)
+
+
+def function_raises(obs):
+    raise ZeroDivisionError("division by zero")
+'''
+
+
+@pytest.fixture
+def user_controllers(tmp_path) -> Path:
+    path = tmp_path / "mine.py"
+    path.write_text(USER_CONTROLLERS)
+    return path
+
+
+def simulate_argv(controller: str, *extra: str) -> list[str]:
+    return ["simulate", "--events", "1", "--vehicles", "2", "--net", str(NET),
+            "--controller", controller, *extra]
+
+
+USER_FAULTS = {
+    "nan": "at step 5: acceleration() returned [nan nan]",
+    "inf": "at step 5: acceleration() returned [inf inf]",
+    "long": "at step 5: acceleration() returned [0. 0. 0.]",
+    "scalar": "at step 5: acceleration() returned 0.",
+    "short_list": "at step 5: acceleration() returned [0.] (list",
+    "none": "at step 5: acceleration() returned None",
+    "text": "at step 5: acceleration() returned 'fast'",
+    "type_error": "at step 5: acceleration() raised TypeError",
+    "recursion": "at step 5: acceleration() raised RecursionError",
+    "memory": "at step 5: acceleration() raised MemoryError",
+    "exit": "at step 5: acceleration() called sys.exit(7)",
+    "Adjust": "at step 0: adjustment() returned [nan nan]",
+    "function_nan": "at step 0: function_nan(observations) returned [nan nan]",
+    "function_raises": "at step 0: function_raises(observations) raised ZeroDivisionError",
+    "NeedsArgument": "constructing NeedsArgument() raised TypeError",
+    "ResetRaises": "in reset() raised ValueError: no reset today",
+}
+
+
+@pytest.mark.parametrize("attr", list(USER_FAULTS))
+def test_a_user_controller_that_fails_is_one_line_naming_it(user_controllers, capsys, attr):
+    """Classes and functions alike: a non-finite, misshapen or non-numeric output, an exception
+    of any kind or sys.exit in user code is one line naming the controller, the step and what it
+    returned or raised; exit 2."""
+    name = f"{user_controllers}:{attr}"
+    code = main(simulate_argv(name))
+    one_line_exit_2(code, capsys.readouterr().err, f"controller {name}", USER_FAULTS[attr])
+
+
+def test_sys_exit_when_a_controller_is_imported_is_one_line(tmp_path, capsys):
+    path = tmp_path / "leaves.py"
+    path.write_text("import sys\nsys.exit(7)\n")
+    code = main(simulate_argv(f"{path}:f"))
+    one_line_exit_2(code, capsys.readouterr().err, "does not import", "called sys.exit(7)")
+
+
+def test_a_controller_returning_a_list_of_the_right_length_runs(user_controllers, capsys):
+    assert main(simulate_argv(f"{user_controllers}:ListOk")) == 0, capsys.readouterr().err
+
+
+def test_a_user_controller_failing_in_a_worker_is_the_same_line(user_controllers, capsys):
+    name = f"{user_controllers}:nan"
+    code = main(["simulate", "--events", "2", "--vehicles", "2", "--net", str(NET), "--workers",
+                 "2", "--controller", name])
+    one_line_exit_2(code, capsys.readouterr().err, f"controller {name}", USER_FAULTS["nan"])
+
+
+@pytest.mark.parametrize("command", ["replay", "string-stability", "study", "scenario"])
+def test_a_user_controller_fails_alike_in_every_command(user_controllers, tmp_path, capsys,
+                                                        command):
+    name = f"{user_controllers}:function_nan"
+    argv = {"replay": ["replay", "--event", EVENT, "--split", "all", "--vehicles", "2",
+                       "--fcd", str(tmp_path / "f.xml")],
+            "string-stability": ["string-stability", "--vehicles", "2", "--frequencies", "1"],
+            "study": ["study", "--penetration", "1", "--duration", "20", "--warmup", "5",
+                      "--seeds", "1", "--workers", "1", "--out", str(tmp_path / "st")],
+            "scenario": ["simulate", "--events", "1", "--vehicles", "2", "--scenario", "cut-in"]}
+    code = main(argv[command] + ["--net", str(NET), "--controller", name])
+    one_line_exit_2(code, capsys.readouterr().err, f"controller {name}", "returned [nan")
+    assert not (tmp_path / "f.xml").exists() and not (tmp_path / "st" / "study.csv").exists()

@@ -29,9 +29,12 @@ class ExternalChains:
     def __init__(self, name: str):
         self.name = name
         self.inner = load_external(name)
+        self.inner.counting = False  # reset every step here: the step is counted below
+        self._step = 0
 
     def reset(self) -> None:
         """A new run: nothing to forget (``reset(len(chain))`` comes before every chain's call)."""
+        self._step = 0
 
     def connect(self, impairments: Impairments, run_id: str) -> None:
         """Hand the impaired channel to the controller when it takes one."""
@@ -44,6 +47,7 @@ class ExternalChains:
         """a (m/s², shape (m,)) of the CACC vehicles, one chain at a time (the interface of
         :class:`ChainController`)."""
         out = np.zeros(obs.shape[0])
+        self.inner.step, self._step = self._step, self._step + 1
         for chain in chains:
             self.inner.reset(len(chain))
             out[chain] = applied_acceleration(self.inner, np.ascontiguousarray(obs[chain]))

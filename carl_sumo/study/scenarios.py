@@ -63,11 +63,14 @@ class WholePlatoon:
 
     def __init__(self, controller):
         self.controller, self.name, self._n = controller, controller.name, -1
+        self.controller.counting = False  # reset when the platoon changes: steps counted here
+        self._step = 0
 
     def reset(self) -> None:
-        self._n = -1
+        self._n, self._step = -1, 0
 
     def acceleration(self, obs: np.ndarray, chains, ids, ahead, last_acc) -> np.ndarray:
+        self.controller.step, self._step = self._step, self._step + 1
         if obs.shape[0] != self._n:
             self.controller.reset(obs.shape[0])
             self._n = obs.shape[0]
