@@ -654,3 +654,54 @@ def test_a_user_controller_fails_alike_in_every_command(user_controllers, tmp_pa
     code = main(argv[command] + ["--net", str(NET), "--controller", name])
     one_line_exit_2(code, capsys.readouterr().err, f"controller {name}", "returned [nan")
     assert not (tmp_path / "f.xml").exists() and not (tmp_path / "st" / "study.csv").exists()
+
+
+# --- leaders faster than the network's lanes (issue 56) ----------------------------------------
+
+def fast_events() -> list:
+    """A leader slowing from 36 to 15 m/s (80 mph down) and a highD-like 40 m/s cruise, both
+    above i80.net.xml's 33.3 m/s limit; followers start at 34 and 40 m/s."""
+    from carl_sumo.data.events import Event
+
+    n = 150
+    acc = np.zeros(n - 1)
+    acc[20:20 + 105] = -2.0
+    slowing = 36.0 + np.concatenate([[0.0], np.cumsum(acc) * 0.1])
+    cruise = np.full(n, 40.0)
+    return [Event(event_id, "zhu2020_testset", "i-80",
+                  np.concatenate([[0.0], np.cumsum(v[1:]) * 0.1]), v, 5.0, np.full(n, v0),
+                  np.full(n, gap))
+            for event_id, v, v0, gap in (("slowing36", slowing, 34.0, 40.0),
+                                         ("cruise40", cruise, 40.0, 50.0))]
+
+
+@pytest.fixture
+def fast_table(tmp_path) -> Path:
+    path = tmp_path / "fast.csv"
+    event_table(fast_events()).to_csv(path, index=False)
+    return path
+
+
+def test_a_leader_faster_than_the_lanes_is_replayed_exactly():
+    from carl_sumo.sim.sumo import PlatoonSim
+
+    for event in fast_events():
+        sim = PlatoonSim(NET, "idm")
+        sim.reset(event, 2)
+        while not sim.done:
+            sim.step()
+            assert sim.leader_sumo_speed() == pytest.approx(sim.leader_speed, abs=1e-6)
+            assert sim.leader_sumo_position() == pytest.approx(sim.leader_pos, abs=1e-3)
+
+
+@pytest.mark.parametrize("scenario", [None, "cut-in", "join"])
+def test_fast_freeway_events_run_end_to_end(fast_table, tmp_path, capsys, scenario):
+    code = main(["simulate", "--data", str(fast_table), "--split", "all", "--vehicles", "2",
+                 "--net", str(NET), "--controller", "idm,krauss,sumo-cacc,idm-external,ploeg",
+                 "--json", str(tmp_path / "s.json")]
+                + ["--scenario", scenario] * (scenario is not None))
+    assert code == 0, capsys.readouterr().err
+    assert (tmp_path / "s.json").is_file()
+    code = main(["replay", "--data", str(fast_table), "--split", "all", "--event", "cruise40",
+                 "--vehicles", "2", "--net", str(NET), "--fcd", str(tmp_path / "f.xml")])
+    assert code == 0, capsys.readouterr().err

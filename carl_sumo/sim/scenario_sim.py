@@ -36,7 +36,7 @@ from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
 from carl_sumo.sim.scenario import MIN_ROOM_M, Manoeuvre
 from carl_sumo.sim.sumo import DEFAULT_NET, FOLLOWER_TYPES, LaneRoute, PlatoonSim, _libsumo, \
-    lane_route
+    allow_speed, lane_route
 from carl_sumo.sim.vehicle import Plant
 
 SENSOR_RANGE_M = 300.0
@@ -412,6 +412,7 @@ class ScenarioSim(PlatoonSim):
             speed = 0.5 * (v_behind + v_pred)
         lane, lane_pos = self.adjacent.locate(front)
         route_index = self.adjacent.lanes.index(lane)
+        allow_speed(self.adjacent.lanes, [self._entering_type()], speed)  # a fast event's speed
         ls.vehicle.add(self.entering, f"platoon{route_index}", self._entering_type(),
                        depart="now", departLane=lane.rsplit("_", 1)[1],
                        departPos=f"{lane_pos:.6f}", departSpeed=f"{speed:.6f}")

@@ -293,6 +293,27 @@ def abandon_sumo() -> None:
         pass
 
 
+def allow_speed(lanes, vtypes, speed_mps: float) -> None:
+    """Let an event faster than the network run as recorded: the speed limit of each of
+    ``lanes`` and the top speed of each of ``vtypes`` below ``speed_mps`` (the event's fastest
+    leader speed or its followers' initial speed) are raised to it for this run (SUMO refuses to
+    insert a vehicle faster than its lane allows, and the next reset reloads the network and the
+    types as they are). An event within the limits runs exactly as before."""
+    ls = _libsumo()
+    need = speed_mps + SPEED_MARGIN_MPS
+    for lane in lanes:
+        if ls.lane.getMaxSpeed(lane) < speed_mps:
+            ls.lane.setMaxSpeed(lane, need)
+    for vtype in vtypes:
+        if ls.vehicletype.getMaxSpeed(vtype) < speed_mps:
+            ls.vehicletype.setMaxSpeed(vtype, need)
+
+
+SPEED_MARGIN_MPS = 0.01
+"""How far above an event's fastest speed a raised limit is set (m/s): the departure speeds
+SUMO is given are rounded to 1e-6 m/s."""
+
+
 class PlatoonSim:
     """A leader replaying an :class:`Event` and ``n`` followers on one SUMO lane (0.1 s steps).
 
@@ -361,9 +382,11 @@ class PlatoonSim:
         self.leader_id = "leader"
         self.ids = [f"f{i}" for i in range(n_followers)]
         v0 = event.initial_speed_mps
-        self._add("leader", "ngsim_leader", x_leader, float(event.leader_speed_mps[0]))
         ftypes = [FOLLOWER_TYPES[self.follower_model]] * n_followers \
             if self.powertrains is None else self.powertrains.vtypes
+        allow_speed(self.route.lanes, ["ngsim_leader", *dict.fromkeys(ftypes)],
+                    max(float(np.max(event.leader_speed_mps)), float(v0)))
+        self._add("leader", "ngsim_leader", x_leader, float(event.leader_speed_mps[0]))
         for vid, x, ftype in zip(self.ids, starts, ftypes):
             self._add(vid, ftype, float(x), v0)
         ls.simulationStep()  # inserts every vehicle at its depart state, without moving it
