@@ -88,6 +88,8 @@ Names (accepted wherever a controller name is): ``ploeg`` (h = 1.0 s, textbook g
 ``acc``, ``acc:h=3:kp=0.2:kd=0.7`` and ``acc-tuned:h=H`` are the same constant-time-gap law fed
 by radar only: no V2V feed-forward (u_{i-1} = 0 for every follower, the first one included), the
 adaptive cruise control that CACC is compared with (Ploeg et al. 2014).
+
+``mpf:r=2:w2=0.3``: the commands of r vehicles ahead (:mod:`carl_sumo.control.feed_forward`).
 """
 
 from __future__ import annotations
@@ -100,6 +102,8 @@ import numpy as np
 from numba import njit
 
 from carl_sumo.control.channel import Channel, Impairments, KeyedChannel
+from carl_sumo.control.feed_forward import (  # noqa: F401 (mpf_*: read from here too)
+    check_heard, message_size, mpf_feed_forward, mpf_relay, washed_adjustment, with_relays)
 from carl_sumo.control.ploeg_names import (  # noqa: F401 (the names are read from here too)
     CLASSICAL_KINDS, TEXTBOOK, TUNED_FILE, PloegParams, is_ploeg_name, parse_ploeg, read_tuned,
     read_tuned_entries, tuned_file_for)
@@ -251,6 +255,7 @@ class PloegController:
         self.adj_mean = np.zeros(0)  # each follower's running mean of a_adj (m/s², ``wo=T``)
 
     def reset(self, n_followers: int) -> None:
+        check_heard(self.params, n_followers, self.name)
         self.u, self.brake = np.zeros(n_followers), np.full(n_followers, np.inf)
         self.adj_mean = np.zeros(n_followers)
         self.u_min, self.u_max = np.full(n_followers, -np.inf), np.full(n_followers, np.inf)
@@ -271,7 +276,8 @@ class PloegController:
         """Carry this episode's predecessor messages over an impaired channel (one link per
         follower, :mod:`carl_sumo.control.channel`, link stream 1 of the event). Call after
         :meth:`reset`."""
-        self.channel = Channel(len(self.u), 1, impairments, impairments.rng(event_id, 1))
+        self.channel = Channel(len(self.u), message_size(self.params), impairments,
+                               impairments.rng(event_id, 1))
         self._k = 0
 
     def acceleration(self, obs: np.ndarray, adjustment: np.ndarray | None = None,
@@ -281,14 +287,16 @@ class PloegController:
         ``commit=False``: what the law would apply, the state left as it is (a preview)."""
         leader_speed = float(obs[0, 0] + obs[0, 3])
         a_lead = 0.0 if self._leader_speed is None else (leader_speed - self._leader_speed) / DT_S
-        mode = held = None
+        mode = held = received = None
         if self.channel is not None:
-            mode, held = self.channel.receive(self._k)
-            held = held[:, 0]
+            mode, received = self.channel.receive(self._k)
+            held = received[:, 0]
         a_ahead = None if self._dv is None else obs[:, 1] + (obs[:, 3] - self._dv) / DT_S
         if self.params.washout_s is not None:
             adjustment, adj_mean = washed_adjustment(adjustment, self.adj_mean,
                                                      self.params.washout_s)
+        adjustment, sent = with_relays(self.params, np.minimum(self.u, self.brake), adjustment,
+                                       mode, received, None if mode is None else self.channel.heard)
         if not commit:
             return self.step(obs, self.u.copy(), a_lead, adjustment, mode, held,
                              self.brake.copy(), a_ahead=a_ahead)
@@ -298,11 +306,10 @@ class PloegController:
         if self.params.reaction_braking_ahead:  # the radar's Δv, for the next step's a_ahead
             self._dv = np.array(obs[:, 3], dtype=np.float64)
         if self.channel is not None:  # follower j hears j - 1's message of step k: its state,
-            sent = np.minimum(self.u, self.brake)  # or its reaction's braking
-            messages = np.concatenate([[0.0], sent[:-1]])
+            messages = np.vstack([np.zeros((1, sent.shape[1])), sent[:-1]])  # or its braking
         out = self.step(obs, self.u, a_lead, adjustment, mode, held, self.brake, a_ahead=a_ahead)
         if self.channel is not None:
-            self.channel.send(self._k, messages[:, None])
+            self.channel.send(self._k, messages)
             self._k += 1
         return out
 
@@ -359,15 +366,6 @@ class PloegController:
         if self.u_min.shape[0] == n:
             return self.u_min, self.u_max
         return _no_limits(n)
-
-
-def washed_adjustment(adjustment: np.ndarray | None, mean: np.ndarray, washout_s: float
-                      ) -> tuple[np.ndarray, np.ndarray]:
-    """(a_adj - m, m updated with a_adj) for the washout ``wo=T`` (module docstring): the learned
-    term (m/s², shape (n,); None: 0) less its running mean ``mean`` (m/s²), and the new mean."""
-    adj = np.zeros_like(mean) if adjustment is None else \
-        np.asarray(adjustment, dtype=np.float64)
-    return adj - mean, mean + (DT_S / washout_s) * (adj - mean)
 
 
 def ploeg_controller(name: str, tuned_file: Path | None = None, plant: str = "ideal"
@@ -432,7 +430,8 @@ class PloegChains:
     def connect(self, impairments: Impairments, run_id: str) -> None:
         """Carry the predecessor states over impaired vehicle-keyed links
         (:class:`carl_sumo.control.channel.KeyedChannel`, stream 1 of ``run_id``)."""
-        self.links = KeyedChannel(1, impairments, impairments.rng(run_id, 1))
+        self.links = KeyedChannel(message_size(self.controller.params), impairments,
+                                  impairments.rng(run_id, 1))
         self._k = 0
 
     def _radar_ahead(self, obs: np.ndarray, chain: list[int], ids: list[str],
@@ -476,14 +475,17 @@ class PloegChains:
             u = np.array([self.u.get(ids[i], 0.0) for i in chain])
             brake = np.array([self.brake.get(ids[i], np.inf) for i in chain])
             adj = None if adjustment is None else adjustment[chain]
-            mode = held = None
+            mode = held = received = heard = None
             if self.links is not None:  # follower j > 0 hears j - 1 over its link
                 pairs = [(ids[chain[j]], ids[chain[j - 1]]) for j in range(1, len(chain))]
-                mode, held = np.zeros(len(chain), dtype=np.int64), np.zeros(len(chain))
-                got_mode, got_held = self.links.receive(self._k, pairs)
-                mode[1:], held[1:] = got_mode, got_held[:, 0]
-                if commit:  # vehicle j's message: its state, or its reaction's braking
-                    self.links.send(self._k, pairs, np.minimum(u, brake)[:-1, None])
+                mode = np.zeros(len(chain), dtype=np.int64)
+                received = np.zeros((len(chain), message_size(self.controller.params)))
+                got_mode, received[1:] = self.links.receive(self._k, pairs)
+                mode[1:], held, heard = got_mode, received[:, 0], np.r_[1.0, self.links.heard]
+            adj, sent = with_relays(self.controller.params, np.minimum(u, brake), adj, mode,
+                                    received, heard)  # sent: its state, or its reaction's braking
+            if self.links is not None and commit:
+                self.links.send(self._k, pairs, sent[:-1])
             self._set_limits([ids[i] for i in chain])
             armed = [ids[i] in self.armed for i in chain] if self.armed else None
             merge_m = [self.merge_m.get(ids[i], np.inf) for i in chain] if self.merge_m else None

@@ -1,6 +1,6 @@
 """The names of the constant-time-gap laws and their parameters: what ``ploeg:h=0.8:kp=0.1:kd=1``,
-``ploeg-tuned:h=0.8``, ``acc:h=2.5`` and their options (``aw``, ``ha``, ``ttc``, ``rb``, ``wo``, ``gs``, ``gn``,
-``op``, ``ht``) stand for
+``ploeg-tuned:h=0.8``, ``acc:h=2.5``, the multi-predecessor ``mpf:r=2:w2=0.3`` and their options
+(``aw``, ``ha``, ``ttc``, ``rb``, ``wo``, ``gs``, ``gn``, ``op``, ``ht``) stand for
 (:class:`PloegParams`), and the tuned-gains files of ``carl-sumo tune``. The law itself, and what
 each option does, is :mod:`carl_sumo.control.cacc`.
 """
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from carl_sumo.errors import InputError
@@ -48,11 +48,25 @@ class PloegParams:
                                 # braking below 7 m/s², known with aw=1; None: h for every class)
     opening_braking_mps2: float | None = None  # op: an armed vehicle at the front of its chain
                                 # opens its gap to 0.8 s braking at up to this (m/s²; None: off)
+    weights: tuple[float, ...] = (1.0,)  # mpf: w_1..w_r, the weights of the commands of the r
+                                # vehicles ahead in the feed-forward (-; Ploeg: (1,); MPF_OPTIONS)
+
+    @property
+    def heard(self) -> int:
+        """r: how many vehicles ahead the law hears (0: an ACC, 1: Ploeg's CACC, more: ``mpf``)."""
+        return len(self.weights) if self.feed_forward else 0
+
+    @property
+    def multi(self) -> bool:
+        """Whether the feed-forward is more than the predecessor's command (an ``mpf`` law)."""
+        return self.feed_forward and self.weights != (1.0,)
 
     def name(self) -> str:
         """The controller name that runs these gains."""
-        kind = "ploeg" if self.feed_forward else "acc"
+        kind = "mpf" if self.multi else "ploeg" if self.feed_forward else "acc"
         return f"{kind}:h={self.time_gap_s:g}:kp={self.kp:g}:kd={self.kd:g}" + \
+            (f":r={self.heard}" + "".join(f":w{j}={w:g}" for j, w in enumerate(self.weights, 1))
+             if self.multi else "") + \
             (":aw=1" if self.anti_windup else "") + \
             (f":ha={self.alone_gap_s:g}" if self.alone_gap_s is not None else "") + \
             (f":ttc={self.reaction_ttc_s:g}" if self.reaction_ttc_s is not None else "") + \
@@ -95,8 +109,75 @@ def _parse_options(name: str, allowed: tuple[str, ...]) -> dict[str, float]:
     return options
 
 
-CLASSICAL_KINDS = ("ploeg", "ploeg-tuned", "acc", "acc-tuned")
-"""The names of the constant-time-gap laws: Ploeg's CACC and the same law as a radar-only ACC."""
+CLASSICAL_KINDS = ("ploeg", "ploeg-tuned", "acc", "acc-tuned", "mpf")
+"""The names of the constant-time-gap laws: Ploeg's CACC, the same law as a radar-only ACC, and
+the multi-predecessor CACC (``mpf``)."""
+
+
+@dataclass(frozen=True)
+class OptionSpec:
+    """One option of a controller name: its key, type, unit, default, range and meaning."""
+
+    key: str
+    kind: type
+    unit: str
+    default: str
+    low: float
+    high: float
+    doc: str
+
+    def value(self, name: str, text: str) -> float:
+        """The option's value in ``text``; InputError, one line, when it is not one."""
+        try:
+            value = self.kind(text) if self.kind is float else float(text)
+        except ValueError:
+            value = math.nan
+        if self.kind is int and math.isfinite(value) and value != int(value):
+            value = math.nan
+        if not (math.isfinite(value) and self.low <= value <= self.high):
+            bounds = f"from {self.low:g} to {self.high:g}" if math.isfinite(self.high) else \
+                f"of at least {self.low:g}, finite"
+            raise InputError(f"controller {name!r}: {self.key}={text} must be "
+                             f"{'a whole number' if self.kind is int else 'a number'} {bounds} "
+                             f"({self.doc})")
+        return self.kind(value)
+
+
+MAX_HEARD = 9
+"""The most vehicles ahead an ``mpf`` law can hear (the platoon bounds it too: r ≤ n - 1)."""
+MPF_OPTIONS = (
+    OptionSpec("r", int, "vehicles", "2", 0, MAX_HEARD,
+               "how many vehicles ahead it hears: 0 is the ACC, 1 Ploeg's CACC"),
+    OptionSpec("wJ", float, "-", "what the weights given leave of 1, shared equally", 0.0,
+               math.inf, "the weight of the command of the J-th vehicle ahead, J = 1..r, "
+               "in the feed-forward"),
+)
+"""The options an ``mpf`` name adds to Ploeg's (:func:`parse_ploeg`; docs/string_stability.md)."""
+MPF_DEFAULT_HEARD = 2
+
+
+def _mpf_weights(name: str, parts: dict[str, str]) -> tuple[float, ...]:
+    """(w_1, ..., w_r) of an ``mpf`` name's ``r`` and ``wJ`` options (:data:`MPF_OPTIONS`):
+    the weights not given share equally what the given ones leave of 1; InputError (one line)
+    for a weight beyond r, a bad value, or given weights above 1 with some left to share."""
+    r_spec, w_spec = MPF_OPTIONS
+    r = r_spec.value(name, parts.pop("r")) if "r" in parts else MPF_DEFAULT_HEARD
+    given: dict[int, float] = {}
+    for key in list(parts):
+        j = int(key[1:])
+        if not 1 <= j <= r:
+            raise InputError(f"controller {name!r}: {key} is the weight of vehicle {j} ahead, "
+                             f"but the law hears r = {r}; give w1..w{r}" if r else
+                             f"controller {name!r}: {key}: the law with r = 0 hears no vehicle "
+                             "ahead and has no weights")
+        given[j] = replace(w_spec, key=key).value(name, parts.pop(key))
+    missing = [j for j in range(1, r + 1) if j not in given]
+    left = 1.0 - sum(given.values())
+    if missing and left < 0:
+        raise InputError(f"controller {name!r}: the weights given sum to {1 - left:g} > 1, so "
+                         f"w{', w'.join(map(str, missing))} (the rest of 1) would be negative; "
+                         "give every weight")
+    return tuple(given.get(j, left / len(missing) if missing else 0.0) for j in range(1, r + 1))
 
 
 def is_ploeg_name(name: str) -> bool:
@@ -171,6 +252,20 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
     bad name or value, or on a plant the gains were not tuned for."""
     kind = name.split(":")[0]
     law = "acc" if kind.startswith("acc") else "ploeg"
+    if kind == "mpf":  # Ploeg's options, and r and the weights (MPF_OPTIONS)
+        parts = [part.partition("=") for part in name.split(":")[1:]]
+        mpf = {k: v for k, sep, v in parts if sep and (k == "r" or (k[:1] == "w" and
+                                                                     k[1:].isdigit()))}
+        if len(mpf) < sum(1 for k, sep, _ in parts if sep and k in mpf):
+            raise InputError(f"controller {name!r}: an option is given twice")
+        base = ":".join(["ploeg"] + [k + s + v for k, s, v in parts if k not in mpf])
+        weights = _mpf_weights(name, dict(mpf))
+        try:
+            p = parse_ploeg(base)
+        except InputError as exc:
+            raise InputError(str(exc).replace(repr(base), repr(name)).replace(
+                "write ploeg:", "write mpf:r=R:wJ=W:")) from None
+        return replace(p, feed_forward=bool(weights), weights=weights or (1.0,))
     if kind in ("ploeg", "acc"):
         opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "ttc", "rb", "wo", "gs", "gn",
                                       "op", "ht"))

@@ -13,6 +13,18 @@ the controller's Euler step u(k+1) = u(k) + (dt/h)(-u + kp·e + kd·ė + u_pred)
 through D steps of dead time and the lag a(k+1) = α·c(k) + (1 - α)·a(k), and SUMO's integration
 v(k+1) = v(k) + a(k+1)·dt, x(k+1) = x(k) + v(k+1)·dt. A link is string stable when
 ‖Γ‖∞ = max_ω |Γ(jω)| ≤ 1; :func:`h_min` is the smallest such time gap.
+
+Multi-predecessor feed-forward (``mpf``, :func:`gamma_links_discrete`,
+:func:`gamma_links_continuous`): follower i feeds forward Σ_j c_{i,j}·u_{i-j} delayed by j hops,
+so the platoon is a recurrence in the vehicle index. With X_i the acceleration of follower i over
+the leader's (X_{-1} = 1), P the plant a = P·u and the law's own terms as above, for i ≥ 1
+
+    (ctrl/P + (dt/h)·own)·X_i = (dt/h)·(f·X_{i-1} + Σ_{j=1..min(r, i)} c_{i,j}·z^{-j·d}·X_{i-j}/P)
+
+with c_{i,1} = w_1 + Σ_{j>i} w_j (a vehicle hears no one ahead of the chain's head: that weight
+moves to its predecessor) and c_{i,j} = w_j otherwise; the head (i = 0) is the first link as
+above. Link i's gain is Γ_i = X_i/X_{i-1}: it depends on i, through the r links before it. With
+r = 1 it is Γ above for every i ≥ 1.
 """
 
 from __future__ import annotations
@@ -64,6 +76,79 @@ def gamma_discrete(omega: np.ndarray, h: float, kp: float, kd: float, tau: float
     return (dt / h) * (f + feed) / (ctrl / plant + (dt / h) * own)
 
 
+def heard_weights(weights: tuple[float, ...], i: int) -> list[float]:
+    """c_{i,1..min(r,i)}: the weights follower i (i ≥ 1, counted from its chain's head) uses of
+    the ``weights`` w_1..w_r, those of the vehicles ahead of the chain's head added to its
+    predecessor's (the module docstring; :func:`carl_sumo.control.cacc.mpf_relay`)."""
+    c = list(weights[:i])
+    c[0] += sum(weights[i:])
+    return c
+
+
+def gamma_links_discrete(omega: np.ndarray, n: int, h: float, kp: float, kd: float, tau: float,
+                         dead_steps: int = 0, delay_steps: int = 0,
+                         weights: tuple[float, ...] = (1.0,), h_first: float | None = None,
+                         dt: float = DT_S) -> np.ndarray:
+    """Γ_i(e^{jωdt}) (complex, shape (n, len(omega))) of the n links of a homogeneous platoon
+    that feeds forward the commands of the r = len(weights) vehicles ahead with weights w_j, the
+    j-th delayed by j·``delay_steps`` (the module docstring); ``weights`` () is the ACC. The
+    head's link is :func:`gamma_discrete`'s first link at ``h_first`` (default h)."""
+    z = np.exp(1j * np.asarray(omega, dtype=float) * dt)
+    integ = dt * z / (z - 1.0)
+    f = kp * integ ** 2 + kd * integ
+    plant = _plant(z, tau, dead_steps, dt)
+
+    def den(gap: float) -> np.ndarray:
+        return (z - 1.0 + dt / gap) / plant + (dt / gap) * (f + gap * (kp * integ + kd))
+
+    gap0 = h if h_first is None else h_first
+    x = [(dt / gap0) * (f + (1.0 if weights else 0.0)) / den(gap0)]  # X_0 over the leader
+    inner = den(h)
+    for i in range(1, n):
+        feed = sum(c * z ** (-j * delay_steps) * x[i - j] / plant
+                   for j, c in enumerate(heard_weights(weights, i) if weights else [], 1))
+        x.append((dt / h) * (f * x[i - 1] + feed) / inner)
+    x = np.array(x)
+    return x / np.vstack([np.ones_like(x[:1]), x[:-1]])
+
+
+def gamma_links_continuous(omega: np.ndarray, n: int, h: float, kp: float, kd: float,
+                           tau: float, phi: float = 0.0, theta: float = 0.0,
+                           weights: tuple[float, ...] = (1.0,), h_first: float | None = None
+                           ) -> np.ndarray:
+    """The continuous counterpart of :func:`gamma_links_discrete`: H·(1 + G·K)·X_i =
+    G·K·X_{i-1} + Σ_j c_{i,j}·e^{-jθs}·X_{i-j}, the head's link :func:`gamma_continuous`'s
+    first link (at ``h_first``, default h)."""
+    s = 1j * np.asarray(omega, dtype=float)
+    lag = np.exp(-phi * s) / (tau * s + 1.0)
+    gk = lag / s ** 2 * (kp + kd * s)
+    gap0 = h if h_first is None else h_first
+    x = [(gk + (lag if weights else 0.0)) / ((1.0 + gap0 * s) * (1.0 + gk))]
+    for i in range(1, n):
+        feed = sum(c * np.exp(-j * theta * s) * x[i - j]
+                   for j, c in enumerate(heard_weights(weights, i) if weights else [], 1))
+        x.append((gk * x[i - 1] + feed) / ((1.0 + h * s) * (1.0 + gk)))
+    x = np.array(x)
+    return x / np.vstack([np.ones_like(x[:1]), x[:-1]])
+
+
+def links_theory(omega: np.ndarray, n: int, h: float, kp: float, kd: float, tau: float,
+                 dead_steps: int, delay_steps: int, weights: tuple[float, ...],
+                 h_first: float | None = None, dt: float = DT_S) -> dict:
+    """|Γ_i| of a multi-predecessor platoon of ``n`` followers, discrete and continuous (lists,
+    for JSON): ``per_link`` (n lists each), ``first_link`` and ``inner_links`` (the largest over
+    the links behind a follower; a platoon of one: its link)."""
+    disc = np.abs(gamma_links_discrete(omega, n, h, kp, kd, tau, dead_steps, delay_steps, weights,
+                                       h_first, dt))
+    cont = np.abs(gamma_links_continuous(omega, n, h, kp, kd, tau, dead_steps * dt,
+                                         delay_steps * dt, weights, h_first))
+    inner = slice(1, None) if n > 1 else slice(0, 1)
+    return {"per_link": {"continuous": cont.tolist(), "discrete": disc.tolist()},
+            "first_link": {"continuous": cont[0].tolist(), "discrete": disc[0].tolist()},
+            "inner_links": {"continuous": cont[inner].max(axis=0).tolist(),
+                            "discrete": disc[inner].max(axis=0).tolist()}}
+
+
 def _plant(z: np.ndarray, tau: float, dead_steps: int, dt: float) -> np.ndarray:
     """a(z)/u(z): the command u(k+1) of step k, D steps of dead time, the first-order lag."""
     alpha = dt / (tau + dt)
@@ -89,6 +174,28 @@ def h_min(kp: float, kd: float, tau: float, phi: float = 0.0, theta: float = 0.0
 
     def stable(h: float) -> bool:
         return hinf(w, gamma_continuous(w, h, kp, kd, tau, phi, theta, cacc)) <= 1.0 + 1e-9
+
+    if not stable(h_high):
+        return float("inf")
+    lo, hi = 0.0, h_high
+    while hi - lo > tol:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if stable(mid) else (mid, hi)
+    return hi
+
+
+def h_min_links(kp: float, kd: float, tau: float, delay_steps: int = 0,
+                weights: tuple[float, ...] = (1.0,), n: int = 5, h_high: float = 20.0,
+                tol: float = 1e-3, omega: np.ndarray | None = None) -> float:
+    """The smallest time gap (s) at which the exact discrete Γ_i of every link behind a follower
+    among ``n`` (:func:`gamma_links_discrete`, the links a CACC's messages reach) has
+    |Γ_i| ≤ 1 at every frequency of ``omega`` (default: 2000 from 1e-3 rad/s to Nyquist);
+    bisection, ``inf`` when even ``h_high`` is not string stable."""
+    w = np.geomspace(1e-3, np.pi / DT_S, 2000) if omega is None else omega
+
+    def stable(h: float) -> bool:
+        links = gamma_links_discrete(w, n, h, kp, kd, tau, 0, delay_steps, weights)
+        return float(np.abs(links[1:]).max()) <= 1.0 + 1e-9
 
     if not stable(h_high):
         return float("inf")

@@ -7,7 +7,8 @@ Controllers by name:
 - ``sumo-cacc``: SUMO's native CACC model (Milanés & Shladover) drives the followers;
 - ``ploeg``, ``ploeg:h=0.8:kp=0.1:kd=1.5``, ``ploeg-tuned:h=0.8``: the classical CACC of
   :mod:`carl_sumo.control.cacc`, applied through libsumo; ``acc``, ``acc:h=3``, ``acc-tuned:h=H``:
-  the same law fed by radar only;
+  the same law fed by radar only; ``mpf:r=2:w2=0.3`` (and Ploeg's gains and options): the law
+  with the commands of the r vehicles ahead in its feed-forward, relayed over V2V;
 - ``human``: the recorded NGSIM follower of each event (one follower), scored the same way;
 - a path to a policy file (``.pt``): a learned a_adj on top of IDM (:mod:`carl_sumo.learn.policy`);
 - ``module:attribute`` or ``file.py:attribute``: a controller from outside carl-sumo
@@ -37,7 +38,8 @@ from carl_sumo.scale.workers import run_parallel
 
 NATIVE_CONTROLLERS = {"idm": "idm", "krauss": "krauss", "sumo-cacc": "sumo-cacc"}
 BUILTIN_CONTROLLERS = ("idm", "krauss", "sumo-cacc", "idm-external", "ploeg[:h=H:kp=KP:kd=KD]",
-                       "ploeg-tuned:h=H", "acc[:h=H:kp=KP:kd=KD]", "acc-tuned:h=H", "human")
+                       "ploeg-tuned:h=H", "acc[:h=H:kp=KP:kd=KD]", "acc-tuned:h=H",
+                       "mpf[:r=R:wJ=W:h=H:kp=KP:kd=KD]", "human")
 
 
 def resolve_controller(name: str, plant: str = "ideal"

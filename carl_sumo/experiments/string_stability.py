@@ -30,9 +30,10 @@ from typing import Sequence
 import numpy as np
 
 from carl_sumo.config import DT_S
-from carl_sumo.control.cacc import TEXTBOOK, is_ploeg_name, parse_ploeg
+from carl_sumo.control.cacc import TEXTBOOK, check_heard, is_ploeg_name, parse_ploeg
 from carl_sumo.control.channel import Impairments, plant_impairments
-from carl_sumo.control.transfer import gamma_continuous, gamma_discrete, log_frequencies
+from carl_sumo.control.transfer import gamma_continuous, gamma_discrete, links_theory, \
+    log_frequencies
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
 from carl_sumo.sim.sumo import DEFAULT_NET, lane_route, check_fits
@@ -145,6 +146,8 @@ def check_run(controller: str, omegas: Sequence[float], n: int, test: SineTest,
     """InputError before any run: bad test values, or the lowest frequency's run does not fit
     the network."""
     test.check(omegas)
+    if is_ploeg_name(controller) and not controller.split(":")[0].endswith("-tuned"):
+        check_heard(parse_ploeg(controller), n, controller)  # an mpf law's r within the platoon
     event = test.event(min(omegas), equilibrium_gap(controller, test.base_speed_mps))
     try:
         check_fits(lane_route(net), event, n)
@@ -177,10 +180,11 @@ def measure(controller: str, omegas: Sequence[float], n: int, test: SineTest = S
 
 
 def analytic(controller: str, omegas: Sequence[float], plant: Plant | None,
-             comm_delay_s: float) -> dict | None:
+             comm_delay_s: float, n: int = 5) -> dict | None:
     """Theory for a linear law on one class with fixed τ and dead time (None otherwise): the
     continuous and the exact discrete Γ of the first link (the leader's measured acceleration as
-    feed-forward) and of the links behind it (the predecessor's V2V state, delayed)."""
+    feed-forward) and of the links behind it (the predecessor's V2V state, delayed); an ``mpf``
+    law's ``n`` links each (:func:`carl_sumo.control.transfer.links_theory`)."""
     if not is_ploeg_name(controller):
         return None
     tau, dead = (0.0, 0) if plant is None else (plant.lag_s, plant.dead_time_s)
@@ -188,9 +192,10 @@ def analytic(controller: str, omegas: Sequence[float], plant: Plant | None,
         return None
     dead_steps = int(round((dead or 0.0) / DT_S))
     delay_steps = int(round(comm_delay_s / DT_S))
-    p = parse_ploeg(controller)
-    w = np.asarray(omegas, dtype=float)
-    out = {}
+    p, w, out = parse_ploeg(controller), np.asarray(omegas, dtype=float), {}
+    if p.multi:
+        return links_theory(w, n, p.time_gap_s, p.kp, p.kd, tau or 0.0, dead_steps, delay_steps,
+                            p.weights, p.gap_alone_s)
     for name, first in (("first_link", True), ("inner_links", False)):
         args = (p.gap_alone_s if first else p.time_gap_s, p.kp, p.kd, tau or 0.0)
         cont = gamma_continuous(w, *args, phi=dead_steps * DT_S,
@@ -233,7 +238,7 @@ def string_stability(controllers: Sequence[str], plant: Plant | None,
                      "comm_delay_s": comm_delay,
                      **measure(gains[name], omegas, n, test, imp if imp.active else None, net,
                                workers)}
-            theory = analytic(gains[name], omegas, case, comm_delay)
+            theory = analytic(gains[name], omegas, case, comm_delay, n)
             if theory is not None:
                 entry["analytic"] = theory
             runs.append(entry)
@@ -381,7 +386,8 @@ def suite_table(suite, out_dir: Path, net: str, workers: int) -> str:
     n = 3 if suite.quick else 5
     imp = suite.impairments
     plant = imp.plant if imp is not None else None
-    names = [k for k, m in suite.models.items() if k.startswith(("ploeg", "acc", "idm-external"))]
+    names = [k for k, m in suite.models.items()
+             if k.startswith(("ploeg", "acc", "mpf", "idm-external"))]
     names += [m.files[0] for m in suite.models.values() if m.files and m.runs_on(n)]
     rows = []
     for name in names:
@@ -408,7 +414,8 @@ def suite_table(suite, out_dir: Path, net: str, workers: int) -> str:
             continue
         theory = ""
         if "analytic" in r:
-            theory = f"{max(max(r['analytic'][k]['discrete']) for k in r['analytic']):.3f}"
+            links = ("first_link", "inner_links")  # an mpf law's per_link too: not here
+            theory = f"{max(max(r['analytic'][k]['discrete']) for k in links):.3f}"
         lines.append(f"| {label} | {r['class']} | {r['amplitude_mps']:g} | {r['hinf']:.3f} | "
                      f"{r.get('hinf_inner', float('nan')):.3f} | "
                      f"{r.get('hinf_first_link', float('nan')):.3f} | {theory} |")

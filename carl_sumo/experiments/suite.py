@@ -87,7 +87,7 @@ TEXTBOOK_GAPS = (0.6, 0.8, 1.0, 1.2, 1.5)
 def is_classical(key: str) -> bool:
     """Whether a model key is a built-in (not learned) controller."""
     return key in BUILTIN_MODELS or key.startswith(("ploeg:", "ploeg-tuned:", "acc:",
-                                                    "acc-tuned:"))
+                                                    "acc-tuned:", "mpf:"))
 
 
 ALGO_NAMES = {"ca-td3": "CA-TD3", "ca-ddpg": "CA-DDPG", "td3": "TD3", "ddpg": "DDPG",

@@ -59,7 +59,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from carl_sumo.control.cacc import PloegController, is_ploeg_name, ploeg_controller
+from carl_sumo.control.cacc import PloegController, is_ploeg_name, mpf_feed_forward, \
+    ploeg_controller
 from carl_sumo.config import BOUNDS
 from carl_sumo.control.controllers import idm_acceleration
 from carl_sumo.errors import InputError
@@ -152,10 +153,10 @@ def predecessor_adjustment(obs: np.ndarray, adj_max: float, target: str = "reali
 
 def two_ahead_adjustment(obs: np.ndarray, weight: float, adj_max: float) -> np.ndarray:
     """The two-ahead target a_adj (m/s², shape (..., n)): weight·(a_base,i-2 - a_base,i-1) from
-    o's fifth column, 0 for the first two followers, clipped to ``TARGET_FRACTION``·``adj_max``."""
-    obs = np.asarray(obs, dtype=np.float64)
-    target = np.zeros(obs.shape[:-1])
-    target[..., 2:] = weight * (obs[..., :-2, 4] - obs[..., 1:-1, 4])
+    o's fifth column, 0 for the first two followers, clipped to ``TARGET_FRACTION``·``adj_max``:
+    the feed-forward of the multi-predecessor law ``mpf:r=2:w2=C`` less its base's
+    (:func:`carl_sumo.control.cacc.mpf_feed_forward`), every command heard at once."""
+    target = mpf_feed_forward((1.0 - weight, weight), np.asarray(obs, dtype=np.float64)[..., 4])
     bound = TARGET_FRACTION * min(adj_max, BOUNDS.adj_max_mps2)
     return np.clip(target, -bound, bound)
 
