@@ -4,7 +4,7 @@ its sensitivity to each observation, the mean |Δa_adj| per unit change of v (m/
 d (m), Δv (m/s) and a_base (m/s²), for the kept policy and for the last checkpoint's actor.
 
 Make the runs first (`docs/training.md`, "What limits the product's gain"): for seed S,
-    source policies/recipe.sh
+    see recipes/
     carl-sumo train --algo ca-td3 --vehicles 10 --steps 24000 \\
         ${COMMON/--eval-every 500/--eval-every 1500} $PRODUCT --update-every 3 --scale-rates \\
         --seed S --out runs/long_seedS.pt

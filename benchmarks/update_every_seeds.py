@@ -1,7 +1,7 @@
 """What a run keeps with fewer updates per env step (issue 19), from the learning curves in
 benchmarks/curves/update_every/ (validation every 500 steps on the recipes' 64 held-out events).
 
-Recipes (`carl-sumo train ... --seed S`, policies/recipe.sh):
+Recipes (`carl-sumo train ... --seed S`, recipes/):
 - ``ca_td3_ploeg_10``: the product recipe before the safety shield (`--select comfort`), 10 seeds;
 - ``ca_td3_10``, ``ca_ddpg_10``: the paper configuration's CA-TD3 and CA-DDPG recipes
   (`--select margin`), 5 seeds.

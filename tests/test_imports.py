@@ -122,15 +122,15 @@ def test_every_subpackage_is_a_layer():
     assert subs == set(LAYERS) - {""}
 
 
-MAX_MODULE_LINES, MAX_FUNCTION_LINES = 500, 80
+MAX_FUNCTION_LINES = 80
+"""Functions stay readable; modules are as long as their one concept needs (no line cap: code
+was once moved between modules only to stay under one)."""
 
 
-def test_modules_and_functions_stay_short():
+def test_functions_stay_short():
     long = []
     for name, path in modules().items():
         text = path.read_text()
-        if len(text.splitlines()) > MAX_MODULE_LINES:
-            long.append(f"{name}: {len(text.splitlines())} lines")
         for node in ast.walk(ast.parse(text)):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
                 size = node.end_lineno - node.lineno + 1

@@ -12,9 +12,11 @@ A spec (TOML) names fixed ``train`` options and the options searched over::
     ship_string_stable = "real"   # optional: ship the best-scoring run of the best configuration
                                   # that is string stable on this plant (rank --string-stable)
 
-    [train]                       # anything `carl-sumo train` takes, without the dashes
-    algo = "ca-td3"
-    steps = 10000
+    recipe = "../recipes/paper_ca_td3_10.toml"  # the recipe every trial trains (relative to
+                                  # the spec; `carl-sumo train --config`), or none
+
+    [train]                       # options over the recipe's: a recipe key, or a flag without
+    steps = 10000                 # its dashes (`carl-sumo train --help`)
     init = "policies/seeds/ca_td3_10_seed{seed}.pt"  # {seed}: the trial's seed
 
     [grid]                        # lists: every combination runs (a configuration per non-seed
@@ -47,7 +49,7 @@ from carl_sumo.errors import InputError
 from carl_sumo.files import atomic_path, check_output_dir
 
 SPEC_KEYS = {"name", "out", "results", "search", "samples", "random_seed", "cpus_per_trial",
-             "max_failures", "ship", "ship_string_stable", "train", "grid", "random"}
+             "max_failures", "ship", "ship_string_stable", "recipe", "train", "grid", "random"}
 NOT_SWEPT = {"out", "resume", "ray"}
 """``train`` options a spec may not set: the sweep names the files and runs the trials."""
 DISTRIBUTIONS = ("uniform", "loguniform", "randint", "choice")
@@ -79,6 +81,7 @@ class SweepSpec:
     max_failures: int = 3
     ship: Path | None = None
     ship_string_stable: str | None = None  # "ideal" or "real" (see the module docstring)
+    recipe: Path | None = None  # the recipe file of every trial (train --config)
     train: dict[str, Any] = field(default_factory=dict)
     grid: dict[str, list] = field(default_factory=dict)
     random: dict[str, dict] = field(default_factory=dict)
@@ -86,7 +89,13 @@ class SweepSpec:
     @property
     def select(self) -> str:
         """The validation rule that picks the best run (the trials' ``--select``)."""
-        return str(self.train.get("select", "margin"))
+        if "select" in self.train:
+            return str(self.train["select"])
+        if self.recipe is not None:
+            from carl_sumo.learn.recipe import read_recipe
+
+            return str(read_recipe(self.recipe).get("select", "margin"))
+        return "margin"
 
 
 def _fail(path: Path, message: str) -> InputError:
@@ -122,6 +131,12 @@ def load_spec(path: Path, out: Path | None = None, results: Path | None = None) 
                 raise _fail(path, f"{key} has the wrong type ({type(raw[key]).__name__})")
             setattr(spec, key, raw[key])
     spec.ship = Path(raw["ship"]) if "ship" in raw else None
+    if "recipe" in raw:
+        if not isinstance(raw["recipe"], str):
+            raise _fail(path, "give recipe = \"PATH\" (a recipe file, relative to the spec)")
+        spec.recipe = Path(os.path.relpath(path.parent / raw["recipe"]))
+        if not spec.recipe.is_file():
+            raise _fail(path, f"recipe {spec.recipe} does not exist")
     spec.ship_string_stable = raw.get("ship_string_stable")
     if spec.ship_string_stable not in (None, "ideal", "real"):
         raise _fail(path, f"ship_string_stable = {spec.ship_string_stable!r}: give \"ideal\" or "
@@ -179,13 +194,13 @@ def _draws(spec: SweepSpec) -> list[dict[str, Any]]:
 
 
 def _argv(options: dict[str, Any]) -> list[str]:
-    """``train`` arguments of options (``key = true`` is a flag, ``false`` leaves it out)."""
+    """``train`` arguments of options (``key = true`` is ``--key``, ``false`` ``--no-key``)."""
     argv = []
     for key, value in options.items():
         flag = "--" + key.replace("_", "-")
-        if value is True:
-            argv.append(flag)
-        elif value is not False:
+        if isinstance(value, bool):
+            argv.append(flag if value else "--no-" + flag[2:])
+        else:
             argv += [flag, str(value)]
     return argv
 
@@ -207,28 +222,19 @@ def plan_trials(spec: SweepSpec) -> list[Trial]:
             config = spec.name + tag
             options = {k: v.replace("{seed}", str(seed)) if isinstance(v, str) else v
                        for k, v in {**spec.train, **values, "seed": seed}.items()}
+            recipe = ["--config", str(spec.recipe)] if spec.recipe is not None else []
             trials.append(Trial(f"{config}_seed{seed}", config, seed, values,
-                                _argv(options) + ["--out", str(spec.out / f"{config}_seed{seed}.pt")]))
+                                recipe + _argv(options) + ["--out", str(spec.out / f"{config}_seed{seed}.pt")]))
     names = [t.name for t in trials]
     if len(set(names)) != len(names):
         raise _fail(spec.path, "two trials would write the same file (a repeated value?)")
     return trials
 
 
-def train_parser():
-    """The parser of ``carl-sumo train`` alone (a usage error: InputError)."""
-    from carl_sumo.cli.common import Parser
-    from carl_sumo.cli.policies import _train_parser
-
-    parser = Parser(prog="carl-sumo")
-    _train_parser(parser.add_subparsers(dest="command", required=True, parser_class=Parser))
-    return parser
-
-
 def check_trials(spec: SweepSpec, trials: list[Trial]) -> None:
     """Parse every trial's ``train`` arguments and check its options, the outputs, the network
     and the data (InputError naming the spec) before anything runs."""
-    from carl_sumo.cli.policies import check_train_args
+    from carl_sumo.cli.policies import check_train_args, train_parser
     from carl_sumo.data import load_events
     from carl_sumo.sim.sumo import lane_route
 
@@ -242,13 +248,13 @@ def check_trials(spec: SweepSpec, trials: list[Trial]) -> None:
     for trial in trials:
         try:
             args = train_parser().parse_args(["train", *trial.argv])
-            check_train_args(args)
-            if args.net not in nets:
-                lane_route(args.net)
-                nets.add(args.net)
-            if (args.data, args.split) not in loaded:
-                load_events(args.data, args.split)
-                loaded.add((args.data, args.split))
+            cfg, _ = check_train_args(args)
+            if cfg.net not in nets:
+                lane_route(cfg.net)
+                nets.add(cfg.net)
+            if (cfg.data, cfg.split) not in loaded:
+                load_events(cfg.data, cfg.split)
+                loaded.add((cfg.data, cfg.split))
         except InputError as exc:
             raise _fail(spec.path, f"trial {trial.name}: {exc}") from None
 
@@ -258,7 +264,7 @@ def run_trial(config: dict[str, Any]) -> None:
     when the trial restarts, each atomic checkpoint handed to Tune as it is written."""
     from ray import tune
 
-    from carl_sumo.cli.policies import train_config
+    from carl_sumo.cli.policies import check_train_args, train_parser
     from carl_sumo.data import load_events
     from carl_sumo.learn.train import train
 
@@ -279,8 +285,8 @@ def run_trial(config: dict[str, Any]) -> None:
             tune.report({"step": step, "resumed_at": resumed_at},
                         checkpoint=tune.Checkpoint.from_directory(tmp))
 
-    cfg = train_config(args, out, "carl-sumo train " + " ".join(config["argv"]))
-    result = train(cfg, load_events(args.data, args.split), resume=resume, progress=False,
+    cfg, _ = check_train_args(args, "carl-sumo train " + " ".join(config["argv"]))
+    result = train(cfg, load_events(cfg.data, cfg.split), resume=resume, progress=False,
                    log=lambda *_: None, on_checkpoint=report)
     if cfg.gate_string_stable is not None:
         from carl_sumo.experiments.string_stability import keep_string_stable
@@ -338,7 +344,7 @@ def _dirname(trial) -> str:
 
 def ship(best: Path, target: Path) -> None:
     """Copy the best run's policy file and curve to ``target`` (.pt) and its .csv, atomically
-    (what ``policies/recipe.sh`` did with ``cp``)."""
+    ."""
     for suffix in (".pt", ".csv"):
         with atomic_path(target.with_suffix(suffix)) as tmp:
             shutil.copy2(best.with_suffix(suffix), tmp)

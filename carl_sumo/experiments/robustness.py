@@ -158,7 +158,7 @@ def seed_files(controller: str, k: int) -> list[str]:
     missing = [str(f) for f in files if not f.is_file()]
     if missing:
         raise InputError(f"seed file(s) {', '.join(missing)} missing; train them with "
-                         f"policies/{path.stem}.sh")
+                         f"`carl-sumo train --config recipes/{path.stem}.toml --seed K`")
     return [str(f) for f in files]
 
 

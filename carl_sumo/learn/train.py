@@ -39,6 +39,7 @@ from carl_sumo.learn.replay_buffer import ReplayBuffer
 from carl_sumo.learn.checkpoint import (CHECKPOINT_FORMAT, read_checkpoint,  # noqa: F401
                                         candidate_dir, restore_checkpoint, save_candidate,
                                         save_checkpoint)
+from carl_sumo.learn.recipe import stored_config
 from carl_sumo.learn.train_config import (TrainConfig, held_out_split,  # noqa: F401
                                           split_validation, validation_conditions)
 from carl_sumo.files import atomic_path
@@ -86,14 +87,14 @@ def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: flo
             "validation_base": {k: float(v) for k, v in (baseline or {}).items()},
             "validation_events": [e.event_id for e in val_events],
             "wall_time_s": float(wall_s),
-            "command": cfg.command, "sumo_version": str(libsumo.getVersion()[1]),
+            "command": cfg.command, "config": stored_config(cfg), "sumo_version": str(libsumo.getVersion()[1]),
             "carl_sumo_version": __version__, "torch_version": str(torch.__version__)}
 
 
 def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
           progress: bool | float = True, log=print, rollouts: str = "processes",
           on_checkpoint=None, tensorboard: Path | None = None) -> dict[str, Any]:
-    """Train an agent; writes the best policy to ``cfg.out``, checkpoints and a CSV log beside it.
+    """Train an agent; writes the best policy to ``cfg.policy_path``, checkpoints and a CSV log beside it.
 
     ``rollouts``: the environments run in spawned processes or, ``"ray"``, in Ray actors (the same
     steps). ``on_checkpoint(step)`` is called after each checkpoint is written (``sweep`` hands it
@@ -103,7 +104,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     train_events, val_events = held_out_split(events, cfg)  # InputError before any file
     teacher = _teacher(cfg)  # InputError before any file
     init_actor = initial_actor(cfg)  # InputError before any file
-    out = _prepare_out(Path(cfg.out), resume)
+    out = _prepare_out(Path(cfg.policy_path), resume)
     n = cfg.n_vehicles
     _prepare_process(cfg.seed)
     agent = _new_agent(cfg, init_actor if resume is None else None)

@@ -1,109 +1,305 @@
 """What ``carl-sumo train`` is asked to do (:class:`TrainConfig`), and the events and conditions
-it validates on: held-out training events, and the V2V and sensor impairments of validation."""
+it validates on: held-out training events, and the V2V and sensor impairments of validation.
+
+Every training option is defined here once, as a field of :class:`TrainConfig` made by
+:func:`option`: its type (the annotation), default, unit, one-line doc, range and the section of
+the recipe file it belongs to (data, plant, base, reward, agent, training, validation).
+``carl-sumo train``'s options (:mod:`carl_sumo.cli.config_options`), their ``--help``, the recipe
+files (:mod:`carl_sumo.learn.recipe`) and :meth:`TrainConfig.check` all derive from these fields.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-from typing import Sequence
+import math
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Sequence
 
 import numpy as np
 
-from carl_sumo.config import REWARD, RewardConfig
+from carl_sumo.config import DT_S, REWARD, RewardConfig
 from carl_sumo.control.channel import Impairments, plant_impairments
 from carl_sumo.data.events import Event, read_event_ids
 from carl_sumo.errors import InputError
-from carl_sumo.learn.agents import AgentConfig
+from carl_sumo.learn.agents import ALGOS, AgentConfig
 from carl_sumo.learn.selection import VALIDATION_IMPAIRMENTS
 from carl_sumo.sim.sumo import DEFAULT_NET
+
+SECTIONS = {
+    "data": "the events trained and validated on",
+    "plant": "the followers' vehicle dynamics, V2V channel and sensors",
+    "base": "the classical law under the learned adjustment and its safety layers",
+    "reward": "the reward's terms and weights (defaults: carl_sumo.config.RewardConfig)",
+    "agent": "the algorithm, its networks, optimisers and exploration",
+    "training": "how long and how the run trains, and how it starts",
+    "validation": "the held-out events and how the kept checkpoint is chosen",
+}
+"""The sections of a recipe file, in order, with what each holds."""
+
+MAX_TRAIN_VEHICLES = 200
+"""The longest platoon ``train`` accepts (its replay buffer grows with the platoon)."""
+
+MAX_STEPS = 100_000_000
+"""The most vector steps one run may take (a bound, so that a typo cannot allocate forever)."""
+
+MAX_WARMUP_S = 600.0
+"""The longest settling run before an event (s)."""
+
+MAX_LAG_S = 5.0
+"""The longest powertrain lag, dead time or V2V delay a run accepts (s)."""
+
+INF = math.inf
+
+
+def option(default: Any, doc: str, section: str, *, unit: str = "", low: float | None = None,
+           high: float | None = None, open_low: bool = False, open_high: bool = False,
+           choices: Sequence[str] | None = None, flag: str | None = None, metavar: str | None = None,
+           cli: bool = True) -> Any:
+    """A training option: a dataclass field with its doc, unit, range ([low, high], ends open
+    where said; finite in any case), allowed values, section and command-line flag (default:
+    the field name with dashes)."""
+    if section not in SECTIONS:
+        raise ValueError(f"unknown section {section!r}")
+    return field(default=default, metadata=dict(
+        doc=doc, section=section, unit=unit, low=low, high=high, open_low=open_low,
+        open_high=open_high, choices=tuple(choices) if choices else None, flag=flag,
+        metavar=metavar, cli=cli))
+
+
+def flag_of(f) -> str:
+    """The command-line flag of a :class:`TrainConfig` field (without the dashes)."""
+    return f.metadata.get("flag") or f.name.replace("_", "-")
+
+
+def bounds_text(meta: dict) -> str:
+    """``[0, inf)``-style text of a field's range ('' without one)."""
+    low, high = meta.get("low"), meta.get("high")
+    if low is None and high is None:
+        return ""
+    low = -INF if low is None else low
+    high = INF if high is None else high
+    left = "(" if meta["open_low"] or low == -INF else "["
+    right = ")" if meta["open_high"] or high == INF else "]"
+    return f"{left}{_number(low)}, {_number(high)}{right}"
+
+
+def _number(x: float) -> str:
+    return str(int(x)) if math.isfinite(x) and x == int(x) and abs(x) < 1e12 else f"{x:g}"
+
+
+def check_range(name: str, value: Any, meta: dict) -> None:
+    """InputError, one line, for a value outside its field's range (``name``: the flag)."""
+    low, high = meta.get("low"), meta.get("high")
+    if value is None or isinstance(value, (bool, str)) or (low is None and high is None):
+        return
+    low = -INF if low is None else low
+    high = INF if high is None else high
+    inside = math.isfinite(value) \
+        and (low < value if meta["open_low"] else low <= value) \
+        and (value < high if meta["open_high"] else value <= high)
+    if not inside:
+        kind = "a whole number" if isinstance(value, int) else "a finite number"
+        raise InputError(f"--{name} must be {kind} in {bounds_text(meta)}, got {value}")
 
 
 @dataclass
 class TrainConfig:
-    """What ``carl-sumo train`` was asked to do."""
+    """What ``carl-sumo train`` is asked to do: every option, once (see the module docstring)."""
 
-    algo: str = "ca-td3"
-    n_vehicles: int = 10
-    steps: int = 20_000            # vector steps (each steps every environment once)
-    seed: int = 0
-    num_envs: int = 2
-    learning_starts: int = 1_000   # vector steps of pure exploration noise before updates
-    critic_burn_in: int = 0        # vector steps after learning_starts that train the critics only
-    updates_per_step: int = 1
-    update_every: int = 1          # vector steps between update rounds (1: every step)
-    scale_rates: bool = False      # learning rates and tau times update_every (agent_config)
-    lr_decay: bool = False         # learning rates fall linearly to 0 from learning_starts to steps
-    batch_size: int = AgentConfig.batch_size  # transitions per gradient update
-    buffer_size: int = 200_000     # platoon transitions
-    eval_every: int = 2_000        # vector steps between validations
-    eval_events: int = 8           # held-out training events used for validation
-    val_seed: int | None = None    # seed choosing those events (None: the training seed)
-    val_source: str | None = None  # draw them from this event source only (None: any)
-    val_events: str | None = None  # file of training event IDs also validated on (held out)
-    exclude_events: str | None = None  # file of training event IDs left out of both
-    oversample: str | None = None  # file of training event IDs drawn more often in training
-    oversample_times: int = 4      # ... this many times as often as the others
-    braking_events: int = 0        # synthetic hard-braking leaders added (a quarter validates)
-    warmup: float = 0.0            # s of settling before every event (Event.with_warmup)
-    checkpoint_every: int = 5_000  # vector steps between checkpoints
-    net: str = str(DEFAULT_NET)
-    data: str = "default"
-    split: str = "train"
-    out: str = "policies/ca_td3.pt"
-    command: str = ""
-    w_gap: float = REWARD.w_gap            # reward weights (defaults: carl_sumo.config)
-    w_safe: float = REWARD.w_safe
-    w_comfort: float = REWARD.w_comfort
-    w_accel: float = REWARD.w_accel
-    w_spacing: float = REWARD.w_spacing    # spacing term (reward.py) and its time gap h_s (s)
-    spacing_gap: float = REWARD.spacing_gap_s
-    spacing_head_gap: float | None = REWARD.spacing_head_gap_s  # the head's h_s (s; None: h_s)
-    spacing_heavy_gap: float | None = REWARD.spacing_heavy_gap_s  # a heavy vehicle's h_s (s)
-    w_critical: float = REWARD.w_critical  # penalty per step with 0 < TTC < 1.5 s (reward.py)
-    w_amplify: float = REWARD.w_amplify    # amplification term's weight (reward.py)
-    lagrange_lr: float = 0.0               # RCPO multiplier step on the close-call cost (0: off)
-    jerk_scale: float = REWARD.jerk_scale_mps3
-    message_dim: int = AgentConfig.message_dim            # V2V message width (CA models)
-    hidden: int = AgentConfig.hidden                      # hidden layer width
-    actor_lr: float = AgentConfig.actor_lr
-    critic_lr: float = AgentConfig.critic_lr
-    tau: float = AgentConfig.tau                          # targets' soft-update rate per update
-    select: str = "margin"         # how the best checkpoint is chosen: see selection_score
-    gate_string_stable: str | None = None  # "ideal"/"real": keep every validated checkpoint in
-    # <out>.candidates/; the kept one is the best-scoring that is string stable on that plant
-    noise: float = AgentConfig.exploration_noise          # exploration std (fraction of adj_max)
-    noise_correlation: float = AgentConfig.noise_correlation
-    gamma: float = AgentConfig.gamma                      # discount per 0.1 s step
-    adj_max: float = AgentConfig.adj_max                  # |a_adj| bound of the actor (m/s²)
-    smooth_jerk: float = AgentConfig.smooth_jerk          # actor smoothness terms (agents.py)
-    smooth_accel: float = AgentConfig.smooth_accel
-    adj_l2: float = AgentConfig.adj_l2                    # actor loss weight on a_adj² (agents.py)
-    base: str = AgentConfig.base          # base model under a_adj: idm or a classical CACC name
-    observe_ahead: bool = False    # o has a fifth column a_ahead (controllers.AheadAcceleration)
-    shield_ttc: float = 0.0        # safety shield of the policy (s; controllers.shield_adjustment)
-    comm_fallback: str = AgentConfig.comm_fallback  # run time, hearing no neighbour (agents.py)
-    comm_randomize: bool = False   # every episode its own V2V delay/loss and sensor noise (randomize.py)
-    randomize_sensors: bool = True  # with comm_randomize: sensor noise in half the episodes
-    val_impaired: bool = False     # validate also under selection.VALIDATION_IMPAIRMENTS
-    comm_delay: float | None = None  # fixed impairments of every episode (channel.py; None: 0,
-    # or the real plant's V2V delay with plant="real")
-    comm_loss: float = 0.0
-    comm_burst: float = 1.0
-    comm_timeout: float = 1.0
-    comm_fade: float = 1.0
-    sensor_noise: bool = False
-    sensor_filter: bool = False    # noisy measurements are tracked (sensors.py), fixed or random
-    impairment_seed: int = 0
-    plant: str = "ideal"           # the followers' vehicle dynamics (sim/vehicle.py): ideal, real
-    fleet: str | None = None       # vehicle classes with fractions (--fleet)
-    vehicle_lag: float | None = None      # τ of every follower (s)
-    actuation_delay: float | None = None  # dead time of every follower (s)
-    plant_randomize: bool = False  # every episode its own fleet, lags, V2V delay and loss
-    comm_off: bool = False         # CA models: cut the messages (the communication ablation)
-    init: str | None = None        # a policy file whose actor starts the run (a warm start)
-    imitate: str | None = None     # a Ploeg CACC the actor copies first (carl_sumo.learn.imitation)
-    imitate_updates: int = 4_000   # behaviour-cloning gradient steps at learning_starts
-    imitate_target: str = "realised"  # on an ACC base: the predecessor's realised a or its command
-    imitate_lr: float = 1e-3       # their Adam learning rate
+    # data
+    data: str = option("default", "default | stop-and-go | PATH of an event table or a raw "
+                       "NGSIM CSV", "data", metavar="PATH")
+    split: str = option("train", "the data's split trained on: train | test | us101 | all", "data")
+    net: str = option(str(DEFAULT_NET), "SUMO network (.net.xml; a shipped network's file "
+                      "name works from any folder)", "data", metavar="PATH")
+    warmup: float = option(0.0, "settling run before every event, the leader holding its first "
+                           "speed (a multiple of 0.1 s); validation scores the recorded part",
+                           "data", unit="s", low=0.0, high=MAX_WARMUP_S, metavar="S")
+    braking_events: int = option(0, "synthetic hard-braking leaders (15-30 m/s, -3 to -6 m/s²) "
+                                 "added to training, a quarter of them to validation", "data",
+                                 low=0, high=10_000, metavar="N")
+    exclude_events: str | None = option(None, "file of training event IDs (one per line) left "
+                                        "out of training and validation", "data",
+                                        metavar="FILE")
+    oversample: str | None = option(None, "file of training event IDs drawn --oversample-times "
+                                    "as often as the others in training", "data", metavar="FILE")
+    oversample_times: int = option(4, "how many times as often the --oversample events are "
+                                   "drawn", "data", low=1, high=1_000, metavar="K")
+    # plant
+    plant: str = option("ideal", "ideal: every follower applies its command at once (the "
+                        "paper's); real: the default fleet (80 % cars, 20 % trucks, lag and dead "
+                        "time per class) and a 0.1 s V2V delay", "plant",
+                        choices=("ideal", "real"))
+    fleet: str | None = option(None, "vehicle classes with fractions, e.g. car:0.7,truck:0.3",
+                               "plant", metavar="SPEC")
+    vehicle_lag: float | None = option(None, "powertrain lag tau of every follower (first "
+                                       "order)", "plant", unit="s", low=0.0, high=MAX_LAG_S,
+                                       metavar="S")
+    actuation_delay: float | None = option(None, "actuation dead time of every follower (a "
+                                           "multiple of 0.1 s)", "plant", unit="s", low=0.0,
+                                           high=MAX_LAG_S, metavar="S")
+    plant_randomize: bool = option(False, "every episode its own fleet (0-50 % trucks), lags, "
+                                   "V2V delay (0-0.3 s) and loss (0-30 %); validation on the "
+                                   "real plant", "plant")
+    comm_delay: float | None = option(None, "every V2V message arrives this late (a multiple of "
+                                      "0.1 s; none: 0, or 0.1 with plant real)", "plant",
+                                      unit="s", low=0.0, high=MAX_LAG_S, metavar="S")
+    comm_loss: float = option(0.0, "probability that a V2V message is lost", "plant", low=0.0,
+                              high=1.0, metavar="P")
+    comm_burst: float = option(1.0, "mean length of a loss burst (Gilbert-Elliott; 1: "
+                               "independent)", "plant", unit="steps", low=1.0, high=10_000,
+                               metavar="L")
+    comm_timeout: float = option(1.0, "a receiver falls back when its last message is older "
+                                 "than this", "plant", unit="s", low=0.0, high=3_600,
+                                 open_low=True, metavar="S")
+    comm_fade: float = option(1.0, "past the timeout the held message fades into the fallback "
+                              "over this time (0: a hard switch)", "plant", unit="s", low=0.0,
+                              high=3_600, metavar="S")
+    sensor_noise: bool = option(False, "Gaussian noise on the measured gap (0.1 m) and relative "
+                                "speed (0.1 m/s)", "plant")
+    sensor_filter: bool = option(False, "noisy measurements are tracked by a Kalman filter "
+                                 "(sensors.py), fixed or randomised", "plant")
+    impairment_seed: int = option(0, "seed of the losses, the noise and the fleet's draws",
+                                  "plant", low=0, high=2**31 - 1)
+    comm_randomize: bool = option(False, "robust training: every episode draws its own V2V "
+                                  "delay (0-0.5 s), loss (0-100 %, bursts half the time) and "
+                                  "sensor noise (half the time), a quarter perfect", "plant")
+    randomize_sensors: bool = option(True, "with --comm-randomize: sensor noise in half the "
+                                     "episodes (--no-sensor-randomize: clean sensors, the same "
+                                     "channel draws)", "plant", flag="sensor-randomize")
+    # base
+    base: str = option(AgentConfig.base, "base model under the learned adjustment: idm (the "
+                       "paper's) or a classical CACC name such as ploeg-tuned:h=0.8 (the actor "
+                       "then starts at a_adj = 0)", "base", metavar="NAME")
+    shield_ttc: float = option(0.0, "safety shield: a follower closing in below this time to "
+                               "collision gets no positive adjustment (0: off); part of the "
+                               "policy", "base", unit="s", low=0.0, high=60.0, metavar="S")
+    observe_ahead: bool = option(False, "IDM base: each vehicle also observes the acceleration "
+                                 "of the vehicle ahead as its radar measures it", "base")
+    # reward
+    w_gap: float = option(REWARD.w_gap, "weight of the headway term", "reward", low=0.0)
+    w_safe: float = option(REWARD.w_safe, "weight of the TTC term", "reward", low=0.0)
+    w_comfort: float = option(REWARD.w_comfort, "weight of the jerk term", "reward", low=0.0)
+    w_accel: float = option(REWARD.w_accel, "weight of the control-effort term -w·a² (0: off)",
+                            "reward", low=0.0)
+    w_spacing: float = option(REWARD.w_spacing, "weight of the spacing term -w·min((e/v)², 1), "
+                              "e = d - 2 m - h_s·v (0: off)", "reward", low=0.0)
+    spacing_gap: float = option(REWARD.spacing_gap_s, "the spacing term's time gap h_s",
+                                "reward", unit="s", low=0.0, high=5.0)
+    spacing_head_gap: float | None = option(REWARD.spacing_head_gap_s, "the head's h_s (none: "
+                                            "--spacing-gap), e.g. a degraded CACC's ha",
+                                            "reward", unit="s", low=0.0, high=5.0)
+    spacing_heavy_gap: float | None = option(REWARD.spacing_heavy_gap_s, "h_s of a vehicle "
+                                             "braking below 7 m/s² (none: --spacing-gap)",
+                                             "reward", unit="s", low=0.0, high=5.0)
+    w_critical: float = option(REWARD.w_critical, "penalty per follower and step with a time "
+                               "to collision below 1.5 s (0: off)", "reward", low=0.0)
+    w_amplify: float = option(REWARD.w_amplify, "weight of the amplification term "
+                              "-w·max(a_i² - a_(i-1)², 0) (0: off)", "reward", low=0.0)
+    lagrange_lr: float = option(0.0, "RCPO: step of a learned multiplier pricing close calls "
+                                "while they are more frequent than the base's (0: off)",
+                                "reward", low=0.0)
+    jerk_scale: float = option(REWARD.jerk_scale_mps3, "the jerk term's scale", "reward",
+                               unit="m/s³", low=0.0, open_low=True)
+    # agent
+    algo: str = option("ca-td3", "the algorithm", "agent", choices=ALGOS)
+    n_vehicles: int = option(10, "CACC followers trained on (a shared-weight policy runs any "
+                             "length)", "agent", low=1, high=MAX_TRAIN_VEHICLES, flag="vehicles")
+    message_dim: int = option(AgentConfig.message_dim, "V2V message width (CA models)", "agent",
+                              low=1, high=4096)
+    hidden: int = option(AgentConfig.hidden, "hidden layer width", "agent", low=1, high=65_536)
+    actor_lr: float = option(AgentConfig.actor_lr, "actor learning rate", "agent", low=0.0,
+                             open_low=True)
+    critic_lr: float = option(AgentConfig.critic_lr, "critic learning rate", "agent", low=0.0,
+                              open_low=True)
+    tau: float = option(AgentConfig.tau, "soft-update rate of the target networks per update",
+                        "agent", low=0.0, high=1.0, open_low=True)
+    gamma: float = option(AgentConfig.gamma, "discount per 0.1 s step", "agent", low=0.0,
+                          high=1.0, open_low=True)
+    batch_size: int = option(AgentConfig.batch_size, "transitions per gradient update", "agent",
+                             low=1, high=1_000_000)
+    noise: float = option(AgentConfig.exploration_noise, "exploration noise std, a fraction of "
+                          "the a_adj bound", "agent", low=0.0)
+    noise_correlation: float = option(AgentConfig.noise_correlation, "AR(1) coefficient of the "
+                                      "exploration noise per step (0: white)", "agent", low=0.0,
+                                      high=1.0, open_high=True)
+    adj_max: float = option(AgentConfig.adj_max, "bound of the learned adjustment |a_adj|",
+                            "agent", unit="m/s²", low=0.0, open_low=True, high=100.0)
+    smooth_jerk: float = option(AgentConfig.smooth_jerk, "actor loss weight on the policy's "
+                                "jerk", "agent", unit="1/(m/s³)²", low=0.0)
+    smooth_accel: float = option(AgentConfig.smooth_accel, "actor loss weight on the policy's "
+                                 "acceleration", "agent", unit="1/(m/s²)²", low=0.0)
+    adj_l2: float = option(AgentConfig.adj_l2, "actor loss weight on the adjustment itself, "
+                           "W·a_adj² (keeps the learned term near its base)", "agent",
+                           unit="1/(m/s²)²", low=0.0)
+    comm_fallback: str = option(AgentConfig.comm_fallback, "hearing no neighbour at run time: "
+                                "boundary (act as a chain end) or base (also drop the "
+                                "adjustment, as Ploeg's CACC drops to ACC); part of the policy",
+                                "agent", metavar="{boundary,base}")
+    comm_off: bool = option(False, "CA models: cut the V2V messages (the communication "
+                            "ablation); part of the policy", "agent")
+    # training
+    steps: int = option(20_000, "vector steps (each steps every environment once)", "training",
+                        low=1, high=MAX_STEPS)
+    seed: int = option(0, "training seed", "training", low=0, high=2**31 - 1)
+    num_envs: int = option(2, "parallel SUMO worker processes", "training", low=1, high=512,
+                           flag="envs")
+    learning_starts: int = option(1_000, "vector steps of exploration (or teacher) data before "
+                                  "the first update", "training", low=0, high=MAX_STEPS)
+    critic_burn_in: int = option(0, "vector steps after --learning-starts that train the "
+                                 "critics only, the actor staying as it is", "training", low=0,
+                                 high=MAX_STEPS, metavar="STEPS")
+    updates_per_step: int = option(1, "gradient updates per update round", "training", low=1,
+                                   high=1_000)
+    update_every: int = option(1, "vector steps between update rounds (give --scale-rates to "
+                               "learn as much per env step)", "training", low=1, high=1_000,
+                               metavar="K")
+    scale_rates: bool = option(False, "with --update-every K: learning rates and tau times K",
+                               "training")
+    lr_decay: bool = option(False, "learning rates fall linearly from --learning-starts to 0 "
+                            "at --steps", "training")
+    buffer_size: int = option(200_000, "replay buffer size", "training", unit="platoon "
+                              "transitions", low=1, high=10_000_000)
+    checkpoint_every: int = option(5_000, "vector steps between checkpoints", "training", low=1,
+                                   high=MAX_STEPS)
+    init: str | None = option(None, "warm start from a trained policy of the same "
+                              "configuration (critics start fresh)", "training",
+                              metavar="POLICY.pt")
+    imitate: str | None = option(None, "warm start: a teacher (a Ploeg CACC, or two-ahead:c=C "
+                                 "on a CACC base) drives for --learning-starts steps, then the "
+                                 "actor is fitted to it", "training", metavar="TEACHER")
+    imitate_updates: int = option(4_000, "behaviour-cloning gradient steps of --imitate",
+                                  "training", low=1, high=10_000_000)
+    imitate_target: str = option("realised", "on an ACC base, what the copied feed-forward "
+                                 "carries: the predecessor's realised acceleration or its "
+                                 "command", "training", choices=("realised", "command"))
+    imitate_lr: float = option(1e-3, "Adam learning rate of --imitate", "training", low=0.0,
+                               open_low=True)
+    out: str | None = option(None, "policy file (none: policies/ALGO.pt)", "training",
+                             metavar="PATH")
+    command: str = option("", "the command line that ran (recorded in the policy file)",
+                          "training", cli=False)
+    # validation
+    eval_every: int = option(2_000, "vector steps between validations", "validation", low=1,
+                             high=MAX_STEPS)
+    eval_events: int = option(8, "held-out training events validated on", "validation", low=1,
+                              high=1_000_000)
+    val_seed: int | None = option(None, "seed choosing the held-out events (none: --seed); "
+                                  "one value compares runs of several seeds on the same "
+                                  "events", "validation", low=0, high=2**31 - 1)
+    val_source: str | None = option(None, "hold the validation events out of this event source "
+                                    "only (the data file's source column)", "validation")
+    val_events: str | None = option(None, "file of training event IDs held out and validated "
+                                    "on too, e.g. the hardest", "validation", metavar="FILE")
+    select: str = option("margin", "how the kept checkpoint is chosen: margin, comfort, "
+                         "metrics or reward (learn/selection.py)", "validation",
+                         choices=("margin", "comfort", "metrics", "reward"))
+    gate_string_stable: str | None = option(None, "keep every validated checkpoint in "
+                                            "OUT.candidates/; the kept one is the best-scoring "
+                                            "string stable on this plant", "validation",
+                                            choices=("ideal", "real"))
+    val_impaired: bool = option(False, "validate also under 30 % loss in bursts, 0.2 s delay and "
+                                "sensor noise (or under the fixed --comm-* options)",
+                                "validation")
 
     def agent_config(self) -> AgentConfig:
         """The agent this run trains. With ``scale_rates`` its learning rates and target
@@ -136,6 +332,86 @@ class TrainConfig:
                        spacing_heavy_gap_s=self.spacing_heavy_gap,
                        w_critical=self.w_critical, w_amplify=self.w_amplify,
                        jerk_scale_mps3=self.jerk_scale)
+
+    @property
+    def policy_path(self) -> str:
+        """The policy file this run writes: ``out``, or ``policies/ALGO.pt`` when none."""
+        return self.out or f"policies/{self.algo.replace('-', '_')}.pt"
+
+    def check(self) -> TrainConfig:
+        """InputError, one line, for any value out of its range or any inconsistent pair of
+        options (before anything runs); the config itself."""
+        for f in fields(self):
+            meta, value = f.metadata, getattr(self, f.name)
+            if meta.get("choices") and value is not None and value not in meta["choices"]:
+                raise InputError(f"unknown --{flag_of(f)} {value!r}; choose one of "
+                                 + ", ".join(meta["choices"]))
+            check_range(flag_of(f), value, meta)
+        if abs(self.warmup / DT_S - round(self.warmup / DT_S)) > 1e-6:
+            raise InputError(f"--warmup {self.warmup} is not a multiple of the {DT_S} s step; "
+                             f"give e.g. {round(self.warmup / DT_S) * DT_S:g}")
+        self._check_schedule()
+        self._check_impairments()
+        self._check_start()
+        from carl_sumo.control.controllers import check_base
+
+        check_base(self.base)
+        AgentConfig(algo=self.algo, base=self.base, observe_ahead=self.observe_ahead,
+                    comm_fallback=self.comm_fallback, comm_off=self.comm_off)
+        if self.learning_starts >= self.steps:
+            raise InputError(f"--learning-starts {self.learning_starts} leaves no training step "
+                             f"in --steps {self.steps}; give fewer learning starts or more steps")
+        return self
+
+    def _check_schedule(self) -> None:
+        if self.scale_rates:
+            if self.update_every == 1:
+                raise InputError("--scale-rates multiplies the rates by --update-every K; give "
+                                 "--update-every 2 or more, or leave --scale-rates out")
+            if self.update_every * self.tau > 1:
+                raise InputError(f"--scale-rates: --tau times --update-every is "
+                                 f"{self.update_every * self.tau:g}, above 1; give a smaller "
+                                 "--tau or --update-every")
+        if self.oversample_times != 4 and self.oversample is None:
+            raise InputError("--oversample-times weights the --oversample events; give "
+                             "--oversample FILE too, or leave it out")
+        if self.gate_string_stable is not None and self.algo == "maddpg":
+            raise InputError("--gate-string-stable tests a policy on a 5-vehicle platoon; "
+                             "maddpg runs only its trained length: leave the gate out")
+
+    def _check_impairments(self) -> None:
+        if self.sensor_filter and not self.sensor_noise and not self.comm_randomize:
+            raise InputError("--sensor-filter filters noisy measurements: give it with "
+                             "--sensor-noise or --comm-randomize")
+        fixed = self.fixed_impairments  # InputError for a bad value
+        if self.plant_randomize and (self.comm_randomize or fixed is not None):
+            raise InputError("--plant-randomize draws every episode's plant and channel itself; "
+                             "leave out --comm-randomize, --plant and the --comm-* options")
+        if not self.randomize_sensors and not self.comm_randomize:
+            raise InputError("--no-sensor-randomize narrows --comm-randomize; give both, or "
+                             "neither")
+        if fixed is not None and self.comm_randomize:
+            raise InputError("--comm-randomize draws every episode's impairments itself; give "
+                             "it or fixed --comm-*/--sensor-noise options, not both")
+
+    def _check_start(self) -> None:
+        if self.init is not None:
+            if self.imitate is not None:
+                raise InputError("--init starts a new run from a policy and --imitate starts "
+                                 "from a teacher: give one of them")
+            from carl_sumo.learn.policy import read_policy_payload
+
+            read_policy_payload(self.init)
+        if self.imitate_target != "realised" and (self.imitate is None or self.base == "idm"):
+            raise InputError("--imitate-target is for --imitate on an ACC base (--base acc:...)")
+        if self.imitate_updates != 4_000 and self.imitate is None:
+            raise InputError("--imitate-updates sets the steps of --imitate; give --imitate "
+                             "TEACHER too, or leave it out")
+        if self.imitate is not None:
+            from carl_sumo.learn.imitation import check_teacher_base, teacher
+
+            teacher(self.imitate)
+            check_teacher_base(self.imitate, self.base)
 
 
 def split_validation(events: Sequence[Event], k: int, seed: int, source: str | None = None

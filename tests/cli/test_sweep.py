@@ -163,9 +163,9 @@ def test_configurations_are_compared_across_seeds_and_the_best_comes_first():
 @pytest.mark.parametrize("text, needle", [
     ("name = \"x\"\n[train\n", "not valid TOML"),
     ("name = \"x\"\ncolour = 1\n", "unknown key(s) colour"),
-    ("name = \"x\"\n[train]\nalgo = \"ppo\"\n", "unknown algorithm 'ppo'"),
+    ("name = \"x\"\n[train]\nalgo = \"ppo\"\n", "unknown --algo 'ppo'"),
     ("name = \"x\"\n[train]\nwarp = 9\n", "unrecognized arguments: --warp 9"),
-    ("name = \"x\"\n[train]\nsteps = 0\n", "--steps must be at least 1"),
+    ("name = \"x\"\n[train]\nsteps = 0\n", "--steps must be a whole number in [1, "),
     ("name = \"x\"\n[grid]\nseed = []\n", "grid.seed must be a non-empty list"),
     ("name = \"x\"\n[grid]\nout = [\"a\"]\n", "out, resume and ray belong to the sweep"),
     ("name = \"x\"\nsearch = \"random\"\n[random]\nnoise = {uniform = [0.2, 0.1]}\n",
@@ -195,25 +195,29 @@ SHIPPED_SEEDS = REPO_ROOT / "policies" / "seeds"
 @pytest.mark.parametrize("spec", sorted((REPO_ROOT / "sweeps").glob("*.toml")),
                          ids=lambda p: p.stem)
 def test_shipped_specs_run_the_recipes_of_the_shipped_seed_files(spec):
-    """Every trial of a shipped spec is `train` with exactly the options recorded in the seed
-    file that policies/*.sh trained (same stem and seed; only --out differs)."""
+    """Every trial of a shipped spec trains its recipe file with exactly the configuration of
+    the command recorded in the seed file that trained it (same stem and seed; only the output
+    path and the command text differ): the recipes reproduce the shipped runs."""
     import shlex
+    from dataclasses import asdict
 
-    from carl_sumo.cli import build_parser
-    from carl_sumo.learn.policy import read_policy_payload
+    from carl_sumo.cli.policies import check_train_args
+    from carl_sumo.cli.policies import train_parser
     from carl_sumo.cli.sweep_trials import load_spec, plan_trials
+    from carl_sumo.learn.policy import read_policy_payload
 
     loaded = load_spec(spec)
     assert loaded.ship == Path("policies") / f"{loaded.name}.pt" and loaded.ship.exists()
+    assert loaded.recipe == Path("recipes") / f"{loaded.name}.toml"
     trials = plan_trials(loaded)
     assert trials
     for trial in trials:
         meta = read_policy_payload(SHIPPED_SEEDS / f"{trial.name}.pt")["metadata"]
-        recorded = vars(build_parser().parse_args(shlex.split(meta["command"])[1:]))
-        planned = vars(build_parser().parse_args(["train", *trial.argv]))
-        for options in (recorded, planned):
-            options.pop("out")
-        assert planned == recorded, trial.name
+        recorded = check_train_args(train_parser().parse_args(shlex.split(meta["command"])[1:]))[0]
+        planned = check_train_args(train_parser().parse_args(["train", *trial.argv]))[0]
+        configs = [{k: v for k, v in asdict(c).items() if k not in ("out", "command")}
+                   for c in (recorded, planned)]
+        assert configs[0] == configs[1], trial.name
 
 
 def test_seed_in_a_string_option_is_the_trials_seed(tmp_path):

@@ -1,0 +1,82 @@
+"""Command-line options generated from :class:`carl_sumo.learn.train_config.TrainConfig`.
+
+Every field becomes one option (``--flag``, its type from the annotation, its help from the
+field's doc, unit, default and range), grouped by the field's section. A parsed value is None
+unless given, so that a recipe (``--config``) supplies the rest: :func:`config_from_args` merges
+the defaults, the recipe and the options given, in that order of precedence.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any, Callable
+
+from carl_sumo.errors import InputError
+from carl_sumo.learn.recipe import base_type, coerce, key_of, option_fields, read_recipe
+from carl_sumo.learn.train_config import SECTIONS, TrainConfig, bounds_text
+
+
+def _shown(value: Any) -> str:
+    if value is None:
+        return "none"
+    if isinstance(value, str) and Path(value).is_absolute():
+        return Path(value).name  # a shipped file, found by name
+    return f"{value:g}" if isinstance(value, float) else str(value).lower() \
+        if isinstance(value, bool) else str(value)
+
+
+def help_of(f) -> str:
+    """The ``--help`` text of a field: its doc, unit, allowed values, range and default."""
+    meta = f.metadata
+    parts = [meta["doc"].replace("%", "%%")]
+    extra = [meta["unit"]] if meta["unit"] else []
+    if meta["choices"]:
+        extra.append("one of " + ", ".join(meta["choices"]))
+    if bounds_text(meta):
+        extra.append("in " + bounds_text(meta))
+    if not (f.default is None and "none:" in meta["doc"]):
+        extra.append("default " + _shown(f.default))
+    return f"{parts[0]} ({'; '.join(extra)})"
+
+
+def add_config_options(p: argparse.ArgumentParser,
+                       converters: dict[str, Callable[[str], Any]] | None = None) -> None:
+    """One option per :class:`TrainConfig` field, in an argument group per section;
+    ``converters`` replace the type of named fields (e.g. ``net``: a shipped network by name)."""
+    converters = converters or {}
+    groups = {s: p.add_argument_group(f"{s} options", doc) for s, doc in SECTIONS.items()}
+    for key, f in option_fields().items():
+        group = groups[f.metadata["section"]]
+        flag = "--" + key.replace("_", "-")
+        kind = base_type(f)
+        if kind is bool:
+            group.add_argument(flag, dest=key, action=argparse.BooleanOptionalAction,
+                               default=None, help=help_of(f))
+        else:
+            choices = f.metadata["choices"]
+            metavar = f.metadata["metavar"] or ("{" + ",".join(choices) + "}" if choices else
+                                                {int: "N", float: "X"}.get(kind, "TEXT"))
+            group.add_argument(flag, dest=key, type=converters.get(f.name, kind), default=None,
+                               metavar=metavar, help=help_of(f))
+
+
+def config_from_args(args: argparse.Namespace, command: str = "",
+                     converters: dict[str, Callable[[str], Any]] | None = None) -> TrainConfig:
+    """The checked :class:`TrainConfig` of parsed options: the defaults, then the recipe of
+    ``args.config`` (when given), then every option given on the command line. InputError,
+    one line, for a bad recipe or value."""
+    values: dict[str, Any] = {}
+    if getattr(args, "config", None) is not None:
+        values.update(read_recipe(args.config))
+    for key, f in option_fields().items():
+        given = getattr(args, key, None)
+        if given is not None:
+            values[f.name] = coerce(key, given, f, "--" + key.replace("_", "-"))
+    for name, convert in (converters or {}).items():
+        if isinstance(values.get(name), str):
+            values[name] = convert(values[name])
+    try:
+        return TrainConfig(**values, command=command).check()
+    except TypeError as exc:  # pragma: no cover - a field the generator missed
+        raise InputError(f"bad training options: {exc}") from None

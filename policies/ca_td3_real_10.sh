@@ -1,5 +1,0 @@
-#!/usr/bin/env bash
-# The product on the real plant: CA-TD3 on the robustly tuned Ploeg CACC (h = 0.8 s), randomised fleets, 10 followers, seeds 0-4.
-# Usage: bash policies/ca_td3_real_10.sh   (DATA=PATH for another NGSIM event table)
-source "$(dirname "$0")/recipe.sh"
-train_seeds ca_td3_real_10 "0 1 2 3 4" --algo ca-td3 --vehicles 10 --steps 8000 $COMMON $REAL

@@ -1,4 +1,0 @@
-#!/usr/bin/env bash
-# The communication ablation of ca_td3_real_acc_10: the same recipe and seeds with the CA messages cut (--comm-off).
-source "$(dirname "$0")/recipe.sh"
-train_seeds ca_td3_real_acc_nocomm_10 "0 1 2 3 4" --algo ca-td3 --vehicles 10 --steps 5000 --comm-off $COMMON $REAL_ACC

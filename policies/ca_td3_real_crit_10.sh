@@ -1,5 +1,0 @@
-#!/usr/bin/env bash
-# REAL_REACT with a critical-TTC term in the reward (REAL_CRIT in recipe.sh), validated on every
-# training source, CA-TD3, 10 followers, seeds 0-4.
-source "$(dirname "$0")/recipe.sh"
-train_seeds ca_td3_real_crit_10 "0 1 2 3 4" --algo ca-td3 --vehicles 10 --steps 8000 $COMMON_ALLVAL $REAL_CRIT

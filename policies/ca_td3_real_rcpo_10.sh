@@ -1,5 +1,0 @@
-#!/usr/bin/env bash
-# REAL_HARD with close calls as a Lagrangian constraint (REAL_RCPO in recipe.sh), CA-TD3,
-# 10 followers, seeds 0-4; ships the best-validated seed that is string stable on the real plant.
-source "$(dirname "$0")/recipe.sh"
-SHIP_STRING_STABLE=real train_seeds ca_td3_real_rcpo_10 "0 1 2 3 4" --algo ca-td3 --vehicles 10 --steps 8000 $COMMON_ALLVAL $REAL_RCPO
