@@ -705,3 +705,79 @@ def test_fast_freeway_events_run_end_to_end(fast_table, tmp_path, capsys, scenar
     code = main(["replay", "--data", str(fast_table), "--split", "all", "--event", "cruise40",
                  "--vehicles", "2", "--net", str(NET), "--fcd", str(tmp_path / "f.xml")])
     assert code == 0, capsys.readouterr().err
+
+
+# --- sizes without an upper bound (issue 56) ---------------------------------------------------
+
+UNBOUNDED = {
+    "simulate --actuation-delay 1e9": (["simulate", "--events", "1", "--controller", "ploeg",
+                                        "--actuation-delay", "1e9"], "--actuation-delay"),
+    "simulate --vehicle-lag 1e9": (["simulate", "--events", "1", "--controller", "ploeg",
+                                    "--vehicle-lag", "1e9"], "--vehicle-lag"),
+    "simulate --warmup 1e8": (["simulate", "--events", "1", "--warmup", "1e8"], "--warmup"),
+    "replay --warmup 1e8": (["replay", "--event", EVENT, "--split", "all", "--warmup", "1e8",
+                             "--fcd", "f.xml"], "--warmup"),
+    "replay --actuation-delay 1e9": (["replay", "--event", EVENT, "--split", "all",
+                                      "--controller", "ploeg", "--actuation-delay", "1e9",
+                                      "--fcd", "f.xml"], "--actuation-delay"),
+    "evaluate --warmup 1e8": (["evaluate", "--quick", "--warmup", "1e8", "--out", "ev"],
+                              "--warmup"),
+    "string-stability --min-frequency 1e-9": (["string-stability", "--controller", "ploeg",
+                                               "--min-frequency", "1e-9"], "1e-09 rad/s"),
+    "string-stability --frequencies 1e8": (["string-stability", "--controller", "ploeg",
+                                            "--frequencies", "100000000"], "--frequencies"),
+    "string-stability --actuation-delay 1e9": (["string-stability", "--controller", "ploeg",
+                                                "--actuation-delay", "1e9"], "--actuation-delay"),
+    "study --warmup 1e9": (["study", "--warmup", "1e9", "--out", "st"], "--warmup"),
+    "study --duration 1e9": (["study", "--duration", "1e9", "--out", "st"], "--duration"),
+    "study --seeds 1e9": (["study", "--seeds", "1000000000", "--out", "st"], "--seeds"),
+    "study --actuation-delay 1e9": (["study", "--controller", "ploeg", "--actuation-delay", "1e9",
+                                     "--out", "st"], "--actuation-delay"),
+}
+
+
+@pytest.mark.parametrize("case", list(UNBOUNDED))
+def test_a_size_beyond_what_a_run_holds_is_one_line_before_any_allocation(tmp_path, monkeypatch,
+                                                                          capsys, case):
+    argv, phrase = UNBOUNDED[case]
+    monkeypatch.chdir(tmp_path)
+    code = main(argv)
+    one_line_exit_2(code, capsys.readouterr().err, phrase)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_plant_and_the_warm_up_are_bounded_for_every_caller():
+    """The Gymnasium plant, training and tuning build these directly."""
+    from carl_sumo.sim.vehicle import Plant
+
+    with pytest.raises(InputError, match="--actuation-delay must be at most"):
+        Plant(dead_time_s=1e9)
+    with pytest.raises(InputError, match="--warmup must be from 0 to"):
+        fast_events()[0].with_warmup(1e8)
+
+
+def test_a_tune_pool_stops_after_a_worker_start_up_failure(tmp_path):
+    """A worker whose start-up fails (here: an event table that is not there) stops the run with
+    that error, instead of a pool that replaces the worker forever."""
+    script = tmp_path / "pool.py"
+    script.write_text(f'''
+from carl_sumo.errors import InputError
+from carl_sumo.experiments.tune import GridPoint, TuneConfig, _Runner
+
+if __name__ == "__main__":
+    cfg = TuneConfig(data={str(tmp_path / "missing.csv")!r}, workers=2, n_followers=2)
+    runner = _Runner(cfg, 4, None, None)
+    try:
+        runner.run([GridPoint(0.8, 0.2, 0.7)])
+    except InputError as exc:
+        print("stopped:", exc)
+    finally:
+        runner.close(failed=True)
+''')
+    try:
+        done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                              timeout=60, cwd=REPO_ROOT)
+    except subprocess.TimeoutExpired:
+        pytest.fail("the pool kept replacing its failing workers")
+    assert done.returncode == 0 and "stopped:" in done.stdout and "missing.csv" in done.stdout, \
+        done.stdout + done.stderr

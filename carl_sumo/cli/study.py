@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from carl_sumo.cli.common import (NET_HELP, net_option, add_impairments, add_ray, check_ray, impairments_from, positive, ray_session,
+from carl_sumo.cli.common import (NET_HELP, controller_option, net_option, add_impairments, add_ray, check_ray, impairments_from, positive, ray_session,
                                    workers_for)
 from carl_sumo.errors import InputError
 from carl_sumo.files import check_output_dir
@@ -22,8 +22,8 @@ if TYPE_CHECKING:
 def _study_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("study", help="mixed human/CACC traffic on the freeway against the "
                        "CACC penetration rate: tables and figures")
-    p.add_argument("--net", type=net_option, default="networks/i80.net.xml", help=NET_HELP)
-    p.add_argument("--controller", default="idm-external",
+    p.add_argument("--net", type=net_option, default="i80.net.xml", help=NET_HELP)
+    p.add_argument("--controller", type=controller_option, default="idm-external",
                    help="CACC controller: idm-external | sumo-cacc | ploeg[:h=H:kp=KP:kd=KD] | "
                         "ploeg-tuned:h=H | POLICY.pt (not MADDPG) | module:attribute | "
                         "file.py:attribute (a controller of your own, see README)")
@@ -69,6 +69,12 @@ def _rates(text: str) -> tuple[float, ...]:
     return tuple(sorted(set(rates)))
 
 
+MAX_STUDY_S = 86400.0
+"""The longest simulated time of one study run (s): a day of traffic."""
+MAX_STUDY_SEEDS = 1000
+"""The most seeds per penetration rate."""
+
+
 def cmd_study(args: argparse.Namespace) -> None:
     from dataclasses import replace
 
@@ -87,7 +93,13 @@ def cmd_study(args: argparse.Namespace) -> None:
             raise InputError(f"{name} must be a positive number, got {value}")
     if not (math.isfinite(args.warmup) and args.warmup >= 0):
         raise InputError(f"--warmup must be a non-negative number of seconds, got {args.warmup}")
+    if args.warmup + args.duration > MAX_STUDY_S:
+        raise InputError(f"--warmup plus --duration must be at most {MAX_STUDY_S:g} s (a day of "
+                         f"traffic), got {args.warmup + args.duration:g}")
     positive(args.seeds, "--seeds")
+    if args.seeds > MAX_STUDY_SEEDS:
+        raise InputError(f"--seeds must be at most {MAX_STUDY_SEEDS} (one run of "
+                         f"{args.duration:g} s each per rate), got {args.seeds}")
     if args.workers is not None:
         positive(args.workers, "--workers")
     check_output_dir(args.out, "--out")
@@ -126,7 +138,7 @@ def _check_detector(cfg) -> None:
     net = sumolib.net.readNet(cfg.net)
     if not net.hasEdge(MAIN_EDGE):
         raise InputError(f"network {cfg.net} has no edge {MAIN_EDGE}; the study needs the "
-                         "I-80-like network (networks/i80.net.xml)")
+                         "I-80-like network (i80.net.xml)")
     length = net.getEdge(MAIN_EDGE).getLength()
     if cfg.detector_pos_m > length:
         raise InputError(f"--detector-pos {cfg.detector_pos_m:g} m is beyond the end of "

@@ -7,6 +7,7 @@ and :func:`events_from_table` turns it into :class:`Event` objects.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -110,6 +111,7 @@ class Event:
         starts with the recorded follower's speed and gap, settles at its own controller's
         spacing; the metrics then score only the recorded part (from :attr:`scored_from` on). The
         recorded follower is held at its initial state over the warm-up."""
+        check_warmup(seconds)
         k = int(round(seconds / self.dt))
         if k == 0:
             return self
@@ -126,6 +128,20 @@ class Event:
     def leader_travel_m(self) -> float:
         """Distance the leader covers over the event (m)."""
         return float(self.leader_pos_m.max() - self.leader_pos_m[0])
+
+
+MAX_WARMUP_S = 3600.0
+"""The longest warm-up before an event (s): an hour, 36,000 steps (a platoon settles in a minute
+or two); a longer one is refused before anything is allocated."""
+
+
+def check_warmup(seconds: float, option: str = "--warmup") -> float:
+    """``seconds`` of warm-up, or InputError (one line) when it is negative, not finite or longer
+    than :data:`MAX_WARMUP_S`."""
+    if not (math.isfinite(seconds) and 0 <= seconds <= MAX_WARMUP_S):
+        raise InputError(f"{option} must be from 0 to {MAX_WARMUP_S:g} s (a platoon settles in a "
+                         f"minute or two), got {seconds:g}")
+    return float(seconds)
 
 
 def read_event_table(path: str | Path) -> pd.DataFrame:

@@ -42,6 +42,11 @@ from carl_sumo.sim.vehicle import Plant
 SINE_SOURCE = "carl_sumo_sine"
 
 
+MAX_SINE_RUN_S = 100_000.0
+"""The longest run of one frequency (s): a lower frequency is refused before its leader's
+trajectory is built (the network's length refuses most long runs anyway)."""
+
+
 @dataclass(frozen=True)
 class SineTest:
     """The leader's sinusoidal speed perturbation and the measurement window (units in names)."""
@@ -70,6 +75,12 @@ class SineTest:
             if not (math.isfinite(w) and 0 < w <= nyquist / 10):
                 raise InputError(f"frequency {w:g} rad/s cannot be resolved with {DT_S} s steps; "
                                  f"give frequencies in (0, {nyquist / 10:.2f}] rad/s")
+            run_s = self.settle_s + self.discard_s + 4 * math.pi / w
+            if run_s > MAX_SINE_RUN_S:
+                lowest = 4 * math.pi / (MAX_SINE_RUN_S - self.settle_s - self.discard_s)
+                raise InputError(f"frequency {w:g} rad/s needs a run of {run_s:.3g} s (two "
+                                 f"periods), more than {MAX_SINE_RUN_S:g} s; give frequencies of "
+                                 f"at least {lowest:.4f} rad/s")
 
     def fit_steps(self, omega: float) -> int:
         """Steps of the fit window: whole periods, at least two and at least ``min_fit_s``."""

@@ -108,6 +108,9 @@ class GridPoint:
 
 # ------------------------------------------------------------------------------- running
 _EVENTS: list = []
+_INIT_ERROR: Exception | None = None
+"""What a pool worker's start-up raised: its first task raises it again, so the command stops
+with it (a ``multiprocessing.Pool`` would replace a worker whose initializer fails, forever)."""
 
 
 def _worker_init(data: str, split: str, limit: int | None, warmup_s: float = 0.0,
@@ -117,15 +120,22 @@ def _worker_init(data: str, split: str, limit: int | None, warmup_s: float = 0.0
     from carl_sumo.data import load_events
     from carl_sumo.scale.workers import pool_worker_init, worker_init
 
-    pool_worker_init() if pool else worker_init()
-    global _EVENTS
-    _EVENTS = [e.with_warmup(warmup_s) for e in load_events(data, split, limit=limit)]
+    global _EVENTS, _INIT_ERROR
+    try:
+        pool_worker_init() if pool else worker_init()
+        _EVENTS = [e.with_warmup(warmup_s) for e in load_events(data, split, limit=limit)]
+    except Exception as exc:  # noqa: BLE001 - handed to the command by the first task
+        if not pool:
+            raise
+        _INIT_ERROR = exc
 
 
 def _run_point(task: tuple) -> tuple[str, list[dict]]:
     """Per-event metrics of one controller name on a slice of this worker's events."""
     from carl_sumo.experiments.simulate import score_events
 
+    if _INIT_ERROR is not None:
+        raise _INIT_ERROR
     name, start, stop, n, net, impairments = task
     return name, score_events(name, _EVENTS[start:stop], n, net, impairments=impairments)
 
@@ -171,9 +181,10 @@ class _Runner:
                 if self.progress is not None:
                     self.progress(1)
 
-    def close(self) -> None:
+    def close(self, failed: bool = False) -> None:
+        """Stop the pool: after its tasks, or at once when the run ``failed``."""
         if self.pool is not None:
-            self.pool.close()
+            self.pool.terminate() if failed else self.pool.close()
             self.pool.join()
 
 
@@ -310,6 +321,7 @@ def tune_ploeg(cfg: TuneConfig, out: Path = TUNED_FILE, events_limit: int | None
                 "wall_time_s": round(time.perf_counter() - start, 1),
                 "entries": entries, "grid": grid}
 
+    failed = True
     try:
         for h in cfg.gaps_s:
             known = {(p.kp, p.kd): p for p in (reuse or []) if p.h == h}
@@ -329,8 +341,9 @@ def tune_ploeg(cfg: TuneConfig, out: Path = TUNED_FILE, events_limit: int | None
                     else "no safe gains"
                 log(f"h = {h:g} s: {chosen} ({len(points)} gains, interior: {interior}; "
                     f"{time.perf_counter() - start:.0f} s)")
+        failed = False
     finally:
-        runner.close()
+        runner.close(failed)
         if bar is not None:
             bar.close()
     payload = result()

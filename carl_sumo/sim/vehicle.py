@@ -60,6 +60,13 @@ VEHICLE_CLASSES: dict[str, VehicleClass] = {
 """The vehicle classes a fleet may hold."""
 
 
+MAX_DEAD_TIME_S = 10.0
+"""The longest actuation dead time a plant may have (s): its commands are held in a buffer of
+that many steps per vehicle, sized before the run."""
+MAX_LAG_S = 60.0
+"""The longest actuator lag a plant may have (s)."""
+
+
 @dataclass(frozen=True)
 class Plant:
     """What the followers are: a fleet of classes with fractions, optionally every follower's τ
@@ -72,7 +79,13 @@ class Plant:
     def __post_init__(self) -> None:
         if self.lag_s is not None and not (math.isfinite(self.lag_s) and self.lag_s >= 0):
             raise InputError(f"--vehicle-lag must be 0 s or more, got {self.lag_s}")
+        if self.lag_s is not None and self.lag_s > MAX_LAG_S:
+            raise InputError(f"--vehicle-lag must be at most {MAX_LAG_S:g} s (a truck's is about "
+                             f"0.5 s), got {self.lag_s:g}")
         if self.dead_time_s is not None:
+            if math.isfinite(self.dead_time_s) and self.dead_time_s > MAX_DEAD_TIME_S:
+                raise InputError(f"--actuation-delay must be at most {MAX_DEAD_TIME_S:g} s (a "
+                                 f"truck's is about 0.2 s), got {self.dead_time_s:g}")
             steps = self.dead_time_s / DT_S
             if not (math.isfinite(self.dead_time_s) and self.dead_time_s >= 0) \
                     or abs(steps - round(steps)) > 1e-9:
