@@ -8,7 +8,7 @@ import json
 import os
 from pathlib import Path
 
-from carl_sumo.cli.common import NET_HELP, controller_option, net_option, add_impairments, impairments_from, positive
+from carl_sumo.cli.common import NET_HELP, net_option, add_impairments, impairments_from, positive
 from carl_sumo.errors import InputError
 from carl_sumo.files import check_output_file, write_text_atomic
 
@@ -16,10 +16,10 @@ from carl_sumo.files import check_output_file, write_text_atomic
 def _string_stability_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("string-stability",
                        help="|a_i / a_(i-1)| against frequency behind a sinusoidal leader")
-    p.add_argument("--controller", type=controller_option, required=True,
+    p.add_argument("--controller", required=True,
                    help="one or more controllers with commas: ploeg[:h=..], acc[:h=..], "
                         "ploeg-tuned:h=H, idm-external, POLICY.pt")
-    p.add_argument("--net", type=net_option, default="i80.net.xml", help=NET_HELP)
+    p.add_argument("--net", type=net_option, default="networks/i80.net.xml", help=NET_HELP)
     p.add_argument("--vehicles", type=int, default=5, help="followers (default 5)")
     p.add_argument("--amplitude", type=float, default=0.5, metavar="MPS",
                    help="the leader's speed amplitude (m/s, default 0.5)")
@@ -39,11 +39,6 @@ def _string_stability_parser(sub: argparse._SubParsersAction) -> None:
                         "gains of --controller, a ploeg or acc name) against lag 0.1-0.5 s and "
                         "V2V delay 0-0.3 s, measured and analytic, written to DIR (h_min.md, "
                         ".csv, .json, .png)")
-    p.add_argument("--h-min-heard", type=Path, default=None, metavar="DIR",
-                   help="instead: the smallest string-stable time gap against the vehicles "
-                        "heard, r = 0-3 (acc, ploeg, mpf; the gains of --controller) and lag "
-                        "0.1-0.6 s, V2V delay 0-0.2 s, measured and analytic, written to DIR "
-                        "(h_min_heard.md, .csv, .json; docs/string_stability.md)")
     add_impairments(p)
 
 
@@ -67,7 +62,7 @@ def cmd_string_stability(args: argparse.Namespace) -> None:
     if not names:
         raise InputError("--controller names no controller")
     impairments = impairments_from(args)
-    if args.h_min_table is not None or args.h_min_heard is not None:
+    if args.h_min_table is not None:
         return _h_min_table(args, names)
     for name in names:
         check_impairable(name, impairments)
@@ -109,20 +104,11 @@ def _h_min_table(args: argparse.Namespace, names: list[str]) -> None:
     from carl_sumo.files import check_output_dir
 
     if len(names) != 1 or not is_ploeg_name(names[0]):
-        raise InputError("--h-min-table and --h-min-heard take the gains of one ploeg or acc "
-                         "--controller, e.g. "
+        raise InputError("--h-min-table takes the gains of one ploeg or acc --controller, e.g. "
                          "--controller ploeg:kp=0.2:kd=0.7")
     p = parse_ploeg(names[0])
-    option = "--h-min-table" if args.h_min_table is not None else "--h-min-heard"
-    check_output_dir(args.h_min_table or args.h_min_heard, option)
+    check_output_dir(args.h_min_table, "--h-min-table")
     workers = args.workers if args.workers is not None else min(2, os.cpu_count() or 1)
-    positive(workers, "--workers")
-    if args.h_min_heard is not None:  # r = 0-3 vehicles heard (carl_sumo.experiments.h_min_heard)
-        from carl_sumo.experiments import h_min_heard
-
-        rows = h_min_heard.table(p.kp, p.kd, args.net, workers)
-        print(h_min_heard.write(rows, p.kp, p.kd, Path(args.h_min_heard)))
-        return
     rows = h_min_table(p.kp, p.kd, args.net, workers)
     out = Path(args.h_min_table)
     out.mkdir(parents=True, exist_ok=True)
