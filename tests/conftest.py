@@ -12,7 +12,7 @@ from carl_sumo.data.events import EVENT_COLUMNS, Event
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 NGSIM_DIR = REPO_ROOT.parent / "shared" / "data" / "ngsim"
-NET = REPO_ROOT / "networks" / "i80.net.xml"
+NET = REPO_ROOT / "carl_sumo" / "networks" / "i80.net.xml"
 
 
 def braking_event(n: int = 200, event_id: str = "brake", v0: float = 12.0, gap: float = 20.0,

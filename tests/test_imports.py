@@ -139,20 +139,13 @@ def test_functions_stay_short():
     assert not long, "too long: " + "; ".join(long)
 
 
-@pytest.mark.parametrize("old", sorted(carl_sumo.MOVED))
-def test_old_module_paths_import_the_moved_module(old):
-    moved = importlib.import_module(f"carl_sumo.{old}")
-    assert moved is importlib.import_module(f"carl_sumo.{carl_sumo.MOVED[old]}")
-    assert f"{old}.py" not in {p.name for p in PACKAGE.glob("*.py")}  # no second copy
-
-
 def test_the_public_api_of_the_docs_imports():
-    from carl_sumo.agents import Agent, AgentConfig  # noqa: F401
-    from carl_sumo.cacc import PloegController, ploeg_controller  # noqa: F401
+    from carl_sumo.learn.agents import Agent, AgentConfig  # noqa: F401
+    from carl_sumo.control.cacc import PloegController, ploeg_controller  # noqa: F401
     from carl_sumo.cli import main  # noqa: F401
-    from carl_sumo.metrics import aggregate, score_event  # noqa: F401
-    from carl_sumo.policy import load_policy, load_torch  # noqa: F401
-    from carl_sumo.replay import ReplayBuffer  # noqa: F401
-    from carl_sumo.simulate import cached_sim, run_event, simulate  # noqa: F401
+    from carl_sumo.sim.metrics import aggregate, score_event  # noqa: F401
+    from carl_sumo.learn.policy import load_policy, load_torch  # noqa: F401
+    from carl_sumo.learn.replay_buffer import ReplayBuffer  # noqa: F401
+    from carl_sumo.experiments.simulate import cached_sim, run_event, simulate  # noqa: F401
     from carl_sumo.study import StudyConfig, run_one  # noqa: F401
-    from carl_sumo.sumo import DEFAULT_NET, PlatoonSim  # noqa: F401
+    from carl_sumo.sim.sumo import DEFAULT_NET, PlatoonSim  # noqa: F401

@@ -36,17 +36,24 @@ PATH_DESTS = frozenset({"data", "init", "resume", "out", "json", "fcd", "plot", 
 def net_option(text: str) -> str:
     """``--net``: the path as given, or, when no such file exists, the shipped network of that
     file name (``--net i80.net.xml`` from any folder, as ``--data default`` finds its leaders)."""
-    from carl_sumo.sim.sumo import REPO_ROOT
+    from carl_sumo.resources import NETWORKS, shipped
 
-    shipped = REPO_ROOT / "networks" / Path(text).name
-    return text if Path(text).exists() or not shipped.is_file() else str(shipped)
+    return shipped(text, NETWORKS)
+
+
+def controller_option(text: str) -> str:
+    """``--controller``: each comma-separated name with a preset (``product``) or a shipped
+    policy's file name resolved to its path (:func:`carl_sumo.resources.controller_name`)."""
+    from carl_sumo.resources import controller_name
+
+    return ",".join(controller_name(c.strip()) if c.strip() else c for c in text.split(","))
 
 
 NET_HELP = "SUMO network (.net.xml; a shipped network's file name works from any folder)"
 
 
 def add_common(p: argparse.ArgumentParser, split_default: str = "test") -> None:
-    p.add_argument("--net", type=net_option, default="networks/i80.net.xml", help=NET_HELP)
+    p.add_argument("--net", type=net_option, default="i80.net.xml", help=NET_HELP)
     p.add_argument("--data", default="default",
                    help="default | stop-and-go | PATH of an event table or a raw NGSIM CSV")
     p.add_argument("--split", default=split_default, help="test | train | us101 | all")

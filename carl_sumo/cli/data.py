@@ -16,7 +16,7 @@ if TYPE_CHECKING:
 def _net_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("net", help="network tools")
     net_sub = p.add_subparsers(dest="net_command", required=True, parser_class=Parser)
-    b = net_sub.add_parser("build", help="regenerate networks/i80.net.xml with netconvert")
+    b = net_sub.add_parser("build", help="regenerate the shipped i80.net.xml with netconvert")
     b.add_argument("--config", type=Path, default=None, help="netconvert .netccfg")
     b.add_argument("--out", type=Path, default=None)
 
@@ -36,7 +36,7 @@ def _data_parser(sub: argparse._SubParsersAction) -> None:
     d.add_argument("--data", default="default")
     d.add_argument("--split", default="all")
     d = data_sub.add_parser("make-default", help="regenerate the shipped default leader set")
-    d.add_argument("--net", type=net_option, default="networks/i80.net.xml", help=NET_HELP)
+    d.add_argument("--net", type=net_option, default="i80.net.xml", help=NET_HELP)
     d.add_argument("--out", type=Path, default=None)
     d.add_argument("--seed", type=int, default=42)
 

@@ -12,12 +12,14 @@ from contextlib import nullcontext
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from carl_sumo.cli.common import (NET_HELP, net_option, add_common, add_impairments, add_plant, add_ray, add_warmup,
-                                   check_ray, fmt, impairments_from, positive, ray_session,
-                                   warmup_from, workers_for)
+from carl_sumo.cli.common import (NET_HELP, controller_option, net_option, add_common,
+                                  add_impairments, add_plant, add_ray, add_warmup, check_ray, fmt,
+                                  impairments_from, positive, ray_session, warmup_from,
+                                  workers_for)
 from carl_sumo.cli.scenario import (add_scenario, evaluate_scenarios, replay_with_scenario,
                                     simulate_with_scenario)
 from carl_sumo.errors import InputError
+from carl_sumo.progress import progress_mode
 from carl_sumo.files import atomic_path, check_output_dir, check_output_file, write_text_atomic
 
 if TYPE_CHECKING:
@@ -39,9 +41,11 @@ def format_table(results: list[dict]) -> str:
 def _simulate_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="run controllers on the events of a split; print metrics")
     add_common(p)
-    p.add_argument("--controller", default="idm",
-                   help="idm | krauss | sumo-cacc | idm-external | ploeg[:h=H:kp=KP:kd=KD] | "
-                        "ploeg-tuned:h=H | human | POLICY.pt; several with commas")
+    p.add_argument("--controller", type=controller_option, default="idm",
+                   help="product (the shipped real-plant CA-TD3; with --plant real) | idm | "
+                        "krauss | sumo-cacc | idm-external | ploeg[:h=H:kp=KP:kd=KD] | "
+                        "ploeg-tuned:h=H | human | POLICY.pt (a shipped one by its file name "
+                        "from any folder); several with commas")
     p.add_argument("--events", type=int, default=None, metavar="K", help="only the first K events")
     p.add_argument("--json", type=Path, default=None, metavar="OUT", help="write metrics as JSON")
     p.add_argument("--workers", type=int, default=None,
@@ -84,7 +88,7 @@ def cmd_simulate(args: argparse.Namespace) -> None:
     start = time.perf_counter()
     with ray_session(args, args.workers or os.cpu_count()):
         workers = workers_for(args, min(2, os.cpu_count() or 1))
-        results = [simulate(name, events, args.vehicles, args.net, progress=sys.stderr.isatty(),
+        results = [simulate(name, events, args.vehicles, args.net, progress=progress_mode(),
                             workers=workers, impairments=impairments) for name in names]
     print(format_table(results))
     print(f"{len(events)} events of split {args.split} of {args.data}, "
@@ -98,7 +102,7 @@ def cmd_simulate(args: argparse.Namespace) -> None:
 def _replay_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("replay", help="run one event and write SUMO FCD output")
     add_common(p, split_default="all")
-    p.add_argument("--controller", default="idm",
+    p.add_argument("--controller", type=controller_option, default="idm",
                    help="idm | krauss | sumo-cacc | idm-external | ploeg[:h=H:kp=KP:kd=KD] | "
                         "ploeg-tuned:h=H | POLICY.pt")
     p.add_argument("--event", required=True, help="event ID (stop_and_go with --data stop-and-go)")
@@ -213,7 +217,7 @@ def _evaluate_parser(sub: argparse._SubParsersAction) -> None:
                    help="only the first K events of each table (default: all; --quick: 2)")
     p.add_argument("--policies", type=Path, default=None,
                    help="directory of the policy files (default: policies/)")
-    p.add_argument("--net", type=net_option, default="networks/i80.net.xml", help=NET_HELP)
+    p.add_argument("--net", type=net_option, default="i80.net.xml", help=NET_HELP)
     p.add_argument("--workers", type=int, default=None,
                    help="parallel SUMO processes (default: the number of cores; with --ray: the "
                         "cluster's CPUs)")
@@ -227,7 +231,8 @@ def _evaluate_parser(sub: argparse._SubParsersAction) -> None:
                         "(default: the shipped policy files only)")
     add_warmup(p)
     add_scenario(p)
-    p.add_argument("--controller", default=None, metavar="MODULE:ATTR[,...]",
+    p.add_argument("--controller", type=controller_option, default=None,
+                   metavar="MODULE:ATTR[,...]",
                    help="controllers of your own (module:attribute or file.py:attribute, "
                         "comma-separated): one more row in every table of --suite paper or real")
 
@@ -292,13 +297,13 @@ def _run_evaluate(args: argparse.Namespace, workers: int, impairments: Impairmen
         controllers = tuple(str(policies / Path(c).name) if c.endswith(".pt") else c
                             for c in CONTROLLERS)
         result = run_robustness(args.out, args.data, args.quick, args.events, args.net, workers,
-                                controllers, progress=sys.stderr.isatty(),
+                                controllers, progress=progress_mode(),
                                 command="carl-sumo " + " ".join(sys.argv[1:]))
         print(f"wrote {args.out / 'robustness.md'}, robustness.csv ({len(result['rows'])} rows) "
               f"and {len(result['figures'])} figures; wall time {result['wall_time_s']:.0f} s")
         return
     result = evaluate(args.suite, args.out, args.data, args.quick, args.events, args.policies,
-                      args.net, workers, progress=sys.stderr.isatty(),
+                      args.net, workers, progress=progress_mode(),
                       command="carl-sumo " + " ".join(sys.argv[1:]), all_seeds=args.all_seeds,
                       seeds=args.seeds, impairments=impairments, warmup_s=args.warmup,
                       extra=args.controller)
@@ -311,7 +316,7 @@ def _run_evaluate(args: argparse.Namespace, workers: int, impairments: Impairmen
 
 def _bench_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="env steps/s beside a bare libsumo loop")
-    p.add_argument("--net", type=net_option, default="networks/i80.net.xml", help=NET_HELP)
+    p.add_argument("--net", type=net_option, default="i80.net.xml", help=NET_HELP)
     p.add_argument("--sizes", default="10,20,100", help="platoon sizes, comma-separated")
     p.add_argument("--steps", type=int, default=2000)
     p.add_argument("--rounds", type=int, default=3)

@@ -8,7 +8,8 @@ import json
 import os
 from pathlib import Path
 
-from carl_sumo.cli.common import NET_HELP, net_option, add_impairments, impairments_from, positive
+from carl_sumo.cli.common import (NET_HELP, add_impairments, controller_option, impairments_from,
+                                  net_option, positive)
 from carl_sumo.errors import InputError
 from carl_sumo.files import check_output_file, write_text_atomic
 
@@ -16,10 +17,10 @@ from carl_sumo.files import check_output_file, write_text_atomic
 def _string_stability_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("string-stability",
                        help="|a_i / a_(i-1)| against frequency behind a sinusoidal leader")
-    p.add_argument("--controller", required=True,
+    p.add_argument("--controller", type=controller_option, required=True,
                    help="one or more controllers with commas: ploeg[:h=..], acc[:h=..], "
                         "ploeg-tuned:h=H, idm-external, POLICY.pt")
-    p.add_argument("--net", type=net_option, default="networks/i80.net.xml", help=NET_HELP)
+    p.add_argument("--net", type=net_option, default="i80.net.xml", help=NET_HELP)
     p.add_argument("--vehicles", type=int, default=5, help="followers (default 5)")
     p.add_argument("--amplitude", type=float, default=0.5, metavar="MPS",
                    help="the leader's speed amplitude (m/s, default 0.5)")

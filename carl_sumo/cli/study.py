@@ -10,9 +10,11 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from carl_sumo.cli.common import (NET_HELP, net_option, add_impairments, add_ray, check_ray, impairments_from, positive, ray_session,
-                                   workers_for)
+from carl_sumo.cli.common import (NET_HELP, controller_option, net_option, add_impairments,
+                                  add_ray, check_ray, impairments_from, positive, ray_session,
+                                  workers_for)
 from carl_sumo.errors import InputError
+from carl_sumo.progress import progress_mode
 from carl_sumo.files import check_output_dir
 
 if TYPE_CHECKING:
@@ -22,8 +24,8 @@ if TYPE_CHECKING:
 def _study_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("study", help="mixed human/CACC traffic on the freeway against the "
                        "CACC penetration rate: tables and figures")
-    p.add_argument("--net", type=net_option, default="networks/i80.net.xml", help=NET_HELP)
-    p.add_argument("--controller", default="idm-external",
+    p.add_argument("--net", type=net_option, default="i80.net.xml", help=NET_HELP)
+    p.add_argument("--controller", type=controller_option, default="idm-external",
                    help="CACC controller: idm-external | sumo-cacc | ploeg[:h=H:kp=KP:kd=KD] | "
                         "ploeg-tuned:h=H | POLICY.pt (not MADDPG) | module:attribute | "
                         "file.py:attribute (a controller of your own, see README)")
@@ -123,7 +125,7 @@ def cmd_study(args: argparse.Namespace) -> None:
     start = time.perf_counter()
     with ray_session(args, args.workers or os.cpu_count()):
         cfg = replace(cfg, workers=workers_for(args, min(2, os.cpu_count() or 1)))
-        results = run_study(cfg, args.out, progress=sys.stderr.isatty())
+        results = run_study(cfg, args.out, progress=progress_mode())
     wall = time.perf_counter() - start
     written = write_outputs(cfg, results, args.out, "carl-sumo " + " ".join(sys.argv[1:]), wall)
     print(markdown_table(summarise(results)))
@@ -138,7 +140,7 @@ def _check_detector(cfg) -> None:
     net = sumolib.net.readNet(cfg.net)
     if not net.hasEdge(MAIN_EDGE):
         raise InputError(f"network {cfg.net} has no edge {MAIN_EDGE}; the study needs the "
-                         "I-80-like network (networks/i80.net.xml)")
+                         "I-80-like network (i80.net.xml)")
     length = net.getEdge(MAIN_EDGE).getLength()
     if cfg.detector_pos_m > length:
         raise InputError(f"--detector-pos {cfg.detector_pos_m:g} m is beyond the end of "

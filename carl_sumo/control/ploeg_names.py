@@ -13,9 +13,9 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from carl_sumo.errors import InputError
-from carl_sumo.sim.sumo import REPO_ROOT
+from carl_sumo.resources import policies_dir
 
-TUNED_FILE = REPO_ROOT / "policies" / "ploeg_tuned.json"
+TUNED_FILE = policies_dir() / "ploeg_tuned.json"
 """The tuned gains per time gap, written by ``carl-sumo tune ploeg``."""
 
 

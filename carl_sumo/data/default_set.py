@@ -27,10 +27,9 @@ from carl_sumo.data.events import DT_S, EVENT_COLUMNS, MIN_EVENT_SAMPLES
 from carl_sumo.data.raw import TRAJ_COLUMNS, extract_events
 from carl_sumo.errors import InputError
 from carl_sumo.files import atomic_write
+from carl_sumo.resources import DEFAULT_NET, ROUTES
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-DEFAULT_NET = REPO_ROOT / "networks" / "i80.net.xml"
-DEFAULT_ROUTES = REPO_ROOT / "routes" / "default_leaders.rou.xml"
+DEFAULT_ROUTES = ROUTES / "default_leaders.rou.xml"
 DEFAULT_EVENTS = Path(__file__).resolve().parent / "default_events.csv.gz"
 """The shipped default event table."""
 

@@ -44,6 +44,7 @@ from carl_sumo.config import SCENARIO
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
 from carl_sumo.files import write_text_atomic
+from carl_sumo.progress import Tracker
 from carl_sumo.sim.metrics import acceleration_norms, metric_samples, score_event
 from carl_sumo.experiments.suite import SAMPLE_KEYS, JobResult, Suite, plan_suite, table_cells
 from carl_sumo.experiments.suite_report import suite_readme, write_tables
@@ -134,11 +135,7 @@ def run_tasks(tasks: list[dict], workers: int | None = None, progress: bool = Fa
     results merged per job, in the order of the plan (so the outputs do not depend on which
     task finished first)."""
     parts: dict[tuple, list[dict]] = {}
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(tasks), desc="evaluate", unit="task", leave=False)
+    bar = Tracker(len(tasks), "evaluate", "task", progress)
     if workers is None:
         from carl_sumo.scale.workers import worker_init
 
@@ -153,11 +150,9 @@ def run_tasks(tasks: list[dict], workers: int | None = None, progress: bool = Fa
     try:
         for out in outputs:
             parts.setdefault(out["job"], []).append(out)
-            if bar is not None:
-                bar.update()
+            bar.update()
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
     results: dict[tuple, JobResult] = {}
     for job in dict.fromkeys(t["job"] for t in tasks):  # the plan's order, not the finishing one
         outs = parts[job]

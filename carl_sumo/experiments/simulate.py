@@ -31,6 +31,7 @@ from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
 from carl_sumo.control.sensors import Sensors
 from carl_sumo.files import atomic_path, check_xml
+from carl_sumo.progress import track
 from carl_sumo.sim.metrics import PlatoonTrajectory, aggregate, score_event
 from carl_sumo.sim.sumo import (DEFAULT_NET, PlatoonSim, abandon_sumo, close_sumo,
                                gui_connection_lost, use_gui)
@@ -136,11 +137,7 @@ def event_trajectories(controller_name: str, events: Sequence[Event], n_follower
     """(event, trajectory) of one controller on each event, in this process, in order."""
     check_impairable(controller_name, impairments)
     follower_model, controller = resolve_controller(controller_name, plant_of(impairments))
-    iterator = events
-    if progress:
-        from tqdm import tqdm
-
-        iterator = tqdm(events, desc=controller_name, unit="event", leave=False)
+    iterator = track(events, len(events), controller_name, "event", progress)
     if follower_model == "human":
         for e in iterator:
             yield e, human_trajectory(e)
@@ -219,11 +216,7 @@ def simulate_jobs(jobs: Sequence[tuple[str, Impairments | None]], events: Sequen
     results = run_parallel(score_events, items, workers,
                            describe=lambda a: f"{a[0]} on {len(a[1])} events from "
                                               f"{a[1][0].event_id} ({a[5]})")
-    if progress:
-        from tqdm import tqdm
-
-        results = tqdm(results, total=len(items), desc="runs", unit="task", leave=False)
-    results = list(results)
+    results = list(track(results, len(items), "runs", "task", progress))
     order = {e.event_id: i for i, e in enumerate(events)}
     out = []
     for j in range(len(jobs)):

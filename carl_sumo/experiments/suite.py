@@ -37,7 +37,8 @@ from carl_sumo.data import load_events
 from carl_sumo.data.events import Event
 from carl_sumo.data.synthetic import stop_and_go_event
 from carl_sumo.errors import InputError
-from carl_sumo.sim.sumo import REPO_ROOT, check_fits, lane_route
+from carl_sumo.resources import DEFAULT_NET, policies_dir
+from carl_sumo.sim.sumo import check_fits, lane_route
 
 
 DEFAULT_NGSIM = Path("../shared/data/ngsim/ngsim_cf_events.csv.gz")
@@ -204,7 +205,7 @@ def policy_dir(path: Path | None) -> Path:
             raise InputError(f"policy directory {path} does not exist; give --policies DIR with "
                              "the shipped policy files (ca_td3_10.pt, ...)")
         return Path(path)
-    return Path("policies") if Path("policies").is_dir() else REPO_ROOT / "policies"
+    return Path("policies") if Path("policies").is_dir() else policies_dir()
 
 
 SEEDS_DIR = "seeds"
@@ -285,7 +286,7 @@ def figure_event(events: Sequence[Event]) -> str:
 
 def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = False,
                events: int | None = None, policies: Path | None = None,
-               net: str | Path = "networks/i80.net.xml", all_seeds: bool = False,
+               net: str | Path = DEFAULT_NET, all_seeds: bool = False,
                seeds: bool = False, warmup_s: float = 0.0, plant: str = "ideal",
                extra: tuple[str, ...] = ()) -> Suite:
     """Resolve data, events, policies and tables; InputError on anything missing or wrong.

@@ -1,7 +1,7 @@
 """Building the I-80-like network from its plain-XML sources with the wheel's netconvert.
 
-``networks/i80/`` holds the sources (``i80.nod.xml``, ``i80.edg.xml``, ``i80.con.xml``) and the
-netconvert options (``i80.netccfg``); ``networks/i80.net.xml`` is what netconvert makes of them.
+``carl_sumo/networks/i80/`` holds the sources (``i80.nod.xml``, ``i80.edg.xml``, ``i80.con.xml``) and the
+netconvert options (``i80.netccfg``); ``carl_sumo/networks/i80.net.xml`` is what netconvert makes of them.
 """
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ from pathlib import Path
 
 from carl_sumo.errors import InputError
 from carl_sumo.files import atomic_path, check_xml
-from carl_sumo.sim.sumo import REPO_ROOT
+from carl_sumo.resources import NETWORKS
 
-NET_SOURCES = REPO_ROOT / "networks" / "i80" / "i80.netccfg"
-NET_FILE = REPO_ROOT / "networks" / "i80.net.xml"
+NET_SOURCES = NETWORKS / "i80" / "i80.netccfg"
+NET_FILE = NETWORKS / "i80.net.xml"
 
 
 def netconvert_binary() -> str:
@@ -40,7 +40,7 @@ def build_network(config: Path = NET_SOURCES, out: Path = NET_FILE) -> Path:
     config, out = Path(config).resolve(), Path(out).resolve()
     if not config.is_file():
         raise InputError(f"netconvert configuration {config} does not exist; give the .netccfg "
-                         "beside the plain-XML sources (networks/i80/i80.netccfg)")
+                         "beside the plain-XML sources (carl_sumo/networks/i80/i80.netccfg)")
     binary = netconvert_binary()
     # netconvert writes a temporary file; it moves into place once it parses as a whole network
     with atomic_path(out, verify=lambda tmp: check_xml(tmp, f"netconvert's network {out}")) \

@@ -30,11 +30,8 @@ from numba import njit
 from carl_sumo.config import DT_S, SCENARIO, ScenarioConfig
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
+from carl_sumo.resources import DEFAULT_NET, VTYPES_FILE
 from carl_sumo.sim.vehicle import Plant, Powertrains
-
-REPO_ROOT = Path(__file__).resolve().parents[2]
-VTYPES_FILE = REPO_ROOT / "routes" / "vtypes.add.xml"
-DEFAULT_NET = REPO_ROOT / "networks" / "i80.net.xml"
 
 FOLLOWER_TYPES = {"external": "cacc", "idm": "human_idm", "krauss": "human_krauss",
                   "sumo-cacc": "cacc_sumo"}
@@ -114,7 +111,7 @@ def lane_route(net_path: str | Path, ngsim_lane: int = SCENARIO.ngsim_lane) -> L
     net_path = Path(net_path)
     if not net_path.is_file():
         raise InputError(f"network {net_path} does not exist; build it with "
-                         "`carl-sumo net build` or give --net networks/i80.net.xml")
+                         "`carl-sumo net build` or give --net i80.net.xml")
     import sumolib
 
     try:
@@ -139,7 +136,7 @@ def lane_route(net_path: str | Path, ngsim_lane: int = SCENARIO.ngsim_lane) -> L
             best = chain
     if not best:
         raise InputError(f"network {net_path} has no road with a start (every edge has a "
-                         "predecessor); give a freeway network such as networks/i80.net.xml")
+                         "predecessor); give a freeway network such as i80.net.xml (the shipped one)")
     lanes, starts, x = [], [], 0.0
     for edge in best:
         index = edge.getLaneNumber() - ngsim_lane
@@ -198,7 +195,7 @@ def check_fits(route: LaneRoute, event: Event, n_followers: int,
     if needed > route.length_m:
         raise InputError(f"network {route.net_path} is too short for event {event.event_id} with "
                          f"{n_followers} followers: it needs {needed:.0f} m of lane, the road has "
-                         f"{route.length_m:.0f} m; use a longer network (networks/i80.net.xml) or "
+                         f"{route.length_m:.0f} m; use a longer network (i80.net.xml) or "
                          "fewer --vehicles")
 
 

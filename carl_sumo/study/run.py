@@ -56,6 +56,7 @@ from pathlib import Path
 import numpy as np
 
 from carl_sumo.config import DT_S, HEADWAY_MIN_SPEED_MPS
+from carl_sumo.progress import track
 from carl_sumo.control.cacc import PloegChains
 from carl_sumo.control.channel import Impairments
 from carl_sumo.errors import InputError
@@ -423,8 +424,10 @@ def _worker(cfg: StudyConfig, penetration: float, seed: int, out_dir: str) -> Ru
     return run_one(cfg, penetration, seed, Path(out_dir))
 
 
-def run_study(cfg: StudyConfig, out_dir: Path, progress: bool = False) -> list[RunResult]:
-    """All (p, seed) runs, in ``cfg.workers`` spawned processes (one libsumo each)."""
+def run_study(cfg: StudyConfig, out_dir: Path, progress: bool | float = False
+              ) -> list[RunResult]:
+    """All (p, seed) runs, in ``cfg.workers`` spawned processes (one libsumo each); progress as
+    :class:`carl_sumo.progress.Tracker` shows it."""
     resolve_study_controller(cfg.controller)  # fails before any simulation starts
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -435,21 +438,15 @@ def run_study(cfg: StudyConfig, out_dir: Path, progress: bool = False) -> list[R
         from carl_sumo.scale.workers import worker_init
 
         worker_init()  # one torch thread: the batches are small, threads only contend
-        results = []
-        for p, s in tasks:
-            results.append(run_one(cfg, p, s, out_dir))
-            if progress:
-                print(f"  done {run_name(p, s)}", flush=True)
+        results = [run_one(cfg, p, s, out_dir)
+                   for p, s in track(tasks, len(tasks), "study", "run", progress)]
     else:
         from carl_sumo.scale.workers import run_parallel
 
-        results = []
-        for result in run_parallel(_worker, [(cfg, p, s, str(out_dir)) for p, s in tasks],
-                                   workers, describe=lambda a: f"run {run_name(a[1], a[2])}",
-                                   ordered=False):
-            results.append(result)
-            if progress:
-                print(f"  done {run_name(result.penetration, result.seed)}", flush=True)
+        results = list(track(run_parallel(_worker, [(cfg, p, s, str(out_dir)) for p, s in tasks],
+                                          workers, ordered=False,
+                                          describe=lambda a: f"run {run_name(a[1], a[2])}"),
+                             len(tasks), "study", "run", progress))
     return sorted(results, key=lambda r: (r.penetration, r.seed))
 
 

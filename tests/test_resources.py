@@ -1,0 +1,69 @@
+"""Shipped files found by name from any folder, presets, progress lines and the Gymnasium
+registration on ``import carl_sumo``."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from carl_sumo.cli import main
+from carl_sumo.progress import Tracker, track
+from carl_sumo.resources import (DEFAULT_NET, NETWORKS, PRODUCT, VTYPES_FILE, controller_name,
+                                 policies_dir, shipped)
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_shipped_files_are_package_data_of_carl_sumo():
+    import carl_sumo
+
+    package = Path(carl_sumo.__file__).parent
+    assert DEFAULT_NET.is_file() and DEFAULT_NET.parent == package / "networks"
+    assert VTYPES_FILE.is_file() and VTYPES_FILE.parent == package / "routes"
+    assert (policies_dir() / PRODUCT).is_file()
+
+
+def test_a_shipped_file_is_found_by_its_name_and_a_real_path_wins(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert shipped("networks/i80.net.xml", NETWORKS) == str(DEFAULT_NET)
+    assert shipped("nowhere.net.xml", NETWORKS) == "nowhere.net.xml"
+    own = tmp_path / "i80.net.xml"
+    own.write_text("<net/>")
+    assert shipped("i80.net.xml", NETWORKS) == "i80.net.xml"
+    assert controller_name("product") == str(policies_dir() / PRODUCT)
+    assert controller_name("policies/ca_td3_10.pt") == str(policies_dir() / "ca_td3_10.pt")
+    assert controller_name("ploeg:h=0.8") == "ploeg:h=0.8"
+
+
+def test_the_product_runs_by_name_from_another_folder(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["simulate", "--controller", "product", "--plant", "real", "--events", "1",
+                 "--vehicles", "2", "--workers", "1"]) == 0
+    out = capsys.readouterr().out
+    assert PRODUCT in out and "nan" not in out.split(PRODUCT)[1].splitlines()[0]
+
+
+def test_progress_lines_without_a_terminal(capsys):
+    assert list(track(range(3), 3, "study", "run", progress=1e-9)) == [0, 1, 2]
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines[-1].startswith("study: 3/3 runs (100 %)") and len(lines) == 3
+    quiet = Tracker(2, "x", progress=False)
+    quiet.update(2)
+    assert capsys.readouterr().err == ""
+
+
+def test_import_carl_sumo_registers_the_environment():
+    code = ("import gymnasium, carl_sumo; assert carl_sumo.ENV_ID in gymnasium.registry; "
+            "import sys; assert 'carl_sumo.learn.gym_env' not in sys.modules; "
+            "assert 'torch' not in sys.modules")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=REPO)
+
+
+def test_no_source_checkout_path_outside_resources():
+    """The package finds its files through carl_sumo.resources only (a wheel has no repo)."""
+    offenders = [str(p.relative_to(REPO)) for p in (REPO / "carl_sumo").rglob("*.py")
+                 if "parents[2]" in p.read_text() or "REPO_ROOT" in p.read_text()]
+    assert offenders == []
