@@ -781,3 +781,29 @@ if __name__ == "__main__":
         pytest.fail("the pool kept replacing its failing workers")
     assert done.returncode == 0 and "stopped:" in done.stdout and "missing.csv" in done.stdout, \
         done.stdout + done.stderr
+
+
+# --- policy file fields (issue 56) -------------------------------------------------------------
+
+@pytest.mark.parametrize("field,value", [("adj_max", float("nan")), ("adj_max", float("inf")),
+                                         ("adj_max", -1.0), ("n_vehicles", -3),
+                                         ("hidden", 0), ("gamma", 2.0)])
+@pytest.mark.parametrize("command", ["simulate", "replay", "policy-info", "string-stability"])
+def test_a_policy_file_field_out_of_range_is_one_line_in_every_command(tmp_path, capsys, field,
+                                                                       value, command):
+    import torch
+
+    payload = torch.load(REPO_ROOT / "policies" / "ca_td3_10.pt", weights_only=True)
+    payload["agent_config"][field] = value
+    bad = tmp_path / "bad.pt"
+    torch.save(payload, bad)
+    argv = {"simulate": ["simulate", "--events", "1", "--vehicles", "2", "--controller", str(bad)],
+            "replay": ["replay", "--event", EVENT, "--split", "all", "--vehicles", "2",
+                       "--controller", str(bad), "--fcd", str(tmp_path / "f.xml")],
+            "policy-info": ["policy-info", str(bad)],
+            "string-stability": ["string-stability", "--vehicles", "2", "--controller",
+                                 str(bad)]}[command]
+    code = main(argv)
+    one_line_exit_2(code, capsys.readouterr().err, f"policy file {bad}",
+                    f"agent_config {field} = ")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.pt"]

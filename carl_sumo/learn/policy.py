@@ -91,7 +91,39 @@ def read_policy_payload(path: Path) -> dict[str, Any]:
     if payload.get("format_version") != FORMAT_VERSION:
         raise InputError(f"policy file {path} has format version {payload.get('format_version')}"
                          f", this carl-sumo reads {FORMAT_VERSION}; retrain it")
+    check_agent_config(cfg, path)
     return payload
+
+
+CONFIG_RANGES: dict[str, tuple[type, float, float, str]] = {
+    "n_vehicles": (int, 1, 100_000, "a platoon length of 1 or more"),
+    "message_dim": (int, 0, 4096, "a message width of 0 or more"),
+    "hidden": (int, 1, 65_536, "a layer width of 1 or more"),
+    "adj_max": (float, 1e-9, 50.0, "a positive bound in m/s² (at most 50)"),
+    "gamma": (float, 0.0, 1.0, "a discount from 0 to 1"),
+    "tau": (float, 0.0, 1.0, "a rate from 0 to 1"),
+    "batch_size": (int, 1, 10**9, "1 or more"),
+    "policy_delay": (int, 1, 10**9, "1 or more"),
+    "shield_ttc_s": (float, 0.0, 1e6, "0 s or more"),
+}
+"""Fields of a policy file's ``agent_config`` that size or bound what it computes: (type, lowest,
+highest, what is needed); every other number must be finite and not negative."""
+
+
+def check_agent_config(cfg: dict[str, Any], path: Path) -> None:
+    """InputError (one line) for a policy file's configuration field that is not finite, of the
+    wrong type or out of range: a NaN ``adj_max`` would drive every follower to a stop."""
+    import math
+
+    for key, value in cfg.items():
+        if isinstance(value, (str, bool)) or value is None:
+            continue
+        kind, low, high, need = CONFIG_RANGES.get(key, (float, 0.0, math.inf, "0 or more"))
+        ok = isinstance(value, (int, float)) and math.isfinite(value) and low <= value <= high \
+            and (kind is float or float(value).is_integer())
+        if not ok:
+            raise InputError(f"policy file {path} has agent_config {key} = {value!r} ({need} "
+                             "needed); retrain it or restore it from git")
 
 
 def policy_fingerprint(path: Path, over_links: bool = True) -> str:
