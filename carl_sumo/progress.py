@@ -20,15 +20,15 @@ def progress_mode() -> bool | float:
 
 class Tracker:
     """Counts done items of ``total``: ``progress`` True draws a tqdm bar, a positive number
-    prints ``desc: k/total unit (p %), elapsed, ETA`` to stderr at most that often (and at the
-    end), False or 0 shows nothing."""
+    prints ``desc: k/total units (p %), elapsed, ETA`` to stderr every that many seconds (and at
+    the end of a run that printed a line), False or 0 shows nothing."""
 
     def __init__(self, total: int, desc: str, unit: str = "task",
                  progress: bool | float = False) -> None:
         self.total, self.desc, self.unit, self.done = total, desc, unit, 0
         self.start = self.last = time.monotonic()
         self.every = None if progress is True or not progress else float(progress)
-        self.bar = None
+        self.bar, self.printed = None, False
         if progress is True:
             from tqdm import tqdm
 
@@ -40,8 +40,12 @@ class Tracker:
             self.bar.update(n)
             return
         now = time.monotonic()
-        if self.every is not None and (now - self.last >= self.every or self.done >= self.total):
-            self.last = now
+        if self.every is None:
+            return
+        # a line every `every` seconds, and a last one at the end of a run that printed any
+        # (a run shorter than `every` prints nothing: its result is the next line)
+        if now - self.last >= self.every or (self.done >= self.total and self.printed):
+            self.last, self.printed = now, True
             elapsed = now - self.start
             eta = elapsed / self.done * (self.total - self.done) if self.done else float("nan")
             print(f"{self.desc}: {self.done}/{self.total} {self.unit}s "

@@ -67,3 +67,19 @@ def test_no_source_checkout_path_outside_resources():
     offenders = [str(p.relative_to(REPO)) for p in (REPO / "carl_sumo").rglob("*.py")
                  if "parents[2]" in p.read_text() or "REPO_ROOT" in p.read_text()]
     assert offenders == []
+
+
+def test_the_policies_readme_is_the_generated_index(monkeypatch, capsys):
+    monkeypatch.chdir(REPO)
+    assert main(["policy-info", "--index", "policies"]) == 0
+    assert capsys.readouterr().out == (REPO / "policies" / "README.md").read_text(), \
+        "regenerate it: carl-sumo policy-info --index policies > policies/README.md"
+
+
+def test_law_presets_expand_in_every_command(capsys):
+    from carl_sumo.cli.common import controller_option
+    from carl_sumo.control.ploeg_names import PRESETS
+
+    assert controller_option("cacc-real,idm") == PRESETS["cacc-real"] + ",idm"
+    assert main(["train", "--base", "product-base", "--print-config", "--steps", "2000"]) == 0
+    assert f'base = "{PRESETS["product-base"]}"' in capsys.readouterr().out

@@ -42,11 +42,14 @@ def net_option(text: str) -> str:
 
 
 def controller_option(text: str) -> str:
-    """``--controller``: each comma-separated name with a preset (``product``) or a shipped
-    policy's file name resolved to its path (:func:`carl_sumo.resources.controller_name`)."""
+    """``--controller``: each comma-separated name with a preset law (``cacc-real``,
+    :data:`carl_sumo.control.ploeg_names.PRESETS`) or policy (``product``) or a shipped policy's
+    file name resolved (:func:`carl_sumo.resources.controller_name`)."""
+    from carl_sumo.control.ploeg_names import expand_preset
     from carl_sumo.resources import controller_name
 
-    return ",".join(controller_name(c.strip()) if c.strip() else c for c in text.split(","))
+    return ",".join(controller_name(expand_preset(c.strip())) if c.strip() else c
+                    for c in text.split(","))
 
 
 NET_HELP = "SUMO network (.net.xml; a shipped network's file name works from any folder)"

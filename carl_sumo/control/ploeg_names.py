@@ -296,3 +296,23 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
         return PloegParams(float(entry["h"]), float(entry["kp"]), float(entry["kd"]),
                            feed_forward=law == "ploeg", **_switches(name, opts))
     raise InputError(f"{name!r} is not a Ploeg CACC or ACC controller name")
+
+
+PRESETS = {
+    "cacc-real": "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1:ht=0.8",
+    "product-base": "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1:wo=5:gn=6:op=2:ht=0.8",
+}
+"""Laws a user picks by one word (the short strings stay for experts):
+
+- ``cacc-real``: Ploeg's CACC with the gains tuned for the real fleet (kp 0.0445 1/s², kd 1 1/s)
+  at the product's time gaps (cars 0.6 s, trucks 0.8 s: ``ht``) with the layers every
+  real-plant reference has: anti-windup (``aw``), the degraded head as an ACC at 1.4 s (``ha``)
+  and the reaction layer (``ttc=2:rb=1``); the classical reference of the scenario tables.
+- ``product-base``: that law with the product's own layers, the washout of the learned term
+  (``wo=5`` s), Gipps' safe speed towards a vehicle not heard (``gn=6``) and the gap-opening law
+  (``op=2``): the base under the shipped product's learned term."""
+
+
+def expand_preset(name: str) -> str:
+    """The law a preset name stands for (:data:`PRESETS`); any other name unchanged."""
+    return PRESETS.get(name, name)

@@ -168,8 +168,9 @@ class TrainConfig:
                                      "channel draws)", "plant", flag="sensor-randomize")
     # base
     base: str = option(AgentConfig.base, "base model under the learned adjustment: idm (the "
-                       "paper's) or a classical CACC name such as ploeg-tuned:h=0.8 (the actor "
-                       "then starts at a_adj = 0)", "base", metavar="NAME")
+                       "paper's) or a classical law: a preset (product-base, cacc-real) or a name "
+                       "such as ploeg-tuned:h=0.8 (the actor then starts at a_adj = 0)", "base",
+                       metavar="NAME")
     shield_ttc: float = option(0.0, "safety shield: a follower closing in below this time to "
                                "collision gets no positive adjustment (0: off); part of the "
                                "policy", "base", unit="s", low=0.0, high=60.0, metavar="S")
@@ -237,6 +238,12 @@ class TrainConfig:
                                 "agent", metavar="{boundary,base}")
     comm_off: bool = option(False, "CA models: cut the V2V messages (the communication "
                             "ablation); part of the policy", "agent")
+    bc_alpha: float = option(0.0, "behaviour-regularised actor (TD3+BC): it minimises "
+                             "-α·Q/mean|Q| + ((a_adj - a_start)/adj_max)², a_start the start "
+                             "policy's a_adj (0 on a residual start, the imitated or --init "
+                             "actor's output), so it leaves the start only where Q says so "
+                             "strongly; TD3+BC's α is 2.5 (0: off, the actor minimises -Q)",
+                             "agent", low=0.0, high=1e6, metavar="ALPHA")
     # training
     steps: int = option(20_000, "vector steps (each steps every environment once)", "training",
                         low=1, high=MAX_STEPS)
@@ -246,8 +253,24 @@ class TrainConfig:
     learning_starts: int = option(1_000, "vector steps of exploration (or teacher) data before "
                                   "the first update", "training", low=0, high=MAX_STEPS)
     critic_burn_in: int = option(0, "vector steps after --learning-starts that train the "
-                                 "critics only, the actor staying as it is", "training", low=0,
+                                 "critics only, the actor staying as it is (with "
+                                 "--critic-calibration: at most)", "training", low=0,
                                  high=MAX_STEPS, metavar="STEPS")
+    critic_holdout: float = option(0.0, "fraction of the start's data (stored by "
+                                   "--learning-starts) held out of the critics' training, in "
+                                   "blocks of 50 steps; the critic's TD error and rank "
+                                   "correlation with realised returns there are logged at every "
+                                   "validation (0: none; learn/calibration.py)", "training",
+                                   low=0.0, high=0.5, metavar="F")
+    critic_calibration: str = option("off", "the critic burn-in ends when the held-out TD "
+                                     "error (td) or rank correlation of Q with realised returns "
+                                     "(rank) has not improved for --calibration-patience "
+                                     "checks (needs --critic-holdout and --critic-burn-in, its "
+                                     "longest)", "training", choices=("off", "td", "rank"))
+    calibration_every: int = option(250, "vector steps between checks of "
+                                    "--critic-calibration", "training", low=1, high=MAX_STEPS)
+    calibration_patience: int = option(3, "checks without improvement that end "
+                                       "--critic-calibration", "training", low=1, high=1_000)
     updates_per_step: int = option(1, "gradient updates per update round", "training", low=1,
                                    high=1_000)
     update_every: int = option(1, "vector steps between update rounds (give --scale-rates to "
@@ -351,6 +374,7 @@ class TrainConfig:
             raise InputError(f"--warmup {self.warmup} is not a multiple of the {DT_S} s step; "
                              f"give e.g. {round(self.warmup / DT_S) * DT_S:g}")
         self._check_schedule()
+        self._check_calibration()
         self._check_impairments()
         self._check_start()
         from carl_sumo.control.controllers import check_base
@@ -378,6 +402,24 @@ class TrainConfig:
         if self.gate_string_stable is not None and self.algo == "maddpg":
             raise InputError("--gate-string-stable tests a policy on a 5-vehicle platoon; "
                              "maddpg runs only its trained length: leave the gate out")
+
+    def _check_calibration(self) -> None:
+        from carl_sumo.learn.calibration import steps_needed
+
+        if self.critic_calibration != "off":
+            if self.critic_holdout == 0 or self.critic_burn_in == 0:
+                raise InputError("--critic-calibration measures the critic on held-out data "
+                                 "for at most --critic-burn-in steps: give --critic-holdout F "
+                                 "and --critic-burn-in STEPS too")
+        elif (self.calibration_every, self.calibration_patience) != (250, 3):
+            raise InputError("--calibration-every and --calibration-patience set "
+                             "--critic-calibration; give it too, or leave them out")
+        if self.critic_holdout > 0:
+            need = steps_needed(self.critic_holdout, self.gamma)
+            if self.learning_starts < need:
+                raise InputError(f"--critic-holdout {self.critic_holdout:g} holds out blocks "
+                                 f"of the --learning-starts data: give --learning-starts "
+                                 f"{need} or more (got {self.learning_starts})")
 
     def _check_impairments(self) -> None:
         if self.sensor_filter and not self.sensor_noise and not self.comm_randomize:

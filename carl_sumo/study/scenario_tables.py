@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Sequence
 
 from carl_sumo.control.channel import Impairments, plant_impairments
+from carl_sumo.control.ploeg_names import PRESETS
 from carl_sumo.data.events import Event
 # The real plant's tables start settled, as ``evaluate --suite real``: from the recorded gap,
 # plain runs (no manoeuvre) of the tuned CACC on the real fleet have 16 collisions in the 53
@@ -39,7 +40,7 @@ ACC at the time gap 1.4 s."""
 ROBUST_TTC = ROBUST_HA + ":ttc=2"
 """:data:`ROBUST_HA` with its reaction layer: a vehicle that hears no message brakes at once when
 its time to collision drops below 2 s (:mod:`carl_sumo.control.cacc`)."""
-PRODUCT_BASE = "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1:wo=5:gn=6:op=2:ht=0.8"
+PRODUCT_BASE = PRESETS["product-base"]
 """The real-plant product's base (``policies/ca_td3_real_truck_10.pt`` without its learned term):
 the tuned CACC at the product's gaps, h = 0.6 s and trucks at 0.8 s, with its layers."""
 PLANT_CONTROLLERS = {
