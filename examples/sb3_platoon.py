@@ -32,7 +32,7 @@ def train(steps: int, out: Path, seed: int = 0, n_followers: int = 1,
     from stable_baselines3 import TD3
     from stable_baselines3.common.noise import NormalActionNoise
 
-    import carl_sumo.learn.gym_env  # noqa: F401  (registers carl_sumo/Platoon-v0)
+    import carl_sumo  # noqa: F401  (registers carl_sumo/Platoon-v0)
 
     torch.set_num_threads(1)  # a 64x64 MLP: more threads only contend with SUMO and each other
     env = gymnasium.make("carl_sumo/Platoon-v0", n_followers=n_followers, data=data,
