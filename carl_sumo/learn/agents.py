@@ -203,6 +203,9 @@ class Agent(nn.Module):
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr, fused=True)
         self.critic_opt = torch.optim.Adam(critic_params, lr=cfg.critic_lr, fused=True)
         self.updates = 0
+        self.actor_updates = 0
+        self.bc_alpha = 0.0  # > 0: the behaviour-regularised actor loss (:meth:`anchor`)
+        self.start_actor: nn.Module | None = None
 
     def check_length(self, n: int) -> None:
         if self.cfg.algo == "maddpg" and n != self.cfg.n_vehicles:
@@ -273,6 +276,32 @@ class Agent(nn.Module):
         ``actor``); the critics stay as they are."""
         self.actor.load_state_dict(actor_state)
         self.actor_target.load_state_dict(actor_state)
+
+    def anchor(self, alpha: float, start: dict[str, torch.Tensor] | None = None) -> None:
+        """A behaviour-regularised actor from now on (TD3+BC, Fujimoto and Gu 2021): the actor
+        minimises -α·Q/mean|Q| + ((a_adj - a_start)/adj_max)² instead of -Q, a_start the action
+        of the start policy: a frozen copy of the actor as it is now (a residual start's 0, an
+        imitated or ``--init`` actor's own output), or of the actor weights ``start`` (a resumed
+        run's). α ≤ 0: plain -Q."""
+        self.bc_alpha = float(alpha)
+        if alpha <= 0:
+            self.start_actor = None
+            return
+        self.start_actor = copy.deepcopy(self.actor).requires_grad_(False)
+        if start is not None:
+            self.start_actor.load_state_dict(start)
+
+    def _q_objective(self, q: torch.Tensor, action_now: torch.Tensor, x: torch.Tensor,
+                     mask: torch.Tensor | None, links: Links | None) -> torch.Tensor:
+        """The per-vehicle actor loss's Q term: -Q, or with :meth:`anchor` the behaviour-
+        regularised -α·Q/mean|Q| + ((a_adj - a_start)/adj_max)² (mean|Q| over the batch, held
+        constant in the gradient)."""
+        if self.start_actor is None:
+            return -q
+        with torch.no_grad():
+            a_start = self._act_normalised(self.start_actor, x, mask, links=links)
+            scale = q.abs().mean().clamp(min=1e-6)
+        return -self.bc_alpha * q / scale + ((action_now - a_start) / self.cfg.adj_max) ** 2
 
     def imitate(self, obs: torch.Tensor, target: torch.Tensor, updates: int, lr: float,
                 batch_size: int, rng: np.random.Generator) -> float:
@@ -348,7 +377,8 @@ class Agent(nn.Module):
         if cfg.residual and (cfg.smooth_jerk > 0 or cfg.smooth_accel > 0):
             action_now, pre = self._act_normalised(self.actor, x, mask, True, links)
             q = self._q([self.critic1], x, action_now, mask, detach_params=True)[0]
-            per_vehicle = cfg.preactivation_l2 * pre ** 2 - q + self._residual_smoothness(
+            per_vehicle = cfg.preactivation_l2 * pre ** 2 + self._q_objective(
+                q, action_now, x, mask, links) + self._residual_smoothness(
                 obs, next_obs, stored_action, action_now)
             return self._actor_step(per_vehicle + cfg.adj_l2 * action_now ** 2, maskf)
         jerk = cfg.smooth_jerk > 0
@@ -363,7 +393,8 @@ class Agent(nn.Module):
             action_now, pre = self._act_normalised(self.actor, x, mask, True, links)
             action_next = None
         q = self._q([self.critic1], x, action_now, mask, detach_params=True)[0]
-        per_vehicle = cfg.preactivation_l2 * pre ** 2 - q + cfg.adj_l2 * action_now ** 2
+        per_vehicle = cfg.preactivation_l2 * pre ** 2 + self._q_objective(
+            q, action_now, x, mask, links) + cfg.adj_l2 * action_now ** 2
         if jerk or cfg.smooth_accel > 0:
             per_vehicle = per_vehicle + self._smoothness(obs, next_obs, action_now, mask,
                                                           action_next, next_links)
@@ -372,6 +403,7 @@ class Agent(nn.Module):
     def _actor_step(self, per_vehicle: torch.Tensor, maskf: torch.Tensor) -> float:
         """One optimiser step on the mean of a per-vehicle actor loss over real vehicles."""
         actor_loss = (per_vehicle * maskf).sum() / maskf.sum()
+        self.actor_updates += 1
         self.actor_opt.zero_grad()
         actor_loss.backward()
         nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.max_grad_norm)

@@ -15,8 +15,12 @@ from carl_sumo.learn.selection import MARGIN_KEYS
 
 LOG_COLUMNS = ["step", "transitions", "wall_s", "train_reward", "val_reward", "headway_s",
                "jerk_mps3", "speed_mps", "dampening_ratio", "collisions",
-               *(name for name, _ in MARGIN_KEYS.values()), "ttc_lt_1_5s_count", "lagrange"]
-"""Columns of the learning-curve CSV written beside the policy."""
+               *(name for name, _ in MARGIN_KEYS.values()), "ttc_lt_1_5s_count", "lagrange",
+               "score", "critic_td", "critic_rank"]
+"""Columns of the learning-curve CSV written beside the policy: ``score`` is the validation's
+selection score (``--select``; the run keeps the best-scoring checkpoint), ``critic_td`` and
+``critic_rank`` the critic's criterion on the held-out transitions (``--critic-holdout``;
+:mod:`carl_sumo.learn.calibration`; empty without)."""
 
 
 def _csv_text(rows: Sequence[Sequence]) -> str:

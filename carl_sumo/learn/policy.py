@@ -330,9 +330,34 @@ def policy_card(path: Path) -> str:
              f"- versions: {meta.get('sumo_version')}, carl-sumo {meta.get('carl_sumo_version')}, "
              f"torch {meta.get('torch_version')}",
              f"- validation ({_held_out(meta)}): " + _metric_list(val)]
+    if meta.get("training") or meta.get("step") is not None:
+        lines.insert(-4, _training_line(meta))
     baseline = meta.get("validation_base") or meta.get("validation_idm")
     if baseline:
         lines.append(f"- the base ({agent.cfg.base}) alone on the same events: "
                      + _metric_list(baseline))
     lines.append("")
     return "\n".join(lines)
+
+
+def _training_line(meta: dict) -> str:
+    """The card's line on how the run learned: the step kept, RL's first actor update, the end
+    of the critic burn-in and where the wall time went (files written before they were
+    recorded say so)."""
+    training = meta.get("training") or {}
+    first = training.get("first_actor_update_step")
+    parts = [f"step kept {meta.get('step', '?')}",
+             "RL's first actor update " + (f"at step {first}" if first is not None else
+                                           "never" if training else "not recorded")]
+    calibration = training.get("critic_calibration") or {}
+    if calibration.get("criterion", "off") != "off":
+        parts.append(f"critic calibrated by {calibration['criterion']} until step "
+                     f"{training.get('actor_from_step')} ({len(calibration.get('checks', []))} "
+                     "checks)")
+    if training.get("bc_alpha"):
+        parts.append(f"behaviour-regularised actor, alpha {training['bc_alpha']:g}")
+    wall = training.get("wall_s")
+    if wall:
+        parts.append(f"wall time {wall['total']:.0f} s: " + ", ".join(
+            f"{k} {v:.0f} s" for k, v in wall.items() if k != "total"))
+    return "- training: " + "; ".join(parts)

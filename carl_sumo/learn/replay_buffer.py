@@ -38,6 +38,8 @@ class ReplayBuffer:
                 setattr(self, prefix + "link_mode", torch.zeros((capacity, 2, n), dtype=torch.uint8))
                 setattr(self, prefix + "link_held", torch.zeros((capacity, 2, n, message_dim)))
         self._mask: torch.Tensor | None = None
+        self._drawn: np.ndarray | None = None  # with held-out rows: the rows that may be drawn
+        self._held_below = 0
 
     @property
     def fields(self) -> tuple[str, ...]:
@@ -65,9 +67,30 @@ class ReplayBuffer:
         self.pos = (self.pos + k) % self.capacity
         self.size = min(self.size + k, self.capacity)
 
+    def hold_out(self, rows: np.ndarray) -> None:
+        """Keep these rows (stored transitions) out of every later :meth:`sample`: the critic's
+        held-out set (:mod:`carl_sumo.learn.calibration`). Rows stored later are all drawn."""
+        held = np.zeros(self.size, dtype=bool)
+        held[np.asarray(rows, dtype=np.int64)] = True
+        self._drawn = np.flatnonzero(~held)  # the rows below size that may be drawn
+        self._held_below = self.size
+
     def sample(self, batch_size: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
-        """``batch_size`` transitions drawn uniformly with replacement, and an all-True mask."""
-        idx = torch.from_numpy(rng.integers(0, self.size, size=batch_size))
+        """``batch_size`` transitions drawn uniformly with replacement (none of the rows held
+        out, :meth:`hold_out`), and an all-True mask."""
+        drawn = self._drawn
+        if drawn is None:
+            idx = torch.from_numpy(rng.integers(0, self.size, size=batch_size))
+        else:  # positions among the allowed rows: those held out never come
+            k = rng.integers(0, len(drawn) + self.size - self._held_below, size=batch_size)
+            idx = torch.from_numpy(np.where(k < len(drawn), drawn[np.minimum(k, len(drawn) - 1)],
+                                            k - len(drawn) + self._held_below))
+        return self.rows(idx)
+
+    def rows(self, idx: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The transitions of buffer rows ``idx`` as a batch (the fields, links, an all-True
+        mask)."""
+        batch_size = len(idx)
         batch = {k: getattr(self, k).index_select(0, idx) for k in FIELDS}
         if self.message_dim:
             for prefix in ("", "next_"):

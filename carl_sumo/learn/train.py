@@ -21,6 +21,7 @@ import torch
 from carl_sumo import __version__
 from carl_sumo.learn import imitation
 from carl_sumo.learn.agents import Agent, AgentConfig, ColoredNoise
+from carl_sumo.learn.calibration import Calibration, CriticProbe
 from carl_sumo.learn.ca_scan import keep_heap_memory
 from carl_sumo.learn.constraint import CostMultiplier
 from carl_sumo.data.events import Event
@@ -68,10 +69,12 @@ def _boundaries(agent: Agent) -> tuple[np.ndarray, np.ndarray] | None:
 
 def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: float,
               baseline: dict[str, float] | None = None,
-              val_events: Sequence[Event] = ()) -> dict:
+              val_events: Sequence[Event] = (), step: int | None = None) -> dict:
+    """A policy file's metadata; ``step``: the vector step whose actor it holds (0: the start
+    before any training step; an imitating run's clone: ``--learning-starts``)."""
     import libsumo
 
-    return {"algo": cfg.algo, "base": cfg.base, "trained_vehicles": cfg.n_vehicles,
+    return {"algo": cfg.algo, "step": step, "base": cfg.base, "trained_vehicles": cfg.n_vehicles,
             "seed": cfg.seed,
             "data": cfg.data, "split": cfg.split, "steps": cfg.steps,
             "observation": "[v m/s, a m/s^2, d m, dv m/s" + (
@@ -101,6 +104,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     to Ray Tune). ``progress``, ``tensorboard``: :class:`carl_sumo.learn.report.Report` (with the
     curve's figure). Returns the final validation metrics and timing. The loop (act, step, store,
     update, validate, keep, checkpoint) reads top to bottom, as in CleanRL; its steps are below."""
+    clock = WallClock()
     train_events, val_events = held_out_split(events, cfg)  # InputError before any file
     teacher = _teacher(cfg)  # InputError before any file
     init_actor = initial_actor(cfg)  # InputError before any file
@@ -117,59 +121,202 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
         buffer, start_step, best, wall_before = restore_checkpoint(resume, cfg, agent, rng, saved)
         if _keep_policy(resume, out, start_step, cfg, log):  # nothing left to train
             return dict(validation={}, validation_base={}, wall_time_s=wall_before, best_score=best)
-    val_env = _validation_env(cfg, train_events, val_events)
-    baseline, baseline_events = _validate_base(cfg, val_env, val_events, log)
-    if resume is None:
-        best = _first_candidate(cfg, agent, init_actor, val_env, val_events, baseline,
-                                baseline_events, out, log, best)
+    with clock("validation"):
+        val_env = _validation_env(cfg, train_events, val_events)
+        baseline, baseline_events = _validate_base(cfg, val_env, val_events, log)
+        if resume is None:
+            best = _first_candidate(cfg, agent, init_actor, val_env, val_events, baseline,
+                                    baseline_events, out, log, best)
     report = Report(cfg, out, resume, start_step, progress, tensorboard)  # before any worker
-    vec, obs, history = _start_rollouts(cfg, train_events, rollouts, start_step, channels, saved)
+    with clock("simulation"):
+        vec, obs, history = _start_rollouts(cfg, train_events, rollouts, start_step, channels,
+                                            saved)
     links = channels.receive(_boundaries(agent)) if channels is not None else None
     t0 = time.perf_counter()
     recent = [float(r) for r in saved.get("recent", ())]
     val: dict[str, float] = {}
     noise = _noise(cfg, agent, rng, saved)
     lagrange = _multiplier(cfg, saved)
+    calibration = Calibration(cfg.critic_calibration, cfg.calibration_patience,
+                              cfg.learning_starts + cfg.critic_burn_in)
+    first_actor = _restore_start(cfg, agent, buffer, calibration, saved, start_step, log)
+    probe = _probe(cfg, buffer, calibration, log) if start_step > cfg.learning_starts else None
     try:
         for step in range(start_step, cfg.steps):
-            if step == cfg.learning_starts and teacher is not None:
-                best = _clone_teacher(cfg, agent, teacher, buffer, rng, val_env, val_events,
-                                      baseline, baseline_events, out, log)
+            if step == cfg.learning_starts:  # the start policy is complete: RL begins
+                if teacher is not None:
+                    with clock("updates"):
+                        best = _clone_teacher(cfg, agent, teacher, buffer, rng, val_env,
+                                              val_events, baseline, baseline_events, out, log)
+                probe = _probe(cfg, buffer, calibration, log)
+                agent.anchor(cfg.bc_alpha)  # the start the actor is held near (0: none)
             # a warm-started actor drives from the first step, others after learning_starts
             acting = step >= cfg.learning_starts or init_actor is not None
-            action = _choose_action(cfg, agent, obs, links, channels, noise, teacher, acting)
-            next_obs, reward, term, trunc, final, cost = vec.step(
-                action, channels.upcoming if channels is not None else None)
-            if history is not None:  # what a resumed run replays its environments with
-                history.append(np.asarray(action, dtype=np.float64))
-            noise.reset(term | trunc)
-            links = _store(buffer, channels, agent, obs, action, reward, final, term, trunc, links,
-                           cost)
-            recent.append(float(reward.mean()))
-            lagrange.observe(step, cost)
+            with clock("acting"):
+                action = _choose_action(cfg, agent, obs, links, channels, noise, teacher,
+                                        acting)
+            with clock("simulation"):
+                next_obs, reward, term, trunc, final, cost = vec.step(
+                    action, channels.upcoming if channels is not None else None)
+            with clock("acting"):
+                if history is not None:  # what a resumed run replays its environments with
+                    history.append(np.asarray(action, dtype=np.float64))
+                noise.reset(term | trunc)
+                links = _store(buffer, channels, agent, obs, action, reward, final, term, trunc,
+                               links, cost)
+                recent.append(float(reward.mean()))
+                lagrange.observe(step, cost)
             obs = next_obs
-            report.updated(step, _update(cfg, agent, buffer, rng, step, lagrange))
+            with clock("updates"):
+                report.updated(step, _update(cfg, agent, buffer, rng, step, lagrange,
+                                             calibration.actor_from))
             done_steps = step + 1
+            if first_actor is None and agent.actor_updates > 0:
+                first_actor = done_steps
+                log(f"RL's first actor update: step {done_steps}")
+            if probe is not None and calibration.active and done_steps < calibration.actor_from \
+                    and (done_steps - cfg.learning_starts) % cfg.calibration_every == 0:
+                with clock("validation"):
+                    _calibration_check(calibration, probe, agent, buffer, done_steps, log)
             if done_steps % cfg.eval_every == 0 or done_steps == cfg.steps:
                 wall = wall_before + time.perf_counter() - t0
                 train_reward = float(np.mean(recent[-cfg.eval_every:])) if recent else float("nan")
-                val, best = _validate_and_select(cfg, agent, val_env, val_events, baseline,
-                                                 baseline_events, out, wall, best, done_steps)
-                report.validation(done_steps, wall, train_reward, val | lagrange.logged())
+                with clock("validation"):
+                    val, best = _validate_and_select(cfg, agent, val_env, val_events, baseline,
+                                                     baseline_events, out, wall, best,
+                                                     done_steps)
+                    logged = {"score": selection_score(val, cfg.select, baseline),
+                              **(probe.measure(agent, buffer) if probe is not None else {})}
+                report.validation(done_steps, wall, train_reward,
+                                  val | lagrange.logged() | logged)
             if done_steps % cfg.checkpoint_every == 0 or done_steps == cfg.steps:
-                save_checkpoint(out.with_suffix(".ckpt"), cfg, agent, buffer, rng, done_steps,
-                                best, wall_before + time.perf_counter() - t0,
-                                _rollout_state(history, noise, recent, cfg.eval_every, lagrange))
+                with clock("checkpoints"):
+                    save_checkpoint(out.with_suffix(".ckpt"), cfg, agent, buffer, rng,
+                                    done_steps, best, wall_before + time.perf_counter() - t0,
+                                    _rollout_state(history, noise, recent, cfg.eval_every,
+                                                   lagrange)
+                                    | _start_state(agent, calibration, first_actor))
                 if on_checkpoint is not None:
                     report.flush()
                     on_checkpoint(done_steps)
             report.advance()
     finally:
-        vec.close()
+        with clock("simulation"):
+            vec.close()
         report.close()
     wall = wall_before + time.perf_counter() - t0
+    training = _training_record(cfg, calibration, first_actor, clock)
+    _record_training(out, training)
+    log(clock.line())
     return {"validation": val, "validation_base": baseline, "wall_time_s": wall,
-            "best_score": best}
+            "best_score": best, "training": training}
+
+
+class WallClock:
+    """Where a run's wall time goes: seconds per part (simulation, acting, updates, validation,
+    checkpoints) since the run (or its resumption) started, the rest as ``other``."""
+
+    PARTS = ("simulation", "acting", "updates", "validation", "checkpoints")
+
+    def __init__(self):
+        self.t0 = time.perf_counter()
+        self.seconds = {part: 0.0 for part in self.PARTS}
+
+    def __call__(self, part: str):
+        import contextlib
+
+        @contextlib.contextmanager
+        def timed():
+            start = time.perf_counter()
+            try:
+                yield
+            finally:
+                self.seconds[part] += time.perf_counter() - start
+        return timed()
+
+    def totals(self) -> dict[str, float]:
+        """Seconds per part, ``other`` and ``total``."""
+        total = time.perf_counter() - self.t0
+        return {**{k: round(v, 1) for k, v in self.seconds.items()},
+                "other": round(total - sum(self.seconds.values()), 1), "total": round(total, 1)}
+
+    def line(self) -> str:
+        t = self.totals()
+        return (f"wall time {t['total']:.0f} s: " + ", ".join(
+            f"{k} {t[k]:.0f} s" for k in (*self.PARTS, "other")))
+
+
+def _probe(cfg: TrainConfig, buffer: ReplayBuffer, calibration: Calibration, log
+           ) -> CriticProbe | None:
+    """With ``--critic-holdout``: the held-out transitions of the start's data (rows stored by
+    ``--learning-starts``), kept out of the critics' training from now on; None without."""
+    if cfg.critic_holdout == 0:
+        return None
+    probe = CriticProbe.build(buffer, cfg.learning_starts * cfg.num_envs, cfg.num_envs,
+                              cfg.gamma, cfg.critic_holdout)
+    buffer.hold_out(probe.rows)
+    log(f"critic hold-out: {len(probe.rows)} of the start's {cfg.learning_starts * cfg.num_envs}"
+        " platoon transitions")
+    if len(probe.rows) == 0 and calibration.active:
+        calibration.criterion = "off"
+        log("--critic-calibration: no held-out transition has the episode it needs after it "
+            f"(episodes too short); the burn-in lasts --critic-burn-in {cfg.critic_burn_in} steps")
+    return probe
+
+
+def _calibration_check(calibration: Calibration, probe: CriticProbe, agent: Agent,
+                       buffer: ReplayBuffer, done_steps: int, log) -> None:
+    """One check of ``--critic-calibration``; says when the actor may move."""
+    measured = probe.measure(agent, buffer)
+    if calibration.check(done_steps, measured):
+        log(f"critic calibrated at step {done_steps} (critic_td {measured['critic_td']:.4g}, "
+            f"critic_rank {measured['critic_rank']:.3f}): the actor moves from here")
+
+
+def _start_state(agent: Agent, calibration: Calibration, first_actor: int | None) -> dict:
+    """What a checkpoint keeps of the RL start: the calibration's state, the step of the first
+    actor update (-1: none yet) and the actor the behaviour regulariser holds to."""
+    state = {"calibration": torch.tensor(calibration.state(), dtype=torch.float64),
+             "first_actor": torch.tensor(-1 if first_actor is None else first_actor)}
+    if agent.start_actor is not None:
+        state["start_actor"] = agent.start_actor.state_dict()
+    return state
+
+
+def _restore_start(cfg: TrainConfig, agent: Agent, buffer: ReplayBuffer,
+                   calibration: Calibration, saved: dict, start_step: int, log) -> int | None:
+    """A resumed run's RL start as its checkpoint left it (see :func:`_start_state`); the step
+    of the first actor update (None: none yet)."""
+    if saved.get("calibration") is not None:
+        calibration.restore(saved["calibration"].tolist())
+    if start_step > cfg.learning_starts:
+        agent.anchor(cfg.bc_alpha, saved.get("start_actor"))
+    first = int(saved["first_actor"]) if saved.get("first_actor") is not None else -1
+    return None if first < 0 else first
+
+
+def _training_record(cfg: TrainConfig, calibration: Calibration, first_actor: int | None,
+                     clock: WallClock) -> dict:
+    """What the run's policy files record of how it trained: the step of RL's first actor
+    update, the critic burn-in's end and checks, the behaviour regulariser and the wall time's
+    parts (s)."""
+    return {"first_actor_update_step": first_actor, "actor_from_step": calibration.actor_from,
+            "critic_calibration": {"criterion": cfg.critic_calibration,
+                                   "checks": [[s, v] for s, v in calibration.checks]},
+            "bc_alpha": cfg.bc_alpha, "wall_s": clock.totals()}
+
+
+def _record_training(out: Path, training: dict) -> None:
+    """Write ``training`` into the metadata of the kept policy and of every candidate (the
+    gate keeps one of them), which were written before the run knew it."""
+    from carl_sumo.learn.policy import read_policy_payload, save_torch_atomic
+
+    for path in [out, *sorted(candidate_dir(out).glob("step*.pt"))]:
+        if not path.is_file():
+            continue
+        payload = read_policy_payload(path)
+        payload["metadata"]["training"] = training
+        save_torch_atomic(payload, path)
 
 
 def _start_rollouts(cfg: TrainConfig, train_events: Sequence[Event], rollouts: str,
@@ -281,7 +428,7 @@ def _validate_and_select(cfg: TrainConfig, agent: Agent, val_env: PlatoonEnv,
     metrics and the best score so far."""
     val = _validate(cfg, agent, val_env, val_events, baseline_events)
     score = selection_score(val, cfg.select, baseline)
-    meta = _metadata(cfg, agent, val, wall_s, baseline, val_events)
+    meta = _metadata(cfg, agent, val, wall_s, baseline, val_events, step)
     if agent.updates > 0:
         save_candidate(cfg, agent, out, step, meta)
     # only a trained actor can be the best; the first validation is a fallback
@@ -363,7 +510,7 @@ def _first_candidate(cfg: TrainConfig, agent: Agent, init_actor: dict | None,
     elif agent.cfg.residual:
         start = {**baseline, **improvement_z(baseline_events, baseline_events)}
         best = selection_score(start, cfg.select, baseline)
-        meta = _metadata(cfg, agent, start, 0.0, baseline, val_events)
+        meta = _metadata(cfg, agent, start, 0.0, baseline, val_events, 0)
         save_policy(agent, out, meta)
         save_candidate(cfg, agent, out, 0, meta)
     return best
@@ -397,14 +544,14 @@ def _multiplier(cfg: TrainConfig, saved: dict) -> CostMultiplier:
 
 
 def _update(cfg: TrainConfig, agent: Agent, buffer: ReplayBuffer, rng: np.random.Generator,
-            step: int, lagrange: CostMultiplier) -> dict[str, float] | None:
+            step: int, lagrange: CostMultiplier, actor_from: int) -> dict[str, float] | None:
     """The gradient updates after vector step ``step``: every ``update_every`` steps from
-    ``learning_starts`` on, the critics alone during ``critic_burn_in``, on the reward less
-    λ·cost (:mod:`carl_sumo.learn.constraint`); the last update's statistics (None without an
-    update)."""
+    ``learning_starts`` on, the critics alone before step ``actor_from`` (the critic burn-in),
+    on the reward less λ·cost (:mod:`carl_sumo.learn.constraint`); the last update's
+    statistics (None without an update)."""
     if step < cfg.learning_starts or (step - cfg.learning_starts) % cfg.update_every != 0:
         return None
-    train_actor = step >= cfg.learning_starts + cfg.critic_burn_in
+    train_actor = step >= actor_from
     if cfg.lr_decay:
         agent.scale_learning_rates(1.0 - (step - cfg.learning_starts)
                                    / max(1, cfg.steps - cfg.learning_starts))
@@ -456,9 +603,10 @@ def _validate_and_keep(cfg: TrainConfig, agent: Agent, val_env: PlatoonEnv,
     """Validate the actor as it is, write it as the run's first candidate; its selection score
     and validation metrics."""
     val = _validate(cfg, agent, val_env, val_events, baseline_events)
-    meta = _metadata(cfg, agent, val, 0.0, baseline, val_events)
+    step = 0 if cfg.init is not None else cfg.learning_starts
+    meta = _metadata(cfg, agent, val, 0.0, baseline, val_events, step)
     save_policy(agent, out, meta)
-    save_candidate(cfg, agent, out, 0 if cfg.init is not None else cfg.learning_starts, meta)
+    save_candidate(cfg, agent, out, step, meta)
     return selection_score(val, cfg.select, baseline), val
 
 
