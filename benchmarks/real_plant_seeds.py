@@ -1,11 +1,12 @@
-"""The judged numbers of the real-plant recipe (docs/results.md, "The product on the real plant"):
-every seed of ``ca_td3_real_10`` and of its communication ablation ``ca_td3_real_nocomm_10`` on
-the NGSIM test split, 10 followers, ``--plant real --warmup 60`` (the default fleet and V2V delay,
-settled start); ‖Γ‖∞ of the CA seeds per class at 0.5 and 2 m/s (5 followers, 8 frequencies
-0.05-3 rad/s); CA against CA-off paired by seed (t-test).
+"""The judged numbers of a real-plant recipe (docs/results.md, "The real-plant product"): every
+seed of the product ``ca_td3_real_truck_10`` and of its communication ablation
+``ca_td3_real_truck_nocomm_10`` (or of the stems given) on the NGSIM test split, 10 followers,
+``--plant real --warmup 60`` (the default fleet and V2V delay, settled start); ‖Γ‖∞ of the CA
+seeds per class at 0.5 and 2 m/s (5 followers, 8 frequencies 0.05-3 rad/s); CA against CA-off
+paired by seed (t-test).
 
-Writes ``docs/results_real/learned_test.json`` (CA, with ‖Γ‖∞) and ``learned_test_nocomm.json``
-and prints the comparison. About 15 minutes on 2 free cores.
+Writes ``docs/results_real/learned_test_<CA_STEM>.json`` (CA, with ‖Γ‖∞) and
+``learned_test_<CA_OFF_STEM>.json`` and prints the comparison. About 15 minutes on 2 free cores.
 
 Usage: python benchmarks/real_plant_seeds.py [DATA] [CA_STEM CA_OFF_STEM [TD3_STEM] [--no-hinf]
 [--reuse]]
@@ -13,10 +14,10 @@ Usage: python benchmarks/real_plant_seeds.py [DATA] [CA_STEM CA_OFF_STEM [TD3_ST
 ``--reuse``: a model whose JSON is already written (with a row for each of its seed files) is
 read from it, not run again (e.g. to add TD3 when its seeds finish later).
 
-With stems (e.g. ``ca_td3_real_acc_10 ca_td3_real_acc_nocomm_10``, the communication test on the
-radar-only base) the same for those models, written to ``learned_test_<CA_STEM>.json`` and
-``learned_test_<CA_OFF_STEM>.json``; with TD3_STEM (plain TD3 on the same recipe, e.g.
-``td3_real_ha_1``) also ``learned_test_<TD3_STEM>.json`` and CA against it, paired by seed.
+With TD3_STEM (plain TD3 on the same recipe, e.g. ``td3_real_truck_1``) also
+``learned_test_<TD3_STEM>.json`` and CA against it, paired by seed. The earlier recipes' files
+(``learned_test.json``, ``learned_test_nocomm.json`` and the other stems) were written by this
+script from seed files that git history keeps.
 """
 import glob
 import json
@@ -77,18 +78,17 @@ def main() -> None:
     args = [a for a in sys.argv[1:] if a not in ("--no-hinf", "--reuse")]
     reuse = "--reuse" in sys.argv
     data = args[0] if args else "../shared/data/ngsim/ngsim_cf_events.csv.gz"
-    ca_stem, off_stem = args[1:3] if len(args) >= 3 else ("ca_td3_real_10",
-                                                          "ca_td3_real_nocomm_10")
-    default = ca_stem == "ca_td3_real_10"
+    ca_stem, off_stem = args[1:3] if len(args) >= 3 else ("ca_td3_real_truck_10",
+                                                          "ca_td3_real_truck_nocomm_10")
     events = [e.with_warmup(60.0) for e in load_events(data, "test")]
     OUT.mkdir(parents=True, exist_ok=True)
-    ca_out = OUT / ("learned_test.json" if default else f"learned_test_{ca_stem}.json")
+    ca_out = OUT / f"learned_test_{ca_stem}.json"
     ca = test_split(ca_stem, events, ca_out if reuse else None)
     if "--no-hinf" not in sys.argv and not any(k.startswith("hinf") for r in ca.values()
                                                for k in r):
         add_hinf(ca)
     write_text_atomic(ca_out, json.dumps(ca, indent=1))
-    off_out = OUT / ("learned_test_nocomm.json" if default else f"learned_test_{off_stem}.json")
+    off_out = OUT / f"learned_test_{off_stem}.json"
     off = test_split(off_stem, events, off_out if reuse else None)
     write_text_atomic(off_out, json.dumps(off, indent=1))
     compare(ca, off, ca_stem, off_stem)

@@ -45,32 +45,27 @@ PRODUCT_BASE = PRESETS["product-base"]
 the tuned CACC at the product's gaps, h = 0.6 s and trucks at 0.8 s, with its layers."""
 PLANT_CONTROLLERS = {
     "ideal": ("idm", "sumo-cacc", "acc:h=2.5:kp=0.45:kd=1.5", "ploeg-tuned:h=0.8",
-              "ca_td3_10.pt", "ca_td3_ploeg_10.pt", "ca_td3_real_10.pt", "maddpg_10.pt"),
+              "ca_td3_10.pt", "ca_td3_ploeg_10.pt", "maddpg_10.pt"),
     "real": ("idm-external", "acc-tuned:h=2.5", "ploeg-tuned:h=0.8", ROBUST_AW, ROBUST_HA,
-             ROBUST_TTC, "ca_td3_10.pt", "ca_td3_ploeg_10.pt", "ca_td3_real_10.pt",
-             "ca_td3_real_aw_10.pt", "ca_td3_real_ha_10.pt", "ca_td3_real_react_10.pt",
-             PRODUCT_BASE, "ca_td3_real_truck_10.pt", "maddpg_10.pt"),
+             ROBUST_TTC, "ca_td3_10.pt", "ca_td3_ploeg_10.pt", PRODUCT_BASE,
+             "ca_td3_real_truck_10.pt", "maddpg_10.pt"),
 }
 """The controllers of each plant's tables (policy files in the policies folder): SUMO's IDM (run
 by carl-sumo on the real plant, whose vehicles SUMO's models cannot drive) and SUMO's CACC (the
 ideal plant only), the ACC at h = 2.5 s with the gains tuned for the fleet, the tuned Ploeg CACC
 at h = 0.8 s (the gains tuned for each plant; on the real plant also with anti-windup,
 :data:`ROBUST_AW`, that as a degraded CACC, :data:`ROBUST_HA`, and that with its reaction
-layer, :data:`ROBUST_TTC`), the paper's CA-TD3 on IDM, the product CA-TD3 on the tuned CACC for
-the ideal and for the real plant (and the real plant's on :data:`ROBUST_AW`, on
-:data:`ROBUST_HA` and on :data:`ROBUST_TTC`; the product, its two-ahead feed-forward on the
-CACC at h = 0.6 s with those layers, ``gn=6``, ``op=2`` and trucks at 0.8 s, ``ht=0.8``, beside
-that CACC without it, :data:`PRODUCT_BASE`), and MADDPG (n/a: fixed size)."""
+layer, :data:`ROBUST_TTC`), the paper's CA-TD3 on IDM, CA-TD3 on the tuned CACC of the ideal
+plant, the real-plant product (its two-ahead feed-forward on the CACC at h = 0.6 s with its
+layers, ``gn=6``, ``op=2`` and trucks at 0.8 s, ``ht=0.8``) beside that CACC without it,
+:data:`PRODUCT_BASE`, and MADDPG (n/a: fixed size)."""
 LABELS = {"idm": "IDM (SUMO)", "idm-external": "IDM (carl-sumo, on the plant)",
           "sumo-cacc": "CACC (SUMO)", "acc:h=2.5:kp=0.45:kd=1.5": "ACC h=2.5 s (fleet gains)",
           "acc-tuned:h=2.5": "ACC tuned h=2.5 s", "ploeg-tuned:h=0.8": "Ploeg tuned h=0.8 s",
           "ca_td3_10.pt": "CA-TD3 on IDM (paper)", "ca_td3_ploeg_10.pt": "CA-TD3 product (ideal)",
-          "ca_td3_real_10.pt": "CA-TD3 product (real)", ROBUST_AW: "Ploeg tuned h=0.8 s, aw=1",
-          "ca_td3_real_aw_10.pt": "CA-TD3 product (real, aw=1)",
+          ROBUST_AW: "Ploeg tuned h=0.8 s, aw=1",
           ROBUST_HA: "Ploeg tuned h=0.8 s, aw=1, degraded ha=1.4 s",
           ROBUST_TTC: "the same with its reaction layer ttc=2 s",
-          "ca_td3_real_ha_10.pt": "CA-TD3 product (real, ha=1.4)",
-          "ca_td3_real_react_10.pt": "CA-TD3 product (real, ha=1.4, ttc=2)",
           PRODUCT_BASE: "Ploeg tuned h=0.6 s, trucks 0.8 s, its layers (the product's base)",
           "ca_td3_real_truck_10.pt": "CA-TD3 product (real, h=0.6 s, trucks 0.8 s, two-ahead)",
           "maddpg_10.pt": "MADDPG"}

@@ -185,9 +185,10 @@ def test_rank_prints_the_seeds_best_first_and_the_best_path(capsys, tmp_path):
 
 
 def test_rank_string_stable_skips_a_better_validated_run_that_amplifies(capsys):
-    """Two shipped real-plant seeds of REAL_RB: validation ranks seed 4 first, but on the real
-    plant's frequency test it amplifies (‖Γ‖∞ 1.096); seed 0 does not (0.9995)."""
-    seeds = [str(REPO_ROOT / f"policies/seeds/ca_td3_real_rb_10_seed{k}.pt") for k in (4, 0)]
+    """Two seeds of an earlier real-plant recipe (REAL_RB, kept as test fixtures): validation ranks
+    seed 4 first, but on the real plant's frequency test it amplifies (‖Γ‖∞ 1.096); seed 0 does
+    not (0.9995)."""
+    seeds = [str(REPO_ROOT / f"tests/fixtures/ca_td3_real_rb_10_seed{k}.pt") for k in (4, 0)]
     code, out, _ = run(capsys, "rank", "--select", "reward", "--best-only", *seeds)
     assert code == 0 and out.strip() == seeds[0]
     code, out, err = run(capsys, "rank", "--select", "reward", "--string-stable", "real",
