@@ -15,7 +15,34 @@ The package is layered; each subpackage imports only from the ones below it (doc
 
 from __future__ import annotations
 
+import os
+
 __version__ = "0.1.0"
+
+COMMAND_MARK = "CARL_SUMO_COMMAND"
+"""Set in the environment while a ``carl-sumo`` command runs, so that its worker processes know
+themselves from their first import."""
+
+
+def _leave_ctrl_c_to_the_command() -> None:
+    """In a worker process of a ``carl-sumo`` command, ignore Ctrl-C and hang-ups from the first
+    import on (the command stops its workers itself; a terminal's Ctrl-C reaches every process
+    of the group, also one still importing its modules, which would print a traceback)."""
+    if not os.environ.get(COMMAND_MARK):
+        return
+    import multiprocessing
+    import signal
+    import threading
+
+    if multiprocessing.parent_process() is None or \
+            threading.current_thread() is not threading.main_thread():
+        return
+    for name in ("SIGINT", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
+
+
+_leave_ctrl_c_to_the_command()
 
 ENV_ID = "carl_sumo/Platoon-v0"
 """The Gymnasium environment ``import carl_sumo`` registers (:mod:`carl_sumo.learn.gym_env`)."""

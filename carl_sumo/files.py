@@ -241,6 +241,25 @@ def check_output_file(path: str | Path, option: str) -> Path:
     return path
 
 
+OUTPUT_SUFFIXES = (".csv", ".md", ".png", ".json", ".txt", ".xml")
+"""The kinds of file the commands write into an output folder."""
+
+
+def check_output_names(path: str | Path, option: str) -> Path:
+    """:func:`check_output_dir`, and InputError when the folder already holds a folder (or a
+    special file) under a name of the kind the commands write there (``README.md``,
+    ``study.csv`` ...): found before the work starts, not after it."""
+    path = check_output_dir(path, option)
+    if path.is_dir():
+        for entry in sorted(path.iterdir()):
+            if entry.suffix in OUTPUT_SUFFIXES and not (entry.is_file() and not entry.is_symlink()
+                                                        or not entry.exists()):
+                kind = "a folder" if entry.is_dir() else "not a regular file"
+                raise InputError(f"{option} {path}: {entry} is {kind} where a command writes a "
+                                 "file; move it away or give another --out")
+    return path
+
+
 def check_output_dir(path: str | Path, option: str) -> Path:
     """``path`` as a Path, or InputError when ``option`` (e.g. ``--out``) cannot be a folder of
     outputs: the path is empty, a file stands at ``path``, or the folder cannot be created or

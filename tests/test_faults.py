@@ -807,3 +807,47 @@ def test_a_policy_file_field_out_of_range_is_one_line_in_every_command(tmp_path,
     one_line_exit_2(code, capsys.readouterr().err, f"policy file {bad}",
                     f"agent_config {field} = ")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.pt"]
+
+
+@pytest.mark.parametrize("sibling, kind", [(".ckpt", "dir"), (".csv", "dir"), (".png", "dir"),
+                                            (".candidates", "file")])
+def test_train_checks_every_output_beside_out_before_it_trains(tmp_path, capsys, sibling, kind):
+    """Found by the fault round 2: with b.ckpt a folder, train trained and wrote b.csv, b.png and
+    b.pt, then exited 2; with b.candidates a file, a FileExistsError traceback."""
+    out = tmp_path / "b.pt"
+    blocker = out.with_suffix(sibling)
+    blocker.mkdir() if kind == "dir" else blocker.write_text("x")
+    gate = ["--gate-string-stable", "ideal"] if sibling == ".candidates" else []
+    code = main(["train", "--algo", "td3", "--vehicles", "1", "--steps", "20",
+                 "--learning-starts", "10", "--envs", "1", "--out", str(out), *gate])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "\n" not in err and str(blocker.name) in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == [blocker.name]
+
+
+def test_train_with_every_training_event_held_out_is_one_line(tmp_path, capsys):
+    from carl_sumo.data import load_events
+
+    ids = tmp_path / "all.txt"
+    ids.write_text("\n".join(e.event_id for e in load_events("default", "train")) + "\n")
+    code = main(["train", "--algo", "td3", "--vehicles", "1", "--steps", "20",
+                 "--learning-starts", "10", "--val-events", str(ids),
+                 "--out", str(tmp_path / "p.pt")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "no training event is left" in err and "\n" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["all.txt"]
+
+
+@pytest.mark.parametrize("argv, blocker", [
+    (["evaluate", "--suite", "paper", "--quick"], "README.md"),
+    (["study", "--penetration", "0.5", "--duration", "30", "--warmup", "10", "--seeds", "1"],
+     "study.csv")])
+def test_a_folder_where_a_command_writes_a_file_is_refused_before_the_work(tmp_path, capsys,
+                                                                           argv, blocker):
+    """Found by the fault round 2: evaluate failed after 45 s and 18 files, study likewise."""
+    out = tmp_path / "out"
+    (out / blocker).mkdir(parents=True)
+    code = main([*argv, "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "\n" not in err and f"{blocker} is a folder" in err
+    assert [p.name for p in out.iterdir()] == [blocker]

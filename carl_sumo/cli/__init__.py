@@ -22,6 +22,7 @@ from carl_sumo.cli.run import (_bench_parser, _evaluate_parser, _replay_parser, 
 from carl_sumo.cli.stability import _string_stability_parser, cmd_string_stability
 from carl_sumo.cli.study import _study_parser, cmd_study
 from carl_sumo.cli.sweep import _sweep_parser, cmd_sweep
+from carl_sumo import COMMAND_MARK
 from carl_sumo.errors import InputError
 from carl_sumo.interrupts import exit_status, stop_on_signals
 from carl_sumo.scale.workers import WorkerError, stop_children
@@ -55,9 +56,13 @@ def main(argv: list[str] | None = None) -> int:
     """Run one command; its exit status: 0 done, 2 bad input or an output that cannot be
     written, 1 a worker died for good, 128 + n stopped by signal n (SIGINT, SIGTERM, SIGHUP)."""
     restore_signals = stop_on_signals()
+    marked = os.environ.get(COMMAND_MARK)
+    os.environ[COMMAND_MARK] = "1"  # its workers leave Ctrl-C to it from their first import
     try:
         return _run(argv)
     finally:
+        if marked is None:
+            os.environ.pop(COMMAND_MARK, None)
         restore_signals()
 
 

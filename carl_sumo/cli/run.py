@@ -20,7 +20,8 @@ from carl_sumo.cli.scenario import (add_scenario, evaluate_scenarios, replay_wit
                                     simulate_with_scenario)
 from carl_sumo.errors import InputError
 from carl_sumo.progress import progress_mode
-from carl_sumo.files import atomic_path, check_output_dir, check_output_file, write_text_atomic
+from carl_sumo.files import (atomic_path, check_output_file,
+                             check_output_names, write_text_atomic)
 
 if TYPE_CHECKING:
     from carl_sumo.control.channel import Impairments
@@ -260,7 +261,7 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
     if args.workers is not None:
         positive(args.workers, "--workers")
     if args.suite == "scenarios":  # carl_sumo.cli.scenario
-        check_output_dir(args.out, "--out")
+        check_output_names(args.out, "--out")
         return evaluate_scenarios(args, args.workers or min(2, os.cpu_count() or 1))
     if args.scenario is not None:
         raise InputError("--scenario is for --suite scenarios (or simulate and replay)")
@@ -280,7 +281,7 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
         raise InputError("--warmup is for --suite paper; the robustness suite keeps its own "
                          "protocol")
     args.controller = extra_controllers(args)
-    check_output_dir(args.out, "--out")
+    check_output_names(args.out, "--out")
     check_ray(args)
     with ray_session(args, args.workers or os.cpu_count()):
         _run_evaluate(args, workers_for(args, os.cpu_count() or 1), impairments)

@@ -15,7 +15,7 @@ from carl_sumo.cli.common import (NET_HELP, controller_option, net_option, add_i
                                   workers_for)
 from carl_sumo.errors import InputError
 from carl_sumo.progress import progress_mode
-from carl_sumo.files import check_output_dir
+from carl_sumo.files import check_output_names
 
 if TYPE_CHECKING:
     pass
@@ -104,7 +104,7 @@ def cmd_study(args: argparse.Namespace) -> None:
                          f"{args.duration:g} s each per rate), got {args.seeds}")
     if args.workers is not None:
         positive(args.workers, "--workers")
-    check_output_dir(args.out, "--out")
+    check_output_names(args.out, "--out")
     check_ray(args)
     lane_route(args.net, args.heatmap_lane)  # checks the network and the lane
     if not 0.0 <= args.detector_pos:

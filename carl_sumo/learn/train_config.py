@@ -18,11 +18,12 @@ import numpy as np
 
 from carl_sumo.config import DT_S, REWARD, RewardConfig
 from carl_sumo.control.channel import Impairments, plant_impairments
-from carl_sumo.data.events import Event, read_event_ids
+from carl_sumo.data.events import MAX_WARMUP_S, Event, read_event_ids
 from carl_sumo.errors import InputError
 from carl_sumo.learn.agents import ALGOS, AgentConfig
 from carl_sumo.learn.selection import VALIDATION_IMPAIRMENTS
 from carl_sumo.sim.sumo import DEFAULT_NET
+from carl_sumo.sim.vehicle import MAX_DEAD_TIME_S, MAX_LAG_S
 
 SECTIONS = {
     "data": "the events trained and validated on",
@@ -41,11 +42,9 @@ MAX_TRAIN_VEHICLES = 200
 MAX_STEPS = 100_000_000
 """The most vector steps one run may take (a bound, so that a typo cannot allocate forever)."""
 
-MAX_WARMUP_S = 600.0
-"""The longest settling run before an event (s)."""
 
-MAX_LAG_S = 5.0
-"""The longest powertrain lag, dead time or V2V delay a run accepts (s)."""
+MAX_COMM_DELAY_S = 5.0
+"""The longest fixed V2V delay a run accepts (s)."""
 
 INF = math.inf
 
@@ -136,13 +135,13 @@ class TrainConfig:
                                        metavar="S")
     actuation_delay: float | None = option(None, "actuation dead time of every follower (a "
                                            "multiple of 0.1 s)", "plant", unit="s", low=0.0,
-                                           high=MAX_LAG_S, metavar="S")
+                                           high=MAX_DEAD_TIME_S, metavar="S")
     plant_randomize: bool = option(False, "every episode its own fleet (0-50 % trucks), lags, "
                                    "V2V delay (0-0.3 s) and loss (0-30 %); validation on the "
                                    "real plant", "plant")
     comm_delay: float | None = option(None, "every V2V message arrives this late (a multiple of "
                                       "0.1 s; none: 0, or 0.1 with plant real)", "plant",
-                                      unit="s", low=0.0, high=MAX_LAG_S, metavar="S")
+                                      unit="s", low=0.0, high=MAX_COMM_DELAY_S, metavar="S")
     comm_loss: float = option(0.0, "probability that a V2V message is lost", "plant", low=0.0,
                               high=1.0, metavar="P")
     comm_burst: float = option(1.0, "mean length of a loss burst (Gilbert-Elliott; 1: "
@@ -537,6 +536,10 @@ def held_out_split(events: Sequence[Event], cfg: TrainConfig) -> tuple[list[Even
         _check_known("--exclude-events", sorted(excluded), events)
         train = [e for e in train if e.event_id not in excluded]
         val = [e for e in val if e.event_id not in excluded]
+    if not train:
+        raise InputError(f"no training event is left after holding out {len(val)} for "
+                         "validation (--val-events, --eval-events) and --exclude-events; hold "
+                         "out fewer events")
     if cfg.warmup:  # every episode first settles; validation scores the recorded part
         train = [e.with_warmup(cfg.warmup) for e in train]
         val = [e.with_warmup(cfg.warmup) for e in val]

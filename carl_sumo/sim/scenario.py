@@ -199,6 +199,14 @@ def parse_scenario(text: str, seed: int = 0) -> ScenarioSpec:
     if kind not in KINDS:
         raise InputError(f"--scenario {text!r}: unknown manoeuvre {kind!r}; choose one of "
                          f"{', '.join(KINDS)}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2 ** 32:
+        raise InputError(f"--scenario-seed must be a whole number from 0 to {2 ** 32 - 1}, "
+                         f"got {seed}")
+    keys = [part.partition("=")[0] for part in parts]
+    twice = sorted({k for k in keys if keys.count(k) > 1})
+    if twice:
+        raise InputError(f"--scenario {text!r}: {', '.join(twice)} is given twice; give each "
+                         "option once")
     spec = ScenarioSpec(kind, seed=seed)
     allowed = {"k": "position", "t": "time_s"}
     if kind in ("cut-in", "join"):
