@@ -40,6 +40,11 @@ def _string_stability_parser(sub: argparse._SubParsersAction) -> None:
                         "gains of --controller, a ploeg or acc name) against lag 0.1-0.5 s and "
                         "V2V delay 0-0.3 s, measured and analytic, written to DIR (h_min.md, "
                         ".csv, .json, .png)")
+    p.add_argument("--h-min-heard", type=Path, default=None, metavar="DIR",
+                   help="instead: the smallest string-stable time gap against the vehicles "
+                        "heard, r = 0-3 (acc, ploeg, mpf; the gains of --controller) and lag "
+                        "0.1-0.6 s, V2V delay 0-0.2 s, measured and analytic, written to DIR "
+                        "(h_min_heard.md, .csv, .json; docs/string_stability.md)")
     add_impairments(p)
 
 
@@ -63,7 +68,7 @@ def cmd_string_stability(args: argparse.Namespace) -> None:
     if not names:
         raise InputError("--controller names no controller")
     impairments = impairments_from(args)
-    if args.h_min_table is not None:
+    if args.h_min_table is not None or args.h_min_heard is not None:
         return _h_min_table(args, names)
     for name in names:
         check_impairable(name, impairments)
@@ -105,11 +110,20 @@ def _h_min_table(args: argparse.Namespace, names: list[str]) -> None:
     from carl_sumo.files import check_output_dir
 
     if len(names) != 1 or not is_ploeg_name(names[0]):
-        raise InputError("--h-min-table takes the gains of one ploeg or acc --controller, e.g. "
+        raise InputError("--h-min-table and --h-min-heard take the gains of one ploeg or acc "
+                         "--controller, e.g. "
                          "--controller ploeg:kp=0.2:kd=0.7")
     p = parse_ploeg(names[0])
-    check_output_dir(args.h_min_table, "--h-min-table")
+    option = "--h-min-table" if args.h_min_table is not None else "--h-min-heard"
+    check_output_dir(args.h_min_table or args.h_min_heard, option)
     workers = args.workers if args.workers is not None else min(2, os.cpu_count() or 1)
+    positive(workers, "--workers")
+    if args.h_min_heard is not None:  # r = 0-3 vehicles heard (carl_sumo.experiments.h_min_heard)
+        from carl_sumo.experiments import h_min_heard
+
+        rows = h_min_heard.table(p.kp, p.kd, args.net, workers)
+        print(h_min_heard.write(rows, p.kp, p.kd, Path(args.h_min_heard)))
+        return
     rows = h_min_table(p.kp, p.kd, args.net, workers)
     out = Path(args.h_min_table)
     out.mkdir(parents=True, exist_ok=True)
