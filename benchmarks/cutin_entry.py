@@ -16,10 +16,10 @@ import numpy as np
 
 from carl_sumo.control.channel import plant_impairments
 from carl_sumo.data import load_events
-from carl_sumo.sim.scenario import ScenarioSpec
+from carl_sumo.manoeuvres.spec import ScenarioSpec
 from carl_sumo.sim.sumo import DEFAULT_NET
 from carl_sumo.experiments.suite import REAL_WARMUP_S
-from carl_sumo.study.scenarios import run_scenario_event, scenario_controller, scenario_sim
+from carl_sumo.manoeuvres.runs import run_scenario_event, scenario_controller, scenario_sim
 
 
 def entry(name: str, events: list, spec: ScenarioSpec) -> dict[str, dict]:

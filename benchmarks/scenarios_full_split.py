@@ -7,7 +7,7 @@ product's shorter gap costs; issue 35 is judged at the product's own gaps, ``--b
 ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1:ht=0.8``, docs/scenarios.md); ideal plant
 (the recorded start): ``policies/ca_td3_ploeg_10.pt`` against ``ploeg-tuned:h=0.8``.
 
-Beside each table, the bar event by event (:mod:`carl_sumo.study.scenario_criterion`): the
+Beside each table, the bar event by event (:mod:`carl_sumo.manoeuvres.criterion`): the
 product's collisions and TTC < 1.5 s events where the base has none, and its peak deceleration
 and settle time minus the base's with a paired bootstrap interval.
 
@@ -35,12 +35,12 @@ from carl_sumo.files import write_text_atomic
 from dataclasses import replace
 
 from carl_sumo.errors import InputError
-from carl_sumo.sim.scenario import KINDS, parse_scenario
+from carl_sumo.manoeuvres.spec import KINDS, parse_scenario
 from carl_sumo.sim.sumo import DEFAULT_NET
 from carl_sumo.experiments.suite import REAL_WARMUP_S
-from carl_sumo.study.scenario_tables import (ROBUST_TTC, markdown_scenario_table, paired,
+from carl_sumo.manoeuvres.tables import (ROBUST_TTC, markdown_scenario_table, paired,
                                              result_of, run_jobs)
-from carl_sumo.study.scenario_criterion import criterion_lines, manoeuvre_criterion
+from carl_sumo.manoeuvres.criterion import criterion_lines, manoeuvre_criterion
 
 OUT = Path("docs/results_scenarios")
 CONTROLLERS = {"real": (ROBUST_TTC + ":rb=1", "policies/ca_td3_real_truck_10.pt"),

@@ -5,6 +5,7 @@ The package is layered; each subpackage imports only from the ones below it (doc
 
     cli          the command line, one module per command group (and sweeps of `train`)
     study        the mixed-traffic study on the whole freeway
+    manoeuvres   cut-ins, cut-outs, joins and merges: their simulation, metrics and tables
     experiments  simulate, evaluate and the paper's suite, robustness, tune, bench, figures
     learn        environments, networks, agents, training, selection, policy files, inference
     scale        worker processes and the Ray cluster

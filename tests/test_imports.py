@@ -95,7 +95,7 @@ def test_the_cycle_finder_finds_one():
 
 
 #: the layers from the bottom: a module imports only from its own layer and the ones below
-LAYERS = ["", "sim", "control", "scale", "learn", "experiments", "study", "cli"]
+LAYERS = ["", "sim", "control", "scale", "learn", "experiments", "manoeuvres", "study", "cli"]
 
 
 def layer(module: str) -> int:

@@ -1,5 +1,5 @@
 """``--scenario`` of ``simulate`` and ``replay``: controllers through a cut-in, cut-out, join or
-merge (:mod:`carl_sumo.sim.scenario`, :mod:`carl_sumo.study.scenarios`)."""
+merge (:mod:`carl_sumo.manoeuvres.spec`, :mod:`carl_sumo.manoeuvres.runs`)."""
 
 from __future__ import annotations
 
@@ -38,8 +38,8 @@ def add_scenario(p: argparse.ArgumentParser) -> None:
 def simulate_with_scenario(args: argparse.Namespace, names: list[str],
                            impairments: Impairments | None, events: list[Event]) -> None:
     """``simulate --scenario``: the table per controller, and ``--json``."""
-    from carl_sumo.sim.scenario import parse_scenario
-    from carl_sumo.study.scenario_tables import (check_controllers, format_scenario_table,
+    from carl_sumo.manoeuvres.spec import parse_scenario
+    from carl_sumo.manoeuvres.tables import (check_controllers, format_scenario_table,
                                                  result_of, run_jobs)
 
     spec = parse_scenario(args.scenario, args.scenario_seed)
@@ -67,8 +67,8 @@ def replay_with_scenario(args: argparse.Namespace, event: Event,
     """``replay --scenario``: one event with its manoeuvre, as FCD output; ``view``: the
     sumo-gui view of ``--gui`` (carl_sumo.sim.gui.GuiView; no ``--screenshot`` here)."""
     from carl_sumo.errors import InputError
-    from carl_sumo.sim.scenario import parse_scenario
-    from carl_sumo.study.scenarios import replay_scenario
+    from carl_sumo.manoeuvres.spec import parse_scenario
+    from carl_sumo.manoeuvres.runs import replay_scenario
 
     spec = parse_scenario(args.scenario, args.scenario_seed)
     if getattr(args, "screenshot", None):
@@ -89,9 +89,9 @@ def evaluate_scenarios(args: argparse.Namespace, workers: int) -> None:
     events, 6 followers, a 10 s settled start on the real plant instead of 60 s."""
     from carl_sumo.data import load_events
     from carl_sumo.errors import InputError
-    from carl_sumo.sim.scenario import KINDS, parse_scenario
+    from carl_sumo.manoeuvres.spec import KINDS, parse_scenario
     from carl_sumo.experiments.suite import REAL_WARMUP_S
-    from carl_sumo.study.scenario_tables import run_scenario_tables
+    from carl_sumo.manoeuvres.tables import run_scenario_tables
 
     if args.plant != "ideal" or args.fleet or args.vehicle_lag is not None \
             or args.actuation_delay is not None or args.comm_delay is not None \

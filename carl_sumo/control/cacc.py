@@ -44,7 +44,7 @@ safe speed v_safe for the vehicle ahead, the speed from which it stops behind it
 at B m/s² after its 0.5 s of lag, applying at most (v_safe - v)/0.5 s. ``gn=B`` does the same
 only for an armed vehicle at the front of its V2V chain: one whose vehicle ahead is new and is no
 member it hears (a human who just cut in or signals to) until it has room
-(carl_sumo.sim.scenario_sim), never for a platoon's head. Behind a joiner the member is left to
+(carl_sumo.manoeuvres.simulation), never for a platoon's head. Behind a joiner the member is left to
 its law and its reaction layer: while an announced joiner signals beside its gap (it is not armed
 then) and once the joiner is in its chain, also in the steps before the joiner's first message
 arrives (the V2V delay).
@@ -117,7 +117,7 @@ REACTION_LAG_S = 0.5
 reduced by the closing speed times this (s; a truck's lag is 0.4-0.6 s, docs/vehicles.md)."""
 OPEN_GAP_S = 0.8
 """``op=B``: the time gap an armed vehicle at the front of its chain opens (s; an armed vehicle
-stays armed until its spacing reaches it, carl_sumo.sim.scenario_sim.JOIN_LINK_GAP_S)."""
+stays armed until its spacing reaches it, carl_sumo.manoeuvres.simulation.JOIN_LINK_GAP_S)."""
 OPEN_TIME_S = 3.0
 """``op=B``: the opening speed it asks for is the missing gap over this time (m / s)."""
 OPEN_SPEED_TIME_S = 1.0

@@ -15,7 +15,7 @@ The attribute is one of
 
 A vehicle with nothing ahead within its sensors' range (a free road in ``study``) sees d = that
 range and Δv = 0: a controller that is not added to IDM keeps its own cruise speed. In ``study``
-each CACC chain is a platoon of its own (:class:`carl_sumo.study.controllers.ExternalChains`).
+each CACC chain is a platoon of its own (:class:`carl_sumo.experiments.chain_controllers.ExternalChains`).
 
 An RLlib checkpoint or an SB3 model is scored by wrapping its ``compute_single_action`` /
 ``predict`` in such a callable (``examples/``).

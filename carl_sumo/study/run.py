@@ -11,7 +11,7 @@ CACC vehicles (controller ``idm-external`` or a policy file) are driven by carl-
   ``max(v2v_range_m, SENSOR_RANGE_M)``), whoever it is: humans may cut in;
 - the observation is o_i = [v_i (m/s), a_i (m/s²), d_i (m, bumper gap), Δv_i = v_ahead - v_i
   (m/s)]; with no vehicle within the sensing range d_i = the sensing range and Δv_i = 0;
-- chains (:func:`carl_sumo.study.chains.form_chains`): consecutive CACC vehicles in one lane, each within ``v2v_range_m``
+- chains (:func:`carl_sumo.experiments.chain_formation.form_chains`): consecutive CACC vehicles in one lane, each within ``v2v_range_m``
   of the one ahead; a human or a longer gap ends a chain. The policy runs on each chain as one
   platoon (the numba-compiled actor of :mod:`carl_sumo.learn.inference`; the Communication-Aware module
   gives the boundary messages to each chain's ends);
@@ -62,8 +62,8 @@ from carl_sumo.control.channel import Impairments
 from carl_sumo.errors import InputError
 from carl_sumo.control.sensors import Sensors
 from carl_sumo.files import check_xml, output_error, write_text_atomic
-from carl_sumo.study.controllers import ChainController, know_vehicle, resolve_study_controller
-from carl_sumo.study.chains import cacc_observations, form_chains, merging_lanes, zipper_aheads
+from carl_sumo.experiments.chain_controllers import ChainController, know_vehicle, resolve_study_controller
+from carl_sumo.experiments.chain_formation import cacc_observations, form_chains, merging_lanes, zipper_aheads
 from carl_sumo.study.results import RunResult, markdown_table, run_name, summarise, write_csv
 from carl_sumo.sim.sumo import DEFAULT_NET, VTYPES_FILE, close_sumo, lane_route, start_sumo
 from carl_sumo.sim.traffic import (CACC_TYPES, DEFAULT_DEMAND, HUMAN_TYPES, MAIN_EDGE, Demand,

@@ -15,9 +15,9 @@ from carl_sumo.learn.agents import Agent, AgentConfig
 from carl_sumo.cli import main
 from carl_sumo.errors import InputError
 from carl_sumo.learn.policy import save_policy
-from carl_sumo.study.controllers import ChainController
+from carl_sumo.experiments.chain_controllers import ChainController
 from carl_sumo.study.run import StudyConfig, run_one, _sumo_study_args
-from carl_sumo.study.chains import (cacc_observations, form_chains, merging_lanes,
+from carl_sumo.experiments.chain_formation import (cacc_observations, form_chains, merging_lanes,
                                    zipper_ahead, zipper_aheads)
 from carl_sumo.sim.sumo import close_sumo, start_sumo, sumo_args
 from carl_sumo.sim.traffic import DEFAULT_DEMAND, Demand, write_routes
@@ -341,7 +341,7 @@ EXAMPLE = REPO_ROOT / "examples" / "my_controller.py"
 
 
 def test_external_controller_runs_each_chain_as_a_platoon():
-    from carl_sumo.study.controllers import ExternalChains
+    from carl_sumo.experiments.chain_controllers import ExternalChains
 
     import importlib.util
     spec = importlib.util.spec_from_file_location("my_controller_ref", EXAMPLE)

@@ -12,9 +12,9 @@ import numpy as np
 from carl_sumo.control.channel import Impairments
 from carl_sumo.data.events import Event
 from carl_sumo.experiments.figures import pyplot, save_png
-from carl_sumo.sim.scenario import ScenarioSpec
+from carl_sumo.manoeuvres.spec import ScenarioSpec
 from carl_sumo.sim.sumo import LaneRoute
-from carl_sumo.study.scenarios import replay_scenario
+from carl_sumo.manoeuvres.runs import replay_scenario
 
 ROLE_STYLE = {"leader": ("black", 2.0), "human": ("red", 2.0), "joiner": ("green", 2.0)}
 
@@ -63,7 +63,7 @@ def manoeuvre_examples(out: Path, event: Event, n_followers: int, net: str, cont
                        kinds: list[str], seed: int = 0,
                        impairments: Impairments | None = None) -> list[Path]:
     """For each manoeuvre kind: ``out/fcd/<kind>.xml`` (SUMO FCD) and ``out/<kind>.png``."""
-    from carl_sumo.sim.scenario_sim import ScenarioSim
+    from carl_sumo.manoeuvres.simulation import ScenarioSim
 
     route = ScenarioSim(net, "external").route
     written = []

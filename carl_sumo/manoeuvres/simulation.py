@@ -1,5 +1,5 @@
 """A platoon whose members change during a run: the SUMO side of a manoeuvre
-(:mod:`carl_sumo.sim.scenario`).
+(:mod:`carl_sumo.manoeuvres.spec`).
 
 :class:`ScenarioSim` is a :class:`carl_sumo.sim.sumo.PlatoonSim` whose followers are no longer a
 fixed column: every vehicle carl-sumo tracks (the followers, a human who cuts in, a joiner) has
@@ -34,7 +34,7 @@ import numpy as np
 from carl_sumo.config import DT_S, SCENARIO, ScenarioConfig
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
-from carl_sumo.sim.scenario import MIN_ROOM_M, Manoeuvre
+from carl_sumo.manoeuvres.spec import MIN_ROOM_M, Manoeuvre
 from carl_sumo.sim.sumo import DEFAULT_NET, FOLLOWER_TYPES, LaneRoute, PlatoonSim, _libsumo, \
     allow_speed, lane_route
 from carl_sumo.sim.vehicle import Plant

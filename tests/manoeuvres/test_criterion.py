@@ -1,4 +1,4 @@
-"""The event-by-event bar of issue 35 (carl_sumo.study.scenario_criterion) on real SUMO runs."""
+"""The event-by-event bar of issue 35 (carl_sumo.manoeuvres.criterion) on real SUMO runs."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import pytest
 
 from carl_sumo.data import load_events
 from carl_sumo.learn.policy import read_policy_payload
-from carl_sumo.sim.scenario import ScenarioSpec
-from carl_sumo.study.scenario_criterion import criterion_lines, manoeuvre_criterion
-from carl_sumo.study.scenario_tables import (PLANT_CONTROLLERS, PRODUCT_BASE, result_of,
+from carl_sumo.manoeuvres.spec import ScenarioSpec
+from carl_sumo.manoeuvres.criterion import criterion_lines, manoeuvre_criterion
+from carl_sumo.manoeuvres.tables import (PLANT_CONTROLLERS, PRODUCT_BASE, result_of,
                                              run_jobs)
 
 from conftest import NET

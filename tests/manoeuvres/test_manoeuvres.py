@@ -13,12 +13,12 @@ from carl_sumo.config import DT_S
 from carl_sumo.control.channel import Impairments
 from carl_sumo.data import load_events
 from carl_sumo.errors import InputError
-from carl_sumo.sim.manoeuvre_metrics import (ScenarioTrace, manoeuvre_metrics,
+from carl_sumo.manoeuvres.metrics import (ScenarioTrace, manoeuvre_metrics,
                                              settle_and_overshoot, whole_run_metrics)
-from carl_sumo.sim.scenario import Manoeuvre, parse_scenario
-from carl_sumo.sim.scenario_sim import ScenarioSim
+from carl_sumo.manoeuvres.spec import Manoeuvre, parse_scenario
+from carl_sumo.manoeuvres.simulation import ScenarioSim
 from carl_sumo.sim.vehicle import Plant
-from carl_sumo.study.scenarios import (NotApplicable, chains_of, check_scenario,
+from carl_sumo.manoeuvres.runs import (NotApplicable, chains_of, check_scenario,
                                        heard_accelerations, run_scenario_event,
                                        scenario_controller, score_trace)
 
@@ -424,7 +424,7 @@ def test_with_aw_every_truck_state_stays_within_its_limits_through_a_join(event,
 def test_without_aw_a_scenario_run_is_unchanged_by_the_limits(event, monkeypatch):
     """aw=0: the controller is told the limits but does not use them; the run is the one of a
     controller never told (and a truck's state passes its 1 m/s² in it)."""
-    import carl_sumo.study.scenarios as scenarios
+    import carl_sumo.manoeuvres.runs as scenarios
 
     manoeuvre = Manoeuvre("join", N, 6.0)
     told, _, steps = _recorded_run(event, ROBUST, _trucks(), manoeuvre)
@@ -766,7 +766,7 @@ def test_with_sensor_filter_the_follower_behind_a_cut_in_restarts_its_track(even
     """Tracks are keyed by vehicle ID and the ID ahead: at the first step f3 has the human
     ahead its estimate is its raw noisy measurement (a fresh track), filtered before and after;
     the controller sees the measurements, the trace is the true gap."""
-    import carl_sumo.study.scenarios as scenarios
+    import carl_sumo.manoeuvres.runs as scenarios
     from carl_sumo.control.sensors import Sensors
 
     calls: list[tuple] = []  # (true obs, noisy obs, tracked obs, ids, predecessors)

@@ -1,7 +1,7 @@
 """Controllers through a manoeuvre: what ``simulate --scenario`` and ``replay --scenario`` run.
 
-One run = one event, one :class:`carl_sumo.sim.scenario.Manoeuvre` drawn for it, in a
-:class:`carl_sumo.sim.scenario_sim.ScenarioSim`. Every 0.1 s each member of the platoon observes
+One run = one event, one :class:`carl_sumo.manoeuvres.spec.Manoeuvre` drawn for it, in a
+:class:`carl_sumo.manoeuvres.simulation.ScenarioSim`. Every 0.1 s each member of the platoon observes
 o = [v, a, d, Δv] of the vehicle SUMO has ahead of it (``getLeader``), whoever it is. The V2V
 chains are the runs of consecutive members in the platoon lane (:func:`chains_of`): a human who
 cuts in splits the chain, and the member behind him heads a chain of its own with no message
@@ -19,7 +19,7 @@ vehicle's state, the message it sends, within its own class's limits. Every cont
 - ``idm``, ``krauss``, ``sumo-cacc``: SUMO's own models drive the members, as in a plain run;
 - ``ploeg*``, ``acc*``: :class:`carl_sumo.control.cacc.PloegChains` (a ``-tuned`` name: the
   gains tuned for the plant); ``idm-external`` and policy files:
-  :class:`carl_sumo.study.controllers.ChainController` (one shared-weight policy on every chain,
+  :class:`carl_sumo.experiments.chain_controllers.ChainController` (one shared-weight policy on every chain,
   whatever its length);
 - a MADDPG policy: not applicable (``n/a: fixed size``: one actor per platoon position); the
   recorded human follower: not applicable (it cannot be made to manoeuvre);
@@ -46,11 +46,11 @@ from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
 from carl_sumo.experiments.simulate import (NATIVE_CONTROLLERS, cached_sim, check_impairable,
                                             fcd_run, plant_of)
-from carl_sumo.sim.manoeuvre_metrics import ScenarioTrace, manoeuvre_metrics, whole_run_metrics
-from carl_sumo.sim.scenario import Manoeuvre, ScenarioSpec
-from carl_sumo.sim.scenario_sim import ScenarioSim, adjacent_route
+from carl_sumo.manoeuvres.metrics import ScenarioTrace, manoeuvre_metrics, whole_run_metrics
+from carl_sumo.manoeuvres.spec import Manoeuvre, ScenarioSpec
+from carl_sumo.manoeuvres.simulation import ScenarioSim, adjacent_route
 from carl_sumo.sim.sumo import LaneRoute, check_fits, lane_route, use_gui
-from carl_sumo.study.controllers import ChainController, know_vehicle
+from carl_sumo.experiments.chain_controllers import ChainController, know_vehicle
 
 
 class NotApplicable(InputError):
@@ -180,7 +180,7 @@ class _Recorder:
 
 
 def tell_limits(controller, sim: ScenarioSim, known: set[str]) -> None:
-    """Tell ``controller`` (:func:`carl_sumo.study.controllers.know_vehicle`) the powertrain
+    """Tell ``controller`` (:func:`carl_sumo.experiments.chain_controllers.know_vehicle`) the powertrain
     limits of the vehicles of ``sim.limits`` not in ``known`` yet (the real plant's vehicles new
     on the road), and add them to ``known``."""
     if controller is None or len(known) == len(sim.limits):

@@ -32,7 +32,7 @@ makes it), so it can open room before he lands. A joiner with ``signal=S`` (join
 its request to join reaches the member behind the gap S seconds before it moves over (a
 cooperative join, in which the platoon makes room first); until it is in the lane that member
 meets it on radar alone (the degraded mode and its reaction layer, without the guards it keeps
-behind a human: carl_sumo.sim.scenario_sim), as its message joins the chain only once it is a
+behind a human: carl_sumo.manoeuvres.simulation), as its message joins the chain only once it is a
 member.
 
 Drawn per event (what the spec leaves open), from ``seed`` and the event's ID:

@@ -49,7 +49,7 @@ def _bootstrap_mean(diff: np.ndarray, n_boot: int, seed: int) -> tuple[float, fl
 
 def manoeuvre_criterion(result: dict, reference: dict, n_boot: int = 2000,
                         seed: int = 0) -> dict:
-    """``result`` against ``reference`` (each as :func:`carl_sumo.study.scenario_tables.result_of`
+    """``result`` against ``reference`` (each as :func:`carl_sumo.manoeuvres.tables.result_of`
     returns it, with its per-event rows) on the events both did the manoeuvre in; see the
     module docstring for the keys."""
     mine, ref = _by_event(result), _by_event(reference)

@@ -1,5 +1,5 @@
 """A table per manoeuvre and plant: every controller through cut-in, cut-out, join and merge
-(``carl-sumo evaluate --suite scenarios``, :mod:`carl_sumo.study.scenarios`).
+(``carl-sumo evaluate --suite scenarios``, :mod:`carl_sumo.manoeuvres.runs`).
 
 Each (manoeuvre, plant) table has one row per controller of :data:`PLANT_CONTROLLERS`, run on the
 same events with the same drawn manoeuvre (``--scenario-seed``). The ``done`` column counts the
@@ -25,10 +25,10 @@ from carl_sumo.data.events import Event
 from carl_sumo.experiments.suite import REAL_WARMUP_S
 from carl_sumo.files import write_text_atomic
 from carl_sumo.scale.workers import run_parallel
-from carl_sumo.sim.manoeuvre_metrics import aggregate_manoeuvres
+from carl_sumo.manoeuvres.metrics import aggregate_manoeuvres
 from carl_sumo.sim.metrics import aggregate
-from carl_sumo.sim.scenario import KINDS, ScenarioSpec
-from carl_sumo.study.scenarios import NotApplicable, check_scenario, scenario_scores
+from carl_sumo.manoeuvres.spec import KINDS, ScenarioSpec
+from carl_sumo.manoeuvres.runs import NotApplicable, check_scenario, scenario_scores
 
 ROBUST_AW = "ploeg:h=0.8:kp=0.0445:kd=1:aw=1"
 """The robust real-plant CACC (``ploeg-tuned:h=0.8``'s gains on the real plant) with anti-windup:
@@ -263,7 +263,7 @@ def example_figures(out: Path, tables: dict, events: Sequence[Event], n_follower
     """{kind: event ID} of one replay per manoeuvre (FCD in ``out/fcd``, a time-space figure
     ``out/<kind>.png``) with :data:`EXAMPLE_CONTROLLER` on the ideal plant, on the first event
     in which every controller of the ideal table did the manoeuvre."""
-    from carl_sumo.study.scenario_figures import manoeuvre_examples
+    from carl_sumo.manoeuvres.figures import manoeuvre_examples
 
     chosen = {}
     for kind in kinds:

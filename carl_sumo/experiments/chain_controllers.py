@@ -1,5 +1,5 @@
 """The CACC controllers of a study: built-in laws and policy files, run on the CACC chains that
-form and break in traffic (:func:`carl_sumo.study.chains.form_chains`)."""
+form and break in traffic (:func:`carl_sumo.experiments.chain_formation.form_chains`)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Metrics of a run with a manoeuvre (:mod:`carl_sumo.sim.scenario`): the manoeuvre's own and the
+"""Metrics of a run with a manoeuvre (:mod:`carl_sumo.manoeuvres.spec`): the manoeuvre's own and the
 whole run's.
 
 A :class:`ScenarioTrace` holds, every 0.1 s, each vehicle that was in the platoon lane behind the
