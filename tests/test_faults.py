@@ -851,3 +851,12 @@ def test_a_folder_where_a_command_writes_a_file_is_refused_before_the_work(tmp_p
     err = capsys.readouterr().err.strip()
     assert code == 2 and "\n" not in err and f"{blocker} is a folder" in err
     assert [p.name for p in out.iterdir()] == [blocker]
+
+
+@pytest.mark.parametrize("option", ["--max-frequency", "--min-frequency"])
+def test_a_non_finite_frequency_is_one_line_without_warnings(capsys, option):
+    """Found by the fault round 2: numpy's RuntimeWarning printed before the error line."""
+    assert main(["string-stability", "--controller", "ploeg", option, "inf"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("carl-sumo: error: --min-frequency and --max-frequency must be finite")
+    assert "\n" not in err

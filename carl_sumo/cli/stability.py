@@ -62,6 +62,13 @@ def cmd_string_stability(args: argparse.Namespace) -> None:
     if args.frequencies > MAX_FREQUENCIES:
         raise InputError(f"--frequencies must be at most {MAX_FREQUENCIES} (one SUMO run each), "
                          f"got {args.frequencies}")
+    import math
+
+    from carl_sumo.config import DT_S
+
+    if not all(math.isfinite(f) for f in (args.min_frequency, args.max_frequency)):
+        raise InputError(f"--min-frequency and --max-frequency must be finite; give "
+                         f"frequencies in (0, {math.pi / DT_S / 10:.2f}] rad/s")
     if not 0 < args.min_frequency <= args.max_frequency:
         raise InputError("--min-frequency must be positive and at most --max-frequency")
     names = [c.strip() for c in args.controller.split(",") if c.strip()]
