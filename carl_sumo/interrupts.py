@@ -64,6 +64,20 @@ def _raise(signum: int, frame: Any) -> None:
     raise Interrupted(signum)
 
 
+def ignore_stop_signals() -> None:
+    """Ignore the stop signals from now on (main thread only): a command that a signal stopped
+    is exiting with 128 + n, and a second signal (a repeated Ctrl-C, a SIGTERM soon after the
+    first) must not kill it by the signal on its way out."""
+    if threading.current_thread() is threading.main_thread():
+        for s in STOP_SIGNALS:
+            signal.signal(s, signal.SIG_IGN)
+
+
+def stopped() -> bool:
+    """Whether a stop signal has reached this command (since :func:`stop_on_signals`)."""
+    return _received != 0
+
+
 _previous_unraisable = sys.unraisablehook  # the hook :func:`_lost_in_callback` passes the rest to
 
 

@@ -860,3 +860,30 @@ def test_a_non_finite_frequency_is_one_line_without_warnings(capsys, option):
     err = capsys.readouterr().err.strip()
     assert err.startswith("carl-sumo: error: --min-frequency and --max-frequency must be finite")
     assert "\n" not in err
+
+
+@pytest.mark.parametrize("second_s", [0.05, 0.3])
+def test_a_second_sigterm_during_shutdown_still_exits_143(tmp_path, second_s):
+    """Found by the fault round 2: a second SIGTERM 50 ms after the first printed
+    "interrupted" and then killed the command by the signal (main() had restored the default
+    handlers before Python finished)."""
+    proc = subprocess.Popen([sys.executable, "-m", "carl_sumo", "simulate", "--workers", "2",
+                             "--split", "all", "--vehicles", "5", "--json",
+                             str(tmp_path / "s.json")], cwd=REPO_ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.time() + 60
+        while len(children_of(proc.pid)) < 2 and time.time() < deadline and proc.poll() is None:
+            time.sleep(0.05)
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGTERM)
+        time.sleep(second_s)
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert err.strip() == "carl-sumo: interrupted", err

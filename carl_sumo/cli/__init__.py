@@ -24,7 +24,7 @@ from carl_sumo.cli.study import _study_parser, cmd_study
 from carl_sumo.cli.sweep import _sweep_parser, cmd_sweep
 from carl_sumo import COMMAND_MARK
 from carl_sumo.errors import InputError
-from carl_sumo.interrupts import exit_status, stop_on_signals
+from carl_sumo.interrupts import exit_status, ignore_stop_signals, stop_on_signals, stopped
 from carl_sumo.scale.workers import WorkerError, stop_children
 
 __all__ = ["COMMANDS", "build_parser", "format_table", "main"]
@@ -63,7 +63,10 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if marked is None:
             os.environ.pop(COMMAND_MARK, None)
-        restore_signals()
+        if argv is None and stopped():  # the process exits with 128 + n: a second signal on
+            ignore_stop_signals()       # the way out must not kill it by the signal
+        else:
+            restore_signals()
 
 
 def _run(argv: list[str] | None) -> int:
