@@ -887,3 +887,16 @@ def test_a_second_sigterm_during_shutdown_still_exits_143(tmp_path, second_s):
             proc.wait()
     assert proc.returncode == 128 + signal.SIGTERM, err
     assert err.strip() == "carl-sumo: interrupted", err
+
+
+def test_a_foreign_pickle_as_a_policy_is_one_line(tmp_path):
+    """Found by the fault round 2: torch's pickle-protocol UserWarning came before the line."""
+    import pickle
+
+    path = tmp_path / "p.pt"
+    path.write_bytes(pickle.dumps({"a": 1}, protocol=4))
+    proc = subprocess.run([sys.executable, "-m", "carl_sumo", "policy-info", str(path)],
+                          cwd=REPO_ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert "is corrupt or not a PyTorch file" in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr

@@ -8,6 +8,7 @@ package versions, training command, validation metrics). Files are written atomi
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -64,7 +65,9 @@ def load_torch(path: Path, what: str) -> dict[str, Any]:
         raise InputError(f"{what} {path} does not exist; give the path of a file written by "
                          "`carl-sumo train`")
     try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # a foreign pickle's protocol warning: the error says it
+            warnings.simplefilter("ignore", UserWarning)
+            payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:
         raise InputError(f"{what} {path} is corrupt or not a PyTorch file ({type(exc).__name__}); "
                          "retrain it or restore it from git") from exc
