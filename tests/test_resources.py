@@ -83,3 +83,13 @@ def test_law_presets_expand_in_every_command(capsys):
     assert controller_option("cacc-real,idm") == PRESETS["cacc-real"] + ",idm"
     assert main(["train", "--base", "product-base", "--print-config", "--steps", "2000"]) == 0
     assert f'base = "{PRESETS["product-base"]}"' in capsys.readouterr().out
+
+
+def test_the_wheel_lists_every_subpackage():
+    import tomllib
+
+    listed = set(tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+                 ["packages"])
+    on_disk = {"carl_sumo"} | {f"carl_sumo.{p.name}" for p in (REPO / "carl_sumo").iterdir()
+                               if (p / "__init__.py").is_file()}
+    assert on_disk | {"carl_sumo.shipped"} == listed
