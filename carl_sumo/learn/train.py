@@ -236,9 +236,9 @@ class WallClock:
 
     def totals(self) -> dict[str, float]:
         """Seconds per part, ``other`` and ``total``."""
-        total = time.perf_counter() - self.t0
-        return {**{k: round(v, 1) for k, v in self.seconds.items()},
-                "other": round(total - sum(self.seconds.values()), 1), "total": round(total, 1)}
+        total = round(time.perf_counter() - self.t0, 1)
+        parts = {k: round(v, 1) for k, v in self.seconds.items()}
+        return {**parts, "other": round(total - sum(parts.values()), 1), "total": total}
 
     def line(self) -> str:
         t = self.totals()
