@@ -10,7 +10,9 @@ deps_python=${1:?give the python of a venv with the dependencies}
 root=$(cd "$(dirname "$0")/.." && pwd)
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
-"$deps_python" -m pip wheel -q --no-deps --no-build-isolation -w "$tmp/dist" "$root"
+# from a clean copy of the tracked files (setuptools' build/ keeps stale modules between builds)
+git -C "$root" ls-files -z | (cd "$root" && tar --null -T - -cf -) | (mkdir "$tmp/src" && cd "$tmp/src" && tar -xf -)
+"$deps_python" -m pip wheel -q --no-deps --no-build-isolation -w "$tmp/dist" "$tmp/src"
 python3 -m venv "$tmp/venv"
 site=$("$deps_python" -c "import sysconfig; print(sysconfig.get_paths()['purelib'])")
 echo "$site" > "$(ls -d "$tmp"/venv/lib/python3*/site-packages)/deps.pth"
