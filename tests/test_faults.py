@@ -900,3 +900,16 @@ def test_a_foreign_pickle_as_a_policy_is_one_line(tmp_path):
     assert proc.returncode == 2
     assert "is corrupt or not a PyTorch file" in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+
+
+def test_policy_info_table_of_a_policy_without_metadata_prints_no_warning(tmp_path):
+    """Found by the fault round 2: numpy's RuntimeWarnings (mean of an empty slice) with exit 0."""
+    import torch
+
+    payload = torch.load(REPO_ROOT / "policies" / "td3_1.pt", weights_only=True)
+    payload.pop("metadata", None)
+    torch.save(payload, tmp_path / "bare.pt")
+    proc = subprocess.run([sys.executable, "-m", "carl_sumo", "policy-info", "--table",
+                           str(tmp_path / "bare.pt")], cwd=REPO_ROOT, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0 and proc.stderr == "" and "`bare.pt`" in proc.stdout

@@ -97,7 +97,10 @@ def cmd_train(args: argparse.Namespace) -> None:
     if cfg.gate_string_stable is not None:
         keep_string_stable(out, cfg.select, cfg.gate_string_stable)  # says what it kept
     val = result["validation"]
-    print(f"wrote {out} (best validation score {result['best_score']:.4f}); "
+    kept = (f"the best string-stable checkpoint; the best score before the gate "
+            f"{result['best_score']:.4f}" if cfg.gate_string_stable is not None else
+            f"best validation score {result['best_score']:.4f}")
+    print(f"wrote {out} ({kept}); "
           f"wall time {result['wall_time_s']:.0f} s; last validation: "
           + ", ".join(f"{k}={fmt(v)}" for k, v in val.items()))
     print(compare_with_base(out))

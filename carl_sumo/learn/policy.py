@@ -281,6 +281,12 @@ def _training_wall_s(curve: Path) -> float:
     return float(rows[-1].split(",")[2]) if len(rows) > 1 else float("nan")
 
 
+def _wall_cell(walls: list[float]) -> str:
+    """``mean (max max)`` of the known wall times (s), ``–`` without any."""
+    known = [w for w in walls if np.isfinite(w)]
+    return f"{np.mean(known):.0f} (max {np.max(known):.0f})" if known else "–"
+
+
 def policy_table(paths: list[Path]) -> str:
     """A Markdown table of shipped policy files, one row each: algorithm, base, platoon length,
     the seed files beside it (``seeds/<stem>_seed<K>.pt``) and which one is shipped, steps,
@@ -304,7 +310,7 @@ def policy_table(paths: list[Path]) -> str:
             f"| `{path.name}` | {meta.get('algo', agent.cfg.algo)} | {agent.cfg.base} | "
             f"{meta.get('trained_vehicles', agent.cfg.n_vehicles)} | "
             f"{', '.join(seed_ids) or '–'} ({meta.get('seed')}) | {meta.get('steps')} | "
-            f"{np.nanmean(walls):.0f} (max {np.nanmax(walls):.0f}) | {fmt(val, 'headway_s')} | "
+            f"{_wall_cell(walls)} | {fmt(val, 'headway_s')} | "
             f"{fmt(val, 'jerk_mps3')} | {fmt(val, 'dampening_ratio')} | "
             f"{fmt(base, 'headway_s')} / {fmt(base, 'jerk_mps3')} / "
             f"{fmt(base, 'dampening_ratio')} |")
