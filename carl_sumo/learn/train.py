@@ -97,59 +97,41 @@ def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: flo
 def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
           progress: bool | float = True, log=print, rollouts: str = "processes",
           on_checkpoint=None, tensorboard: Path | None = None) -> dict[str, Any]:
-    """Train an agent; writes the best policy to ``cfg.policy_path``, checkpoints and a CSV log beside it.
-
-    ``rollouts``: the environments run in spawned processes or, ``"ray"``, in Ray actors (the same
-    steps). ``on_checkpoint(step)`` is called after each checkpoint is written (``sweep`` hands it
-    to Ray Tune). ``progress``, ``tensorboard``: :class:`carl_sumo.learn.report.Report` (with the
-    curve's figure). Returns the final validation metrics and timing. The loop (act, step, store,
-    update, validate, keep, checkpoint) reads top to bottom, as in CleanRL; its steps are below."""
+    """Train an agent into ``cfg.policy_path`` (checkpoints and a CSV log beside it); the loop
+    (act, step, store, update, validate, keep, checkpoint) reads top to bottom, as in CleanRL.
+    ``rollouts``: spawned processes or ``"ray"`` actors; ``on_checkpoint(step)`` after each
+    checkpoint (``sweep``); ``progress``, ``tensorboard``: :class:`Report`. Returns the final
+    validation metrics and timing."""
     clock = WallClock()
     train_events, val_events = held_out_split(events, cfg)  # InputError before any file
     teacher = _teacher(cfg)  # InputError before any file
     init_actor = initial_actor(cfg)  # InputError before any file
     out = _prepare_out(Path(cfg.policy_path), resume)
-    n = cfg.n_vehicles
-    _prepare_process(cfg.seed)
-    agent = _new_agent(cfg, init_actor if resume is None else None)
-    channels = _randomised_channels(cfg, agent)
-    buffer = ReplayBuffer(cfg.buffer_size, n, agent.cfg.obs_dim,
-                          channels.message_dim if channels is not None else 0)
-    rng = np.random.default_rng(cfg.seed)
+    agent, channels, buffer, rng = _build(cfg, init_actor if resume is None else None)
     start_step, best, wall_before, saved = 0, -np.inf, 0.0, {}
     if resume is not None:
         buffer, start_step, best, wall_before = restore_checkpoint(resume, cfg, agent, rng, saved)
         if _keep_policy(resume, out, start_step, cfg, log):  # nothing left to train
             return dict(validation={}, validation_base={}, wall_time_s=wall_before, best_score=best)
     with clock("validation"):
-        val_env = _validation_env(cfg, train_events, val_events)
-        baseline, baseline_events = _validate_base(cfg, val_env, val_events, log)
-        if resume is None:
-            best = _first_candidate(cfg, agent, init_actor, val_env, val_events, baseline,
-                                    baseline_events, out, log, best)
+        val_env, baseline, baseline_events, best = _start_validation(
+            cfg, agent, init_actor, resume is None, train_events, val_events, out, log, best)
     report = Report(cfg, out, resume, start_step, progress, tensorboard)  # before any worker
     with clock("simulation"):
         vec, obs, history = _start_rollouts(cfg, train_events, rollouts, start_step, channels,
                                             saved)
     links = channels.receive(_boundaries(agent)) if channels is not None else None
     t0 = time.perf_counter()
-    recent = [float(r) for r in saved.get("recent", ())]
-    val: dict[str, float] = {}
-    noise = _noise(cfg, agent, rng, saved)
-    lagrange = _multiplier(cfg, saved)
-    calibration = Calibration(cfg.critic_calibration, cfg.calibration_patience,
-                              cfg.learning_starts + cfg.critic_burn_in)
+    recent, val = [float(r) for r in saved.get("recent", ())], {}
+    noise, lagrange, calibration = _schedules(cfg, agent, rng, saved)
     first_actor = _restore_start(cfg, agent, buffer, calibration, saved, start_step, log)
     probe = _probe(cfg, buffer, calibration, log) if start_step > cfg.learning_starts else None
     try:
         for step in range(start_step, cfg.steps):
             if step == cfg.learning_starts:  # the start policy is complete: RL begins
-                if teacher is not None:
-                    with clock("updates"):
-                        best = _clone_teacher(cfg, agent, teacher, buffer, rng, val_env,
-                                              val_events, baseline, baseline_events, out, log)
-                probe = _probe(cfg, buffer, calibration, log)
-                agent.anchor(cfg.bc_alpha)  # the start the actor is held near (0: none)
+                best, probe = _begin_rl(cfg, agent, teacher, buffer, rng, val_env, val_events,
+                                        baseline, baseline_events, out, log, clock, calibration,
+                                        best)
             # a warm-started actor drives from the first step, others after learning_starts
             acting = step >= cfg.learning_starts or init_actor is not None
             with clock("acting"):
@@ -159,58 +141,130 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                 next_obs, reward, term, trunc, final, cost = vec.step(
                     action, channels.upcoming if channels is not None else None)
             with clock("acting"):
-                if history is not None:  # what a resumed run replays its environments with
-                    history.append(np.asarray(action, dtype=np.float64))
-                noise.reset(term | trunc)
-                links = _store(buffer, channels, agent, obs, action, reward, final, term, trunc,
-                               links, cost)
-                recent.append(float(reward.mean()))
-                lagrange.observe(step, cost)
+                links = _after_step(buffer, channels, agent, history, noise, recent, lagrange,
+                                    step, obs, action, reward, final, term, trunc, links, cost)
             obs = next_obs
             with clock("updates"):
                 report.updated(step, _update(cfg, agent, buffer, rng, step, lagrange,
                                              calibration.actor_from))
             done_steps = step + 1
-            if first_actor is None and agent.actor_updates > 0:
-                first_actor = done_steps
-                log(f"RL's first actor update: step {done_steps}")
-            if probe is not None and calibration.active and done_steps < calibration.actor_from \
-                    and (done_steps - cfg.learning_starts) % cfg.calibration_every == 0:
-                with clock("validation"):
-                    _calibration_check(calibration, probe, agent, buffer, done_steps, log)
+            with clock("validation"):
+                first_actor = _after_update(cfg, agent, buffer, calibration, probe, first_actor,
+                                            done_steps, log)
             if done_steps % cfg.eval_every == 0 or done_steps == cfg.steps:
-                wall = wall_before + time.perf_counter() - t0
-                train_reward = float(np.mean(recent[-cfg.eval_every:])) if recent else float("nan")
                 with clock("validation"):
-                    val, best = _validate_and_select(cfg, agent, val_env, val_events, baseline,
-                                                     baseline_events, out, wall, best,
-                                                     done_steps)
-                    logged = {"score": selection_score(val, cfg.select, baseline),
-                              **(probe.measure(agent, buffer) if probe is not None else {})}
-                report.validation(done_steps, wall, train_reward,
-                                  val | lagrange.logged() | logged)
+                    val, best = _validate_step(cfg, agent, buffer, val_env, val_events, baseline,
+                                               baseline_events, out, best, done_steps, report,
+                                               probe, lagrange, recent,
+                                               wall_before + time.perf_counter() - t0)
             if done_steps % cfg.checkpoint_every == 0 or done_steps == cfg.steps:
                 with clock("checkpoints"):
-                    save_checkpoint(out.with_suffix(".ckpt"), cfg, agent, buffer, rng,
-                                    done_steps, best, wall_before + time.perf_counter() - t0,
-                                    _rollout_state(history, noise, recent, cfg.eval_every,
-                                                   lagrange)
+                    save_checkpoint(out.with_suffix(".ckpt"), cfg, agent, buffer, rng, done_steps,
+                                    best, wall_before + time.perf_counter() - t0,
+                                    _rollout_state(history, noise, recent, cfg.eval_every, lagrange)
                                     | _start_state(agent, calibration, first_actor))
-                if on_checkpoint is not None:
-                    report.flush()
-                    on_checkpoint(done_steps)
+                _checkpoint_written(report, on_checkpoint, done_steps)
             report.advance()
     finally:
         with clock("simulation"):
             vec.close()
         report.close()
-    wall = wall_before + time.perf_counter() - t0
     training = _training_record(cfg, calibration, first_actor, clock)
     _record_training(out, training)
     log(clock.line())
-    return {"validation": val, "validation_base": baseline, "wall_time_s": wall,
-            "best_score": best, "training": training}
+    return {"validation": val, "validation_base": baseline, "best_score": best,
+            "wall_time_s": wall_before + time.perf_counter() - t0, "training": training}
 
+
+
+
+
+def _start_validation(cfg: TrainConfig, agent: Agent, init_actor, new_run: bool, train_events,
+                      val_events, out: Path, log, best: float) -> tuple:
+    """The validation environment, the base's validation (metrics and per event) and, for a new
+    run, its first candidate (the start policy) kept; (env, baseline, its events, best)."""
+    val_env = _validation_env(cfg, train_events, val_events)
+    baseline, baseline_events = _validate_base(cfg, val_env, val_events, log)
+    if new_run:
+        best = _first_candidate(cfg, agent, init_actor, val_env, val_events, baseline,
+                                baseline_events, out, log, best)
+    return val_env, baseline, baseline_events, best
+
+
+def _schedules(cfg: TrainConfig, agent: Agent, rng, saved: dict) -> tuple:
+    """The exploration noise, the close-call multiplier and the critic's calibration of a run
+    (restored from ``saved`` when it resumes)."""
+    return (_noise(cfg, agent, rng, saved), _multiplier(cfg, saved),
+            Calibration(cfg.critic_calibration, cfg.calibration_patience,
+                        cfg.learning_starts + cfg.critic_burn_in))
+
+
+def _checkpoint_written(report, on_checkpoint, done_steps: int) -> None:
+    """Hand a written checkpoint to ``on_checkpoint`` (``sweep``: Ray Tune), the curve flushed."""
+    if on_checkpoint is not None:
+        report.flush()
+        on_checkpoint(done_steps)
+
+def _build(cfg: TrainConfig, init_actor) -> tuple:
+    """The run's agent (started from ``init_actor`` when given), randomised channels, replay
+    buffer and random generator."""
+    _prepare_process(cfg.seed)
+    agent = _new_agent(cfg, init_actor)
+    channels = _randomised_channels(cfg, agent)
+    buffer = ReplayBuffer(cfg.buffer_size, cfg.n_vehicles, agent.cfg.obs_dim,
+                          channels.message_dim if channels is not None else 0)
+    return agent, channels, buffer, np.random.default_rng(cfg.seed)
+
+
+def _after_step(buffer: ReplayBuffer, channels, agent: Agent, history, noise, recent, lagrange,
+                step: int, obs, action, reward, final, term, trunc, links, cost):
+    """Store a vector step's transitions and keep what a resumed run needs; the next links."""
+    if history is not None:  # what a resumed run replays its environments with
+        history.append(np.asarray(action, dtype=np.float64))
+    noise.reset(term | trunc)
+    links = _store(buffer, channels, agent, obs, action, reward, final, term, trunc, links, cost)
+    recent.append(float(reward.mean()))
+    lagrange.observe(step, cost)
+    return links
+
+
+def _after_update(cfg: TrainConfig, agent: Agent, buffer: ReplayBuffer, calibration, probe,
+                  first_actor: int | None, done_steps: int, log) -> int | None:
+    """Note RL's first actor update, and check the critic's calibration when it is due; the
+    step of the first actor update (None before it)."""
+    if first_actor is None and agent.actor_updates > 0:
+        first_actor = done_steps
+        log(f"RL's first actor update: step {done_steps}")
+    if probe is not None and calibration.active and done_steps < calibration.actor_from \
+            and (done_steps - cfg.learning_starts) % cfg.calibration_every == 0:
+        _calibration_check(calibration, probe, agent, buffer, done_steps, log)
+    return first_actor
+
+def _begin_rl(cfg: TrainConfig, agent: Agent, teacher, buffer: ReplayBuffer, rng, val_env,
+              val_events, baseline, baseline_events, out: Path, log, clock, calibration, best):
+    """At ``learning_starts``: the actor copies the teacher (if any), the critic's probe is set
+    up and the actor is anchored at its start (``bc_alpha``); (best score, probe)."""
+    if teacher is not None:
+        with clock("updates"):
+            best = _clone_teacher(cfg, agent, teacher, buffer, rng, val_env, val_events,
+                                  baseline, baseline_events, out, log)
+    probe = _probe(cfg, buffer, calibration, log)
+    agent.anchor(cfg.bc_alpha)  # the start the actor is held near (0: none)
+    return best, probe
+
+
+def _validate_step(cfg: TrainConfig, agent: Agent, buffer: ReplayBuffer, val_env, val_events,
+                   baseline, baseline_events, out: Path, best: float, done_steps: int, report,
+                   probe, lagrange, recent: list[float], wall: float):
+    """One validation: the candidate scored and kept if best, the curve's row written;
+    (validation metrics, best score)."""
+    train_reward = float(np.mean(recent[-cfg.eval_every:])) if recent else float("nan")
+    val, best = _validate_and_select(cfg, agent, val_env, val_events, baseline, baseline_events,
+                                     out, wall, best, done_steps)
+    logged = {"score": selection_score(val, cfg.select, baseline),
+              **(probe.measure(agent, buffer) if probe is not None else {})}
+    report.validation(done_steps, wall, train_reward, val | lagrange.logged() | logged)
+    return val, best
 
 class WallClock:
     """Where a run's wall time goes: seconds per part (simulation, acting, updates, validation,
