@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from carl_sumo.experiments.suite import data_tag
 from carl_sumo.files import atomic_path
 from carl_sumo.sim.metrics import aggregate
 
@@ -374,7 +375,8 @@ def figure_jobs(suite: "Suite", results: dict[tuple, "JobResult"],
     """The figures of a suite run as small picklable jobs for :func:`render` (data reduced)."""
     jobs: list[dict[str, Any]] = []
     by_key = {spec.key: spec for spec in suite.tables}
-    t1, t2, t3 = (by_key["table1_ngsim_test"], by_key["table2_generalization"],
+    tag = data_tag(suite.data)  # the leader data the file names say
+    t1, t2, t3 = (by_key[f"table1_{tag}_test"], by_key["table2_generalization"],
                   by_key["table3_stop_and_go"])
     label = {key: model_label(m) for key, m in suite.models.items()}
     shown = [label[key] for key in suite.models if _shown(key)]
@@ -393,23 +395,24 @@ def figure_jobs(suite: "Suite", results: dict[tuple, "JobResult"],
         res = first_run(t1, key, t1.followers[0])
         curves[label[key]] = ecdf_curves({k: np.concatenate(v) if v else np.empty(0)
                                           for k, v in res.samples.items()})
-    add("ecdf", "fig_ecdf_ngsim_test.png",
+    add("ecdf", f"fig_ecdf_{tag}_test.png",
         "ECDFs of time headway, speed and |jerk| per model (Table 1 runs)", curves,
         f"Empirical distributions, {t1.title} ({len(suite.events[t1.events.key])} events)",
         colors)
 
-    for spec, tag in ((t1, "ngsim"), (t3, "stop_and_go")):
+    for spec, where_tag in ((t1, tag), (t3, "stop_and_go")):
         event_id = suite.figure_events[spec.events.key]
         series = {}
         for key in filter(_shown, spec.models):
             res = first_run(spec, key, spec.followers[0])
             if res is not None and event_id in res.series:
                 series[label[key]] = res.series[event_id]
-        where = f"event {event_id}" if tag == "ngsim" else "stop-and-go leader"
-        add("timeseries", f"fig_timeseries_{tag}.png",
+        where = f"event {event_id}" if spec is t1 else "stop-and-go leader"
+        add("timeseries", f"fig_timeseries_{where_tag}.png",
             f"Position, speed and acceleration against time, {where}", series,
             f"Position, speed and acceleration, {where}, {spec.followers[0]} followers")
-        add("time_space", f"fig_time_space_{tag}.png", f"Time-space diagram of the platoon, {where}",
+        add("time_space", f"fig_time_space_{where_tag}.png",
+            f"Time-space diagram of the platoon, {where}",
             {k: v for k, v in series.items() if not k.startswith("human")},
             f"Time-space diagram of the platoon, {where}")
 
@@ -417,7 +420,7 @@ def figure_jobs(suite: "Suite", results: dict[tuple, "JobResult"],
     for n in t2.followers:
         profiles = {label[key]: mean_profile(first_run(t2, key, n).norms)
                     for key in filter(_shown, t2.models) if suite.models[key].runs_on(n)}
-        panels.append((f"NGSIM test, {n} followers", profiles))
+        panels.append((f"{'NGSIM' if tag == 'ngsim' else tag} test, {n} followers", profiles))
     panels.append((f"stop-and-go, {t3.followers[0]} followers",
                    {label[key]: mean_profile(first_run(t3, key, t3.followers[0]).norms)
                     for key in filter(_shown, t3.models)}))
@@ -430,7 +433,7 @@ def figure_jobs(suite: "Suite", results: dict[tuple, "JobResult"],
         agg = aggregate(first_run(t1, key, t1.followers[0]).per_event)
         curve = next((name for prefix, name in CURVES.items() if key.startswith(prefix)), None)
         points.append({"label": label[key], "curve": curve, **agg})
-    add("frontier", "fig_frontier_ngsim_test.png",
+    add("frontier", f"fig_frontier_{tag}_test.png",
         "Mean |jerk| and dampening ratio against mean time headway (Table 1 runs): the Ploeg "
         "CACC's textbook and tuned curves over their time gap h, every other model a point",
         points, f"Following closer for the same comfort, {t1.title}")

@@ -99,7 +99,7 @@ ALGO_NAMES = {"ca-td3": "CA-TD3", "ca-ddpg": "CA-DDPG", "td3": "TD3", "ddpg": "D
 class EventSet:
     """Where a table's leaders come from."""
 
-    key: str          # "ngsim_test", "stop_and_go", ...
+    key: str          # "ngsim_test" (data_tag + split), "stop_and_go", ...
     data: str         # an event table, "default" or "stop-and-go"
     split: str
     limit: int | None = None
@@ -255,6 +255,18 @@ def discover_model(stem: str, directory: Path) -> Model:
     return Model(stem, name, tuple(files), tuple(seeds), trained, fixed)
 
 
+def data_tag(data: str) -> str:
+    """The name of the leader data in the suite's file names: ``ngsim`` for an NGSIM event table
+    (``ngsim*``), ``default`` for the shipped default set, else the file's name (letters, digits
+    and ``_``), so that an output never claims data it did not run on."""
+    if str(data) == "default":
+        return "default"
+    name = Path(data).name
+    if name.startswith("ngsim"):
+        return "ngsim"
+    return re.sub(r"\W+", "_", name.split(".")[0]).strip("_").lower() or "data"
+
+
 def data_titles(data: str, limit: int | None, quick: bool) -> tuple[str, str]:
     """What the tables ran on, for their titles: (the test split, the cross-site events), e.g.
     "NGSIM test split" or "test split of the shipped default set, first 2 events (--quick)"."""
@@ -307,7 +319,8 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
     limit = events if events is not None else (2 if quick else None)
     directory = policy_dir(policies)
 
-    test = EventSet("ngsim_test", data, "test", limit)
+    tag = data_tag(data)
+    test = EventSet(f"{tag}_test", data, "test", limit)
     if data == "default":
         cross = EventSet("cross_site", data, "train", limit,
                          note="the shipped default set has no US-101 events; its train split "
@@ -328,7 +341,7 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
                      *extra)
     on_test, on_cross = data_titles(data, limit, quick)
     tables = [
-        TableSpec("table1_ngsim_test", f"Table 1: {on_test}, 10 followers", test, (10,),
+        TableSpec(f"table1_{tag}_test", f"Table 1: {on_test}, 10 followers", test, (10,),
                   table1_models, figures=True,
                   paired=tuple(p for p in PAIRED_COMPARISONS if set(p) <= set(table1_models)),
                   seed_models=seed_models),
@@ -339,7 +352,8 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
         TableSpec("table3_stop_and_go", "Table 3: stop-and-go leader"
                   + (" (one braking, --quick)" if quick else "") + ", 10 followers", sg, (10,),
                   table1_models[1:], figures=True, seed_lengths=None if all_seeds else ()),
-        TableSpec("cross_site_us101", f"Cross-site: {on_cross}, 10 followers", cross, (10,),
+        TableSpec("cross_site_default_train" if data == "default" else "cross_site_us101",
+                  f"Cross-site: {on_cross}, 10 followers", cross, (10,),
                   table1_models,
                   seed_lengths=None if all_seeds else ()),
     ]

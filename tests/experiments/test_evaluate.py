@@ -63,10 +63,10 @@ def quick_suite(tmp_path_factory) -> Path:
 
 CLASSICAL = classical_models()  # SUMO's CACC, the textbook and the tuned Ploeg curves
 TABLES = {  # file stem -> (rows, platoon lengths)
-    "table1_ngsim_test": (9 + len(CLASSICAL), {1, 10}),
+    "table1_default_test": (9 + len(CLASSICAL), {1, 10}),
     "table2_generalization": (20 + 2 * len(CLASSICAL), {10, 20}),
     "table3_stop_and_go": (8 + len(CLASSICAL), {10}),
-    "cross_site_us101": (9 + len(CLASSICAL), {1, 10}),
+    "cross_site_default_train": (9 + len(CLASSICAL), {1, 10}),
 }
 
 
@@ -75,9 +75,9 @@ def test_quick_suite_writes_every_table_figure_and_readme(quick_suite):
     for stem in TABLES:
         assert {f"{stem}.md", f"{stem}.csv"} <= names
     figures = sorted(n for n in names if n.endswith(".png"))
-    assert figures == ["fig_accel_norm_profile.png", "fig_ecdf_ngsim_test.png",
-                       "fig_frontier_ngsim_test.png", "fig_time_space_ngsim.png", "fig_time_space_stop_and_go.png",
-                       "fig_timeseries_ngsim.png", "fig_timeseries_stop_and_go.png"]
+    assert figures == ["fig_accel_norm_profile.png", "fig_ecdf_default_test.png",
+                       "fig_frontier_default_test.png", "fig_time_space_default.png", "fig_time_space_stop_and_go.png",
+                       "fig_timeseries_default.png", "fig_timeseries_stop_and_go.png"]
     for name in figures:
         data = (quick_suite / name).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
@@ -85,14 +85,14 @@ def test_quick_suite_writes_every_table_figure_and_readme(quick_suite):
     assert all(f"]({name})" in readme for name in figures)
     assert "wall time" in readme and "cores" in readme and "--quick" in readme
     assert not [n for n in names if n.startswith(".")]  # no temporary file left
-    assert "Paired comparisons" in readme and "table1_ngsim_test_paired.csv" in readme
+    assert "Paired comparisons" in readme and "table1_default_test_paired.csv" in readme
 
 
 def test_quick_suite_paired_comparisons(quick_suite):
-    paired = pd.read_csv(quick_suite / "table1_ngsim_test_paired.csv")
+    paired = pd.read_csv(quick_suite / "table1_default_test_paired.csv")
     assert list(paired["model"])[:4] == ["CA-TD3", "CA-DDPG", "CA-TD3", "CA-DDPG"]
     assert list(paired["reference"])[:4] == ["IDM (SUMO)", "IDM (SUMO)", "TD3", "DDPG"]
-    t1 = pd.read_csv(quick_suite / "table1_ngsim_test.csv").set_index("model")
+    t1 = pd.read_csv(quick_suite / "table1_default_test.csv").set_index("model")
     for _, row in paired.iterrows():
         for m in ("jerk_mps3", "speed_mps", "dampening_ratio"):
             expected = t1.loc[row["model"], m] - t1.loc[row["reference"], m]
@@ -102,8 +102,8 @@ def test_quick_suite_paired_comparisons(quick_suite):
 
 
 def test_quick_suite_compares_models_across_seeds(quick_suite):
-    paired = pd.read_csv(quick_suite / "table1_ngsim_test_paired.csv")
-    seeds = pd.read_csv(quick_suite / "table1_ngsim_test_seeds.csv")
+    paired = pd.read_csv(quick_suite / "table1_default_test_paired.csv")
+    seeds = pd.read_csv(quick_suite / "table1_default_test_seeds.csv")
     row = paired[(paired["model"] == "CA-TD3") & (paired["reference"] == "TD3")].iloc[0]
     assert row["seeds"] == 2 and row["reference_seeds"] == 2
     ca_seed, td3_seed = (int(torch.load(POLICIES / f"{s}.pt", weights_only=True)["metadata"]
@@ -135,7 +135,7 @@ def test_quick_suite_csv_rows_columns_and_intervals(quick_suite):
             assert table["headway_s_lo"].isna().all()
         else:
             assert table["headway_s_lo"].notna().all() and (table["events"] == 2).all()
-    t1 = pd.read_csv(quick_suite / "table1_ngsim_test.csv")
+    t1 = pd.read_csv(quick_suite / "table1_default_test.csv")
     assert list(t1["model"]) == ["human (recorded)", "IDM (SUMO)", "Krauss (SUMO)",
                                  *CLASSICAL.values(), "MADDPG", "DDPG", "CA-DDPG", "TD3",
                                  "CA-TD3", "CA-TD3 on ploeg-tuned:h=0.8"]
@@ -148,17 +148,17 @@ def test_quick_suite_csv_rows_columns_and_intervals(quick_suite):
 
 
 def test_quick_suite_spread_across_seeds(quick_suite):
-    t1 = pd.read_csv(quick_suite / "table1_ngsim_test.csv").set_index("policy")
+    t1 = pd.read_csv(quick_suite / "table1_default_test.csv").set_index("policy")
     assert t1.loc["td3_1", "seeds"] == 2 and t1.loc["ca_ddpg_10", "seeds"] == 1
     assert np.isfinite(t1.loc["td3_1", "jerk_mps3_seed_std"])
     assert np.isnan(t1.loc["ca_ddpg_10", "jerk_mps3_seed_std"])
     per_event = pd.read_csv(quick_suite / "per_event.csv")
-    td3 = per_event[(per_event["model"] == "td3_1") & (per_event["event_set"] == "ngsim_test")
+    td3 = per_event[(per_event["model"] == "td3_1") & (per_event["event_set"] == "default_test")
                     & (per_event["followers"] == 10)]
     shipped = int(torch.load(POLICIES / "td3_1.pt", weights_only=True)["metadata"]["seed"])
     by_seed = td3.groupby("seed")["jerk_mps3"].mean()
     assert sorted(by_seed.index) == sorted({shipped, 1}) and by_seed[shipped] != by_seed[1]
-    all_seeds = pd.read_csv(quick_suite / "table1_ngsim_test_seeds.csv")
+    all_seeds = pd.read_csv(quick_suite / "table1_default_test_seeds.csv")
     assert set(all_seeds["model"]) == {"TD3", "CA-TD3"}  # only models with several seeds
     seeds = all_seeds[all_seeds["model"] == "TD3"].reset_index(drop=True)
     assert list(seeds["policy"]) == ["td3_1", "td3_1_seed1"]
@@ -168,7 +168,7 @@ def test_quick_suite_spread_across_seeds(quick_suite):
         assert all(abs(agg[m] - row[m]) < 1e-4 for m in ("jerk_mps3", "speed_mps",
                                                           "dampening_ratio", "headway_s"))
     assert abs(seeds.loc[0, "jerk_mps3"] - t1.loc["td3_1", "jerk_mps3"]) < 1e-9
-    md = (quick_suite / "table1_ngsim_test.md").read_text()
+    md = (quick_suite / "table1_default_test.md").read_text()
     assert "Spread across seeds" in md and "n=2" in md and "n=1" in md
     t2 = pd.read_csv(quick_suite / "table2_generalization.csv")
     td3_t2 = t2[t2["policy"] == "td3_1"].set_index("followers")["seeds"]
@@ -260,9 +260,9 @@ def test_seed_files_run_with_seeds_or_all_seeds_only(tmp_path):
                     for spec in suite.tables for n in spec.followers if model.runs_on(n)}
             every = len(model.files) if mode == "all" else 1
             compared = key == "ca_td3_10" and mode == "seeds"  # Table 1 compares it across seeds
-            assert runs[("table1_ngsim_test", 10)] == runs[("table2_generalization", 10)] == (
+            assert runs[("table1_default_test", 10)] == runs[("table2_generalization", 10)] == (
                 len(model.files) if compared else every)
-            assert runs[("table3_stop_and_go", 10)] == runs[("cross_site_us101", 10)] == every
+            assert runs[("table3_stop_and_go", 10)] == runs[("cross_site_default_train", 10)] == every
             if key == "ca_td3_10":
                 assert runs[("table2_generalization", 20)] == every
     with pytest.raises(InputError, match="exclude each other"):
@@ -354,7 +354,7 @@ def test_quick_suite_through_ray_writes_the_same_tables(quick_suite, tmp_path):
                  "--policies", str(policies), "--net", str(NET), "--workers", "2",
                  "--ray", "local"]) == 0
     compared = sorted(p.name for p in quick_suite.glob("*.csv") if p.name != "timing.csv")
-    assert "per_event.csv" in compared and "table1_ngsim_test.csv" in compared
+    assert "per_event.csv" in compared and "table1_default_test.csv" in compared
     for name in compared:
         assert (out / name).read_bytes() == (quick_suite / name).read_bytes(), name
     assert {p.name for p in out.iterdir()} == {p.name for p in quick_suite.iterdir()}
