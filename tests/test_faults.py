@@ -913,3 +913,25 @@ def test_policy_info_table_of_a_policy_without_metadata_prints_no_warning(tmp_pa
                            str(tmp_path / "bare.pt")], cwd=REPO_ROOT, capture_output=True,
                           text=True, timeout=120)
     assert proc.returncode == 0 and proc.stderr == "" and "`bare.pt`" in proc.stdout
+
+
+def test_sumo_guis_own_line_does_not_come_before_the_error(tmp_path):
+    """Found by the fault round 2: sumo-gui's "FXApp::openDisplay: unable to open display" line
+    came before carl-sumo's one line; it is now quoted in that line."""
+    import shutil as _shutil
+
+    if _shutil.which("sumo-gui") is None and not (Path(sys.executable).parent / "sumo-gui").exists():
+        pytest.skip("no sumo-gui")
+    from carl_sumo.data import load_events
+
+    event = load_events("default", "test")[0].event_id
+    env = {**os.environ, "DISPLAY": ":97", "PATH": f"{Path(sys.executable).parent}:"
+           + os.environ.get("PATH", "")}
+    env.pop("WAYLAND_DISPLAY", None)
+    proc = subprocess.run([sys.executable, "-m", "carl_sumo", "replay", "--gui", "--event", event,
+                           "--vehicles", "2", "--fcd", str(tmp_path / "f.xml")], cwd=REPO_ROOT,
+                          env=env, capture_output=True, text=True, timeout=120)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(lines) == 1, proc.stderr
+    assert lines[0].startswith("carl-sumo: error: sumo-gui could not open on display ':97'")
+    assert not list(tmp_path.iterdir())

@@ -20,6 +20,7 @@ lane route (:class:`LaneRoute`).
 from __future__ import annotations
 
 import bisect
+import contextlib
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -211,10 +212,35 @@ def sumo_args(net_path: Path, fcd_path: Path | None = None, seed: int = 0) -> li
     return args
 
 
+@contextlib.contextmanager
+def _child_stderr():
+    """While the block runs, this process's stderr (file descriptor 2, which a started program
+    inherits) is a temporary file; yields that file."""
+    import sys
+    import tempfile
+
+    log = tempfile.TemporaryFile()
+    sys.stderr.flush()
+    saved = os.dup(2)
+    os.dup2(log.fileno(), 2)
+    try:
+        yield log
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def _read_log(log) -> str:
+    """What a started program wrote to ``log`` so far, on one line."""
+    log.seek(0)
+    return " ".join(log.read().decode(errors="replace").split())[:300]
+
+
 def start_sumo(args: list[str]) -> None:
     """Start this process's libsumo simulation, or reload it with new options."""
     global _sumo_running
     libsumo = _libsumo()
+    gui_said = ""  # what sumo-gui itself wrote when it could not start
     try:
         if _sumo_running:
             libsumo.load(args)
@@ -225,10 +251,17 @@ def start_sumo(args: list[str]) -> None:
             import sumolib
 
             # a fixed port: if sumo-gui exits at once (no usable display) TraCI gives up at once
-            # instead of restarting it; TraCI's "Retrying" lines are not shown
-            with contextlib.redirect_stdout(io.StringIO()):
-                libsumo.start([sumolib.checkBinary("sumo-gui")] + _gui_view.start_args() + args,
-                              port=sumolib.miscutils.getFreeSocketPort(), numRetries=30)
+            # instead of restarting it; TraCI's "Retrying" lines are not shown, and sumo-gui's
+            # own messages (e.g. "FXApp::openDisplay: unable to open display") go to a file that
+            # the error below quotes, not to the terminal before carl-sumo's one line
+            with contextlib.redirect_stdout(io.StringIO()), _child_stderr() as gui_log:
+                try:
+                    libsumo.start([sumolib.checkBinary("sumo-gui")] + _gui_view.start_args()
+                                  + args, port=sumolib.miscutils.getFreeSocketPort(),
+                                  numRetries=30)
+                except Exception:
+                    gui_said = _read_log(gui_log)
+                    raise
             _sumo_running = True
         else:
             libsumo.start(["sumo"] + args)
@@ -238,7 +271,8 @@ def start_sumo(args: list[str]) -> None:
         what = (f"sumo-gui could not open on display {os.environ.get('DISPLAY', '')!r} (check "
                 "that the display works, or run without --gui)" if _gui
                 else "SUMO could not load the simulation")
-        raise InputError(f"{what}: {' '.join(str(exc).split())}") from exc
+        raise InputError(f"{what}: {' '.join(str(exc).split())}"
+                         + (f" (sumo-gui: {gui_said})" if gui_said else "")) from exc
 
 
 _OWNER: object | None = None
