@@ -62,10 +62,12 @@ def add_config_options(p: argparse.ArgumentParser,
 
 
 def config_from_args(args: argparse.Namespace, command: str = "",
-                     converters: dict[str, Callable[[str], Any]] | None = None) -> TrainConfig:
-    """The checked :class:`TrainConfig` of parsed options: the defaults, then the recipe of
-    ``args.config`` (when given), then every option given on the command line. InputError,
-    one line, for a bad recipe or value."""
+                     converters: dict[str, Callable[[str], Any]] | None = None,
+                     check: bool = True) -> TrainConfig:
+    """The :class:`TrainConfig` of parsed options: the defaults, then the recipe of
+    ``args.config`` (when given), then every option given on the command line; checked
+    (:meth:`TrainConfig.check`) unless ``check`` is False. InputError, one line, for a bad
+    recipe or value."""
     values: dict[str, Any] = {}
     if getattr(args, "config", None) is not None:
         values.update(read_recipe(args.config))
@@ -77,6 +79,7 @@ def config_from_args(args: argparse.Namespace, command: str = "",
         if isinstance(values.get(name), str):
             values[name] = convert(values[name])
     try:
-        return TrainConfig(**values, command=command).check()
+        cfg = TrainConfig(**values, command=command)
+        return cfg.check() if check else cfg
     except TypeError as exc:  # pragma: no cover - a field the generator missed
         raise InputError(f"bad training options: {exc}") from None

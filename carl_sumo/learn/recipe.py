@@ -22,6 +22,7 @@ the recipe); every policy file stores its resolved configuration, and ``carl-sum
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import tomllib
@@ -46,9 +47,14 @@ def option_fields() -> dict[str, Any]:
     return {key_of(f): f for f in fields(TrainConfig) if f.metadata.get("cli", True)}
 
 
+@functools.cache
+def _hints() -> dict[str, Any]:
+    return get_type_hints(TrainConfig)
+
+
 def base_type(f) -> type:
     """The value type of a field (``float`` for ``float | None``)."""
-    hint = get_type_hints(TrainConfig)[f.name]
+    hint = _hints()[f.name]
     args = [a for a in getattr(hint, "__args__", ()) if a is not type(None)]
     return args[0] if args else hint
 

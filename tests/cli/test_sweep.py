@@ -201,10 +201,16 @@ def test_shipped_specs_run_the_recipes_of_the_shipped_seed_files(spec):
     import shlex
     from dataclasses import asdict
 
-    from carl_sumo.cli.policies import check_train_args
-    from carl_sumo.cli.policies import train_parser
+    from carl_sumo.cli.config_options import config_from_args
+    from carl_sumo.cli.policies import TRAIN_CONVERTERS, train_parser
     from carl_sumo.cli.sweep_trials import load_spec, plan_trials
     from carl_sumo.learn.policy import read_policy_payload
+
+    parser = train_parser()
+
+    def resolved(argv):  # the configuration only (every check of a trial: check_trials' test)
+        return config_from_args(parser.parse_args(argv), converters=TRAIN_CONVERTERS,
+                                check=False)
 
     loaded = load_spec(spec)
     assert loaded.ship == Path("policies") / f"{loaded.name}.pt" and loaded.ship.exists()
@@ -213,8 +219,8 @@ def test_shipped_specs_run_the_recipes_of_the_shipped_seed_files(spec):
     assert trials
     for trial in trials:
         meta = read_policy_payload(SHIPPED_SEEDS / f"{trial.name}.pt")["metadata"]
-        recorded = check_train_args(train_parser().parse_args(shlex.split(meta["command"])[1:]))[0]
-        planned = check_train_args(train_parser().parse_args(["train", *trial.argv]))[0]
+        recorded = resolved(shlex.split(meta["command"])[1:])
+        planned = resolved(["train", *trial.argv])
         configs = [{k: v for k, v in asdict(c).items() if k not in ("out", "command")}
                    for c in (recorded, planned)]
         assert configs[0] == configs[1], trial.name
