@@ -175,9 +175,23 @@ def h_min(kp: float, kd: float, tau: float, phi: float = 0.0, theta: float = 0.0
     def stable(h: float) -> bool:
         return hinf(w, gamma_continuous(w, h, kp, kd, tau, phi, theta, cacc)) <= 1.0 + 1e-9
 
-    if not stable(h_high):
-        return float("inf")
-    lo, hi = 0.0, h_high
+    return smallest_stable_gap(stable, 0.0, h_high, tol) if stable(h_high) else float("inf")
+
+
+def widen_bracket(stable, lo: float, hi: float, step: float, floor: float) -> tuple[float, float]:
+    """A bracket (lo, hi) of the smallest string-stable gap around a guessed one: ``hi`` raised
+    by ``step`` until ``stable(hi)``, ``lo`` lowered by ``step`` (not below ``floor``) while
+    ``stable(lo)``."""
+    while not stable(hi):
+        lo, hi = hi, hi + step
+    while lo > floor and stable(lo):
+        hi, lo = lo, max(floor, lo - step)
+    return lo, hi
+
+
+def smallest_stable_gap(stable, lo: float, hi: float, tol: float) -> float:
+    """Bisection for the smallest time gap (s) in (lo, hi] with ``stable(h)`` true, given that it
+    holds at ``hi`` and not at ``lo``, to within ``tol``; every h_min of carl-sumo uses it."""
     while hi - lo > tol:
         mid = 0.5 * (lo + hi)
         lo, hi = (lo, mid) if stable(mid) else (mid, hi)
@@ -197,13 +211,7 @@ def h_min_links(kp: float, kd: float, tau: float, delay_steps: int = 0,
         links = gamma_links_discrete(w, n, h, kp, kd, tau, 0, delay_steps, weights)
         return float(np.abs(links[1:]).max()) <= 1.0 + 1e-9
 
-    if not stable(h_high):
-        return float("inf")
-    lo, hi = 0.0, h_high
-    while hi - lo > tol:
-        mid = 0.5 * (lo + hi)
-        lo, hi = (lo, mid) if stable(mid) else (mid, hi)
-    return hi
+    return smallest_stable_gap(stable, 0.0, h_high, tol) if stable(h_high) else float("inf")
 
 
 ROBUST_OMEGAS = np.geomspace(0.01, 10.0, 400)

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from carl_sumo.control.channel import Impairments
-from carl_sumo.control.transfer import gamma_links_discrete
+from carl_sumo.control.transfer import gamma_links_discrete, smallest_stable_gap, widen_bracket
 from carl_sumo.experiments.string_stability import H_MIN_OMEGAS, SineTest, measure
 from carl_sumo.resources import DEFAULT_NET
 from carl_sumo.sim.vehicle import Plant
@@ -77,13 +77,8 @@ def h_range_analytic(r: int, kp: float, kd: float, tau: float, delay_s: float,
     k = ok.index(True)
 
     def refine(lo: float, hi: float, stable_high: bool) -> float:
-        while hi - lo > 1e-3:
-            mid = 0.5 * (lo + hi)
-            if _stable(mid, r, kp, kd, tau, d, omegas) == stable_high:
-                hi = mid
-            else:
-                lo = mid
-        return hi
+        return smallest_stable_gap(
+            lambda h: _stable(h, r, kp, kd, tau, d, omegas) == stable_high, lo, hi, 1e-3)
 
     h_min = grid[0] if k == 0 else refine(grid[k - 1], grid[k], True)
     if all(ok[k:]):
@@ -103,15 +98,8 @@ def h_min_measured(r: int, kp: float, kd: float, tau: float, delay_s: float, gue
         per_link = measure(name, H_MIN_OMEGAS, followers(r), SineTest(), imp, net)["per_link"]
         return float(np.max(per_link[max(r, 1):])) <= 1.0
 
-    lo, hi = max(H_LOW_S, guess - 0.05), guess + 0.05
-    while not stable(hi):
-        lo, hi = hi, hi + 0.1
-    while lo > H_LOW_S and stable(lo):
-        hi, lo = lo, max(H_LOW_S, lo - 0.1)
-    while hi - lo > tol:
-        mid = 0.5 * (lo + hi)
-        lo, hi = (lo, mid) if stable(mid) else (mid, hi)
-    return hi
+    lo, hi = widen_bracket(stable, max(H_LOW_S, guess - 0.05), guess + 0.05, 0.1, H_LOW_S)
+    return smallest_stable_gap(stable, lo, hi, tol)
 
 
 def cell(r: int, kp: float, kd: float, tau: float, delay_s: float, net: str) -> dict:

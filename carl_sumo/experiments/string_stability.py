@@ -33,6 +33,7 @@ from carl_sumo.config import DT_S
 from carl_sumo.control.cacc import TEXTBOOK, check_heard, is_ploeg_name, parse_ploeg
 from carl_sumo.control.channel import Impairments, plant_impairments
 from carl_sumo.control.transfer import gamma_continuous, gamma_discrete, links_theory, \
+    smallest_stable_gap, widen_bracket, \
     log_frequencies
 from carl_sumo.data.events import Event
 from carl_sumo.errors import InputError
@@ -305,18 +306,11 @@ def h_min_measured(law: str, kp: float, kd: float, tau: float, delay_s: float, g
     """The smallest time gap (s) whose measured ‖Γ‖∞ (over :data:`H_MIN_OMEGAS`, the links behind
     a follower among ``n``: the V2V links of a CACC, as in the classical theory) is ≤ 1: bisection
     in [guess - 0.5, guess + 0.5], widened when needed."""
-    lo, hi = max(0.05, guess - 0.5), guess + 0.5
-    while _hinf_measured(law, hi, kp, kd, tau, delay_s, n, net) > 1.0:
-        lo, hi = hi, hi + 1.0
-    while lo > 0.05 and _hinf_measured(law, lo, kp, kd, tau, delay_s, n, net) <= 1.0:
-        hi, lo = lo, max(0.05, lo - 1.0)
-    while hi - lo > tol:
-        mid = 0.5 * (lo + hi)
-        if _hinf_measured(law, mid, kp, kd, tau, delay_s, n, net) <= 1.0:
-            hi = mid
-        else:
-            lo = mid
-    return hi
+    def stable(h: float) -> bool:
+        return _hinf_measured(law, h, kp, kd, tau, delay_s, n, net) <= 1.0
+
+    lo, hi = widen_bracket(stable, max(0.05, guess - 0.5), guess + 0.5, 1.0, 0.05)
+    return smallest_stable_gap(stable, lo, hi, tol)
 
 
 def _h_min_cell(law: str, kp: float, kd: float, tau: float, delay_s: float, net: str) -> dict:

@@ -148,9 +148,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                 report.updated(step, _update(cfg, agent, buffer, rng, step, lagrange,
                                              calibration.actor_from))
             done_steps = step + 1
-            with clock("validation"):
-                first_actor = _after_update(cfg, agent, buffer, calibration, probe, first_actor,
-                                            done_steps, log)
+            first_actor = _after_update(cfg, agent, buffer, calibration, probe, first_actor,
+                                        done_steps, log, clock)
             if done_steps % cfg.eval_every == 0 or done_steps == cfg.steps:
                 with clock("validation"):
                     val, best = _validate_step(cfg, agent, buffer, val_env, val_events, baseline,
@@ -229,7 +228,7 @@ def _after_step(buffer: ReplayBuffer, channels, agent: Agent, history, noise, re
 
 
 def _after_update(cfg: TrainConfig, agent: Agent, buffer: ReplayBuffer, calibration, probe,
-                  first_actor: int | None, done_steps: int, log) -> int | None:
+                  first_actor: int | None, done_steps: int, log, clock) -> int | None:
     """Note RL's first actor update, and check the critic's calibration when it is due; the
     step of the first actor update (None before it)."""
     if first_actor is None and agent.actor_updates > 0:
@@ -237,7 +236,8 @@ def _after_update(cfg: TrainConfig, agent: Agent, buffer: ReplayBuffer, calibrat
         log(f"RL's first actor update: step {done_steps}")
     if probe is not None and calibration.active and done_steps < calibration.actor_from \
             and (done_steps - cfg.learning_starts) % cfg.calibration_every == 0:
-        _calibration_check(calibration, probe, agent, buffer, done_steps, log)
+        with clock("validation"):  # only the check's own time counts as validation
+            _calibration_check(calibration, probe, agent, buffer, done_steps, log)
     return first_actor
 
 def _begin_rl(cfg: TrainConfig, agent: Agent, teacher, buffer: ReplayBuffer, rng, val_env,

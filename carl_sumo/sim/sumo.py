@@ -228,6 +228,7 @@ def _child_stderr():
     finally:
         os.dup2(saved, 2)
         os.close(saved)
+        log.close()  # the started program keeps its own descriptor
 
 
 def _read_log(log) -> str:
