@@ -144,6 +144,40 @@ class AheadAcceleration:
         return np.concatenate([[a_lead], obs[:-1, 1]])
 
 
+class CommandHistory:
+    """The vehicles' own last k commands (m/s², columns (n, k), the latest first; 0 before the
+    first step): what the base law with its learned term sent to the powertrain, which a lagged
+    plant with dead time has not realised yet (Lin et al. 2019: a car-follower under actuator lag
+    and delay needs its recent commands in its state; ``train --command-history K``). With
+    ``ids`` the rows belong to vehicle IDs (mixed traffic, where the CACC vehicles of a step
+    change); :meth:`reset` at every episode start, :meth:`push` once per step."""
+
+    def __init__(self, k: int):
+        self.k = k
+        self._rows = np.zeros((0, k))
+        self._by_id: dict[str, np.ndarray] = {}
+
+    def reset(self, n: int = 0) -> None:
+        self._rows = np.zeros((n, self.k))
+        self._by_id = {}
+
+    def columns(self, ids: list[str] | None = None) -> np.ndarray:
+        """The history (n, k) of the platoon, or of the vehicles ``ids`` in that order."""
+        if ids is None:
+            return self._rows
+        return np.array([self._by_id.get(v, np.zeros(self.k)) for v in ids]).reshape(-1, self.k)
+
+    def push(self, command: np.ndarray, ids: list[str] | None = None) -> None:
+        """Record this step's commands (n,) (of the vehicles ``ids``)."""
+        if ids is None:
+            self._rows[:, 1:] = self._rows[:, :-1]
+            self._rows[:, 0] = command
+            return
+        for v, u in zip(ids, np.asarray(command, float).tolist()):
+            row = self._by_id.get(v, np.zeros(self.k))
+            self._by_id[v] = np.concatenate([[u], row[:-1]])
+
+
 class Controller(Protocol):
     """Computes the acceleration adjustment a_adj of every follower of a platoon."""
 

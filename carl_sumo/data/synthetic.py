@@ -8,6 +8,8 @@ the IDM equilibrium gap s0 + v·T = 39.5 m at that speed).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from carl_sumo.config import DT_S
@@ -41,6 +43,49 @@ def _event(event_id: str, source: str, accel: list[float], cruise_mps: float, lo
     pos = np.concatenate([[0.0], np.cumsum(speed[1:]) * DT_S])
     return Event(event_id, source, "synthetic", pos, speed, 5.0,
                  np.full_like(speed, cruise_mps), np.full_like(speed, gap_m))
+
+
+SINE_SOURCE = "carl_sumo_sine"
+"""The ``source`` of a sinusoidal leader (:func:`sine_event`)."""
+
+
+def sine_event(event_id: str, omega: float, amplitude_mps: float, base_speed_mps: float,
+               lead_in_steps: int, total_steps: int, gap_m: float) -> Event:
+    """A leader at ``base_speed_mps`` for ``lead_in_steps`` steps, then v = v0 + A·sin(ω·t) (ω in
+    rad/s, A in m/s) up to step ``total_steps``: the excitation of the string-stability test
+    (:class:`carl_sumo.experiments.string_stability.SineTest`); the followers start at v0 and
+    ``gap_m`` (positions by SUMO's update rule)."""
+    t = np.arange(total_steps + 1) * DT_S
+    started = np.maximum(t - lead_in_steps * DT_S, 0.0)
+    speed = base_speed_mps + amplitude_mps * np.sin(omega * started)
+    pos = np.concatenate([[0.0], np.cumsum(speed[1:]) * DT_S])
+    return Event(event_id, SINE_SOURCE, "synthetic", pos, speed, 5.0,
+                 np.full_like(speed, base_speed_mps), np.full_like(speed, gap_m))
+
+
+SINE_TRAINING_OMEGAS = (0.1, 3.0)
+"""The frequency range of :func:`sine_events` (rad/s): that of the string-stability gate, whose
+lowest frequency (0.05 rad/s) would need a 250 s leader for its two periods."""
+
+
+def sine_events(n: int, seed: int = 0) -> list[Event]:
+    """``n`` sinusoidal leaders for training, so that an agent meets the excitation it is judged
+    by for string stability: ω log-spaced over :data:`SINE_TRAINING_OMEGAS` (rad/s, shuffled with
+    ``seed``), base speed 10-25 m/s, speed amplitude 0.5-2 m/s (the gate's 0.5 and 2 m/s) capped
+    at an acceleration amplitude of 2 m/s², 20 s of cruise, then three periods of sine and at
+    least 60 s; the followers start at a gap of 1.5 s."""
+    rng = np.random.default_rng(seed)
+    low, high = SINE_TRAINING_OMEGAS
+    omegas = np.geomspace(low, high, n) if n > 1 else np.array([math.sqrt(low * high)])
+    events = []
+    for k, omega in enumerate(rng.permutation(omegas)):
+        speed = rng.uniform(10.0, 25.0)
+        amplitude = min(rng.uniform(0.5, 2.0), 2.0 / omega)
+        lead_in = int(round(20.0 / DT_S))
+        sine = int(round(max(60.0, 3 * 2 * math.pi / omega) / DT_S))
+        events.append(sine_event(f"sine_{seed}_{k:03d}", float(omega), amplitude, speed, lead_in,
+                                 lead_in + sine, 1.5 * speed))
+    return events
 
 
 BRAKING_SOURCE = "carl_sumo_braking"

@@ -10,7 +10,7 @@ import numpy as np
 from carl_sumo.config import BOUNDS
 from carl_sumo.control.cacc import PloegChains, is_ploeg_name, parse_ploeg
 from carl_sumo.control.channel import Impairments, KeyedChannel
-from carl_sumo.control.controllers import (adjustment_bounds, applied_acceleration,
+from carl_sumo.control.controllers import (CommandHistory, adjustment_bounds, applied_acceleration,
                                            shield_adjustment, total_acceleration)
 from carl_sumo.control.external import is_external_name, load_external
 from carl_sumo.errors import InputError
@@ -64,6 +64,7 @@ class ChainController:
         self.compiled = None
         self.base: PloegChains | None = None
         self.links: tuple[KeyedChannel, KeyedChannel] | None = None
+        self.history: CommandHistory | None = None  # the vehicles' last commands, by ID
         self._k = 0
         if name != "idm-external":
             from carl_sumo.learn.policy import load_policy
@@ -80,12 +81,16 @@ class ChainController:
             self.compiled = CompiledActor(agent)
             if agent.cfg.residual:
                 self.base = PloegChains(parse_ploeg(agent.cfg.base), agent.cfg.base)
+                if agent.cfg.command_history:
+                    self.history = CommandHistory(agent.cfg.command_history)
 
     def reset(self) -> None:
         """Forget the links and the base's states: a new run starts."""
         self.links, self._k = None, 0
         if self.base is not None:
             self.base.reset()
+        if self.history is not None:
+            self.history.reset()
 
     def arm(self, vehicle_ids: set[str]) -> None:
         """Arm a classical base's reaction layer of these vehicles (PloegChains.arm)."""
@@ -124,9 +129,15 @@ class ChainController:
                 adj = self.adjustment(obs, chains, ids)
             bounds = adjustment_bounds(self.agent.cfg.adj_max) if self.agent else BOUNDS
             return total_acceleration(obs, adj, bounds=bounds)
-        preview = self.base.acceleration(obs, chains, ids, ahead, last_acc, commit=False)
-        adj = self.adjustment(np.column_stack([obs, preview]), chains, ids)
-        return self.base.acceleration(obs, chains, ids, ahead, last_acc, adj)
+        seen = np.column_stack([obs, self.base.acceleration(obs, chains, ids, ahead, last_acc,
+                                                            commit=False)])
+        if self.history is None:
+            return self.base.acceleration(obs, chains, ids, ahead, last_acc,
+                                          self.adjustment(seen, chains, ids))
+        adj = self.adjustment(np.column_stack([seen, self.history.columns(ids)]), chains, ids)
+        accel = self.base.acceleration(obs, chains, ids, ahead, last_acc, adj)
+        self.history.push(accel, ids)
+        return accel
 
     def adjustment(self, obs: np.ndarray, chains: list[list[int]],
                    ids: list[str] | None = None) -> np.ndarray:

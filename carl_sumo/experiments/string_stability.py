@@ -36,12 +36,10 @@ from carl_sumo.control.transfer import gamma_continuous, gamma_discrete, links_t
     smallest_stable_gap, widen_bracket, \
     log_frequencies
 from carl_sumo.data.events import Event
+from carl_sumo.data.synthetic import sine_event
 from carl_sumo.errors import InputError
 from carl_sumo.sim.sumo import DEFAULT_NET, lane_route, check_fits
 from carl_sumo.sim.vehicle import Plant
-
-SINE_SOURCE = "carl_sumo_sine"
-
 
 MAX_SINE_RUN_S = 100_000.0
 """The longest run of one frequency (s): a lower frequency is refused before its leader's
@@ -93,12 +91,8 @@ class SineTest:
         """The leader of one frequency; the followers start at the base speed and ``gap_m``."""
         k_settle = int(round(self.settle_s / DT_S))
         k_total = k_settle + int(round(self.discard_s / DT_S)) + self.fit_steps(omega)
-        t = np.arange(k_total + 1) * DT_S
-        started = np.maximum(t - k_settle * DT_S, 0.0)
-        speed = self.base_speed_mps + self.amplitude_mps * np.sin(omega * started)
-        pos = np.concatenate([[0.0], np.cumsum(speed[1:]) * DT_S])  # SUMO's update rule
-        return Event(f"sine_w{omega:.4f}", SINE_SOURCE, "synthetic", pos, speed, 5.0,
-                     np.full_like(speed, self.base_speed_mps), np.full_like(speed, gap_m))
+        return sine_event(f"sine_w{omega:.4f}", omega, self.amplitude_mps, self.base_speed_mps,
+                          k_settle, k_total, gap_m)
 
 
 def _fit_amplitude(t: np.ndarray, x: np.ndarray, omega: float) -> np.ndarray:

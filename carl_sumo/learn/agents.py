@@ -76,6 +76,8 @@ class AgentConfig:
     adj_l2: float = 0.0           # actor loss weight on the adjustment itself, per (m/s²)²
     base: str = "idm"             # base model under a_adj: idm, or a classical CACC name
     observe_ahead: bool = False   # o has a fifth column a_ahead (IDM base; controllers.AheadAcceleration)
+    command_history: int = 0      # o ends with the vehicle's last k commands (classical base;
+                                  # controllers.CommandHistory)
     shield_ttc_s: float = 0.0     # no a_adj > 0 while closing in below this TTC (s; 0: off)
     comm_fallback: str = "boundary"  # hearing no neighbour: "boundary" (act as a chain end) or
                                      # also "base" (a_adj fades out with the messages; channel.py)
@@ -88,6 +90,9 @@ class AgentConfig:
         if self.observe_ahead and self.base != "idm":
             raise InputError("--observe-ahead is for the IDM base; a classical base's command "
                              "a_base already carries its predecessor's acceleration")
+        if self.command_history and self.base == "idm":
+            raise InputError("--command-history is for a classical base (--base), whose law "
+                             "sends the command the vehicle remembers")
         if self.comm_fallback not in COMM_FALLBACKS:
             raise InputError(f"unknown --comm-fallback {self.comm_fallback!r}; choose one of "
                              f"{', '.join(COMM_FALLBACKS)}")
@@ -124,8 +129,9 @@ class AgentConfig:
         """4: o = [v, a, d, Δv]; 5 on a classical base, whose command a_base (m/s²) the vehicle
         knows (it computes it) and sees as a fifth column: the adjustment has to know what it
         adjusts, since a_base has a state and is not a function of o. 5 as well with
-        ``observe_ahead``: the acceleration a_ahead of the vehicle ahead (m/s²)."""
-        return 5 if self.residual or self.observe_ahead else 4
+        ``observe_ahead``: the acceleration a_ahead of the vehicle ahead (m/s²). Then, with
+        ``command_history`` k, the vehicle's own last k commands (m/s², the latest first)."""
+        return (5 if self.residual or self.observe_ahead else 4) + self.command_history
 
     @property
     def communication_aware(self) -> bool:

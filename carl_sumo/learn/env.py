@@ -40,7 +40,7 @@ class PlatoonEnv(ParallelEnv):
                  idm: IDMParams = IDM, bounds: ControlBounds = BOUNDS,
                  scenario: ScenarioConfig = SCENARIO, base: str = "idm",
                  observe_ahead: bool = False, shield_ttc_s: float = 0.0,
-                 plant: Plant | None = None):
+                 plant: Plant | None = None, command_history: int = 0):
         if not events:
             raise InputError("the environment needs at least one event")
         self.events = list(events)
@@ -56,6 +56,10 @@ class PlatoonEnv(ParallelEnv):
             raise InputError("observe_ahead is for the IDM base (a classical base's a_base "
                              "already carries the predecessor's acceleration)")
         self._ahead = controllers.AheadAcceleration() if observe_ahead else None
+        if command_history and self._base is None:
+            raise InputError("command_history is for a classical base, whose law sends the "
+                             "command the vehicle remembers")
+        self._history = controllers.CommandHistory(command_history) if command_history else None
         self.shield_ttc_s = shield_ttc_s  # the policy's safety shield (controllers.shield_adjustment)
         # kernels and their parameters, bound once: step_array runs every 0.1 s simulated
         self._control = controllers._total_acceleration
@@ -67,8 +71,9 @@ class PlatoonEnv(ParallelEnv):
         self.agents: list[str] = []
         high = np.float32(bounds.adj_max_mps2)
         self._action_space = spaces.Box(-high, high, shape=(1,), dtype=np.float32)
-        # a classical base adds its command a_base, observe_ahead the acceleration ahead
-        obs_dim = 4 if self._base is None and self._ahead is None else 5
+        # a classical base adds its command a_base, observe_ahead the acceleration ahead, a
+        # command history the last k commands
+        obs_dim = (4 if self._base is None and self._ahead is None else 5) + command_history
         self._observation_space = spaces.Box(-np.inf, np.inf, shape=(obs_dim,), dtype=np.float32)
         self._rng = np.random.default_rng()
         self._sensors: Sensors | None = None
@@ -108,6 +113,8 @@ class PlatoonEnv(ParallelEnv):
                 self._base.connect(impairments, self.event.event_id)
         if self._ahead is not None:
             self._ahead.reset()
+        if self._history is not None:
+            self._history.reset(self.n_followers)
         self._obs = self._observe()
         self._first_step = True
         return self._obs
@@ -115,7 +122,8 @@ class PlatoonEnv(ParallelEnv):
     def _observe(self) -> np.ndarray:
         """o = [v, a, d, Δv] per follower; on a classical base also a_base (m/s²), what the
         base alone would apply at the coming step (a preview: its state moves in the step); with
-        observe_ahead also a_ahead (m/s², :class:`carl_sumo.control.controllers.AheadAcceleration`)."""
+        observe_ahead also a_ahead (m/s², :class:`carl_sumo.control.controllers.AheadAcceleration`);
+        with a command history the last k commands (m/s², the latest first)."""
         obs = self._true = self.sim.observation()
         if self._sensors is not None:
             obs = self._sensors.measure(obs)
@@ -123,7 +131,8 @@ class PlatoonEnv(ParallelEnv):
             return np.column_stack([obs, self._ahead(obs)])
         if self._base is None:
             return obs
-        return np.column_stack([obs, self._base.acceleration(obs, commit=False)])
+        obs = np.column_stack([obs, self._base.acceleration(obs, commit=False)])
+        return obs if self._history is None else np.column_stack([obs, self._history.columns()])
 
     @property
     def true_observation(self) -> np.ndarray:
@@ -141,7 +150,9 @@ class PlatoonEnv(ParallelEnv):
             accel = self._control(self._obs, adjustment, *self._control_params)
         else:
             adj = np.clip(adjustment, -self.bounds.adj_max_mps2, self.bounds.adj_max_mps2)
-            accel = self._base.acceleration(self._obs, adj)
+            accel = self._base.acceleration(self._obs[:, :4], adj)
+            if self._history is not None:
+                self._history.push(accel)
         # the first step has no previous acceleration: its jerk is taken as 0, not (a - 0)/dt
         prev_acc = accel if self._first_step else self.sim.acc
         self._first_step = False

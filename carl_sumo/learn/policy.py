@@ -18,8 +18,8 @@ import torch
 
 from carl_sumo.learn.agents import AgentConfig, Agent
 from carl_sumo.control.channel import Impairments, PlatoonLinks
-from carl_sumo.control.controllers import AheadAcceleration, adjustment_bounds, base_controller, \
-    shield_adjustment
+from carl_sumo.control.controllers import AheadAcceleration, CommandHistory, adjustment_bounds, \
+    base_controller, shield_adjustment
 from carl_sumo.errors import InputError
 from carl_sumo.learn.inference import CompiledActor
 from carl_sumo.files import atomic_write
@@ -222,10 +222,14 @@ class ResidualPolicyController(PolicyController):
     def __init__(self, agent: Agent, name: str):
         super().__init__(agent, name)
         self.base = base_controller(agent.cfg.base)
+        k = agent.cfg.command_history
+        self._history = CommandHistory(k) if k else None
 
     def reset(self, n_followers: int) -> None:
         super().reset(n_followers)
         self.base.reset(n_followers)
+        if self._history is not None:
+            self._history.reset(n_followers)
 
     def know_vehicles(self, a_max_mps2: np.ndarray, b_max_mps2: np.ndarray) -> None:
         """The base knows each vehicle's limits (:meth:`carl_sumo.control.cacc.PloegController.know_vehicles`)."""
@@ -238,10 +242,15 @@ class ResidualPolicyController(PolicyController):
 
     def acceleration(self, obs: np.ndarray) -> np.ndarray:
         """a (m/s², shape (n,)) for one platoon observation (n, 4), head first; the actor sees
-        a_base as a fifth column."""
+        a_base as a fifth column (and its last commands after it, with a command history)."""
         obs = obs[:, :4]
-        preview = self.base.acceleration(obs, commit=False)
-        return self.base.acceleration(obs, self.adjustment(np.column_stack([obs, preview])))
+        seen = np.column_stack([obs, self.base.acceleration(obs, commit=False)])
+        if self._history is None:
+            return self.base.acceleration(obs, self.adjustment(seen))
+        accel = self.base.acceleration(obs, self.adjustment(
+            np.column_stack([seen, self._history.columns()])))
+        self._history.push(accel)
+        return accel
 
 
 def load_controller(path: Path) -> PolicyController:

@@ -386,7 +386,8 @@ def _start_rollouts(cfg: TrainConfig, train_events: Sequence[Event], rollouts: s
     seed = cfg.seed if replay or start_step == 0 else cfg.seed + start_step
     vec_class = RayVecPlatoon if rollouts == "ray" else VecPlatoon
     vec = vec_class(train_events, cfg.n_vehicles, cfg.net, cfg.num_envs, seed, cfg.reward,
-                    cfg.base, cfg.observe_ahead, adjustment_bounds(cfg.adj_max), cfg.shield_ttc)
+                    cfg.base, cfg.observe_ahead, adjustment_bounds(cfg.adj_max), cfg.shield_ttc,
+                    cfg.command_history)
     try:
         obs = vec.reset(seed, channels.current if channels is not None else None)
         for action in actions.numpy() if replay else ():
@@ -453,7 +454,7 @@ def _validation_env(cfg: TrainConfig, train_events: Sequence[Event], val_events:
     when a training event does not fit the network."""
     val_env = PlatoonEnv(val_events, cfg.n_vehicles, cfg.net, reward=cfg.reward, base=cfg.base,
                          bounds=adjustment_bounds(cfg.adj_max), observe_ahead=cfg.observe_ahead,
-                         shield_ttc_s=cfg.shield_ttc)
+                         shield_ttc_s=cfg.shield_ttc, command_history=cfg.command_history)
     for event in train_events:
         check_fits(val_env.sim.route, event, cfg.n_vehicles)
     return val_env

@@ -116,6 +116,9 @@ class TrainConfig:
     braking_events: int = option(0, "synthetic hard-braking leaders (15-30 m/s, -3 to -6 m/s²) "
                                  "added to training, a quarter of them to validation", "data",
                                  low=0, high=10_000, metavar="N")
+    sine_events: int = option(0, "synthetic sinusoidal leaders (the string-stability test's "
+                              "excitation, 0.1-3 rad/s) added to training, a quarter of them to "
+                              "validation", "data", low=0, high=1000, metavar="N")
     exclude_events: str | None = option(None, "file of training event IDs (one per line) left "
                                         "out of training and validation", "data",
                                         metavar="FILE")
@@ -175,6 +178,10 @@ class TrainConfig:
                                "policy", "base", unit="s", low=0.0, high=60.0, metavar="S")
     observe_ahead: bool = option(False, "IDM base: each vehicle also observes the acceleration "
                                  "of the vehicle ahead as its radar measures it", "base")
+    command_history: int = option(0, "classical base: each vehicle also observes its own last "
+                                  "K commands, which the lagged plant has not realised yet (Lin "
+                                  "et al. 2019)", "base", unit="steps", low=0, high=50,
+                                  metavar="K")
     # reward
     w_gap: float = option(REWARD.w_gap, "weight of the headway term", "reward", low=0.0)
     w_safe: float = option(REWARD.w_safe, "weight of the TTC term", "reward", low=0.0)
@@ -338,7 +345,7 @@ class TrainConfig:
                            adj_l2=self.adj_l2,
                            gamma=self.gamma, adj_max=self.adj_max, base=self.base,
                            batch_size=self.batch_size, observe_ahead=self.observe_ahead,
-                           shield_ttc_s=self.shield_ttc, comm_fallback=self.comm_fallback,
+                           command_history=self.command_history, shield_ttc_s=self.shield_ttc, comm_fallback=self.comm_fallback,
                            comm_off=self.comm_off)
 
     @property
@@ -380,7 +387,7 @@ class TrainConfig:
 
         check_base(self.base)
         AgentConfig(algo=self.algo, base=self.base, observe_ahead=self.observe_ahead,
-                    comm_fallback=self.comm_fallback, comm_off=self.comm_off)
+                    command_history=self.command_history, comm_fallback=self.comm_fallback, comm_off=self.comm_off)
         if self.learning_starts >= self.steps:
             raise InputError(f"--learning-starts {self.learning_starts} leaves no training step "
                              f"in --steps {self.steps}; give fewer learning starts or more steps")
@@ -531,6 +538,12 @@ def held_out_split(events: Sequence[Event], cfg: TrainConfig) -> tuple[list[Even
         braking = braking_events(cfg.braking_events, val_seed)
         k = max(1, cfg.braking_events // 4)
         train, val = train + braking[k:], val + braking[:k]
+    if cfg.sine_events > 0:  # the string-stability test's excitation, in training and validation
+        from carl_sumo.data.synthetic import sine_events
+
+        sine = sine_events(cfg.sine_events, val_seed)
+        k = max(1, cfg.sine_events // 4)
+        train, val = train + sine[k:], val + sine[:k]
     if cfg.exclude_events is not None:  # e.g. recordings that start in a collision; the
         excluded = set(read_event_ids(cfg.exclude_events))  # draws above stay as without it
         _check_known("--exclude-events", sorted(excluded), events)

@@ -29,11 +29,12 @@ class EnvRunner:
 
     def __init__(self, events: Sequence[Event], n: int, net_path: str, seed: int,
                  reward: RewardConfig, base: str, observe_ahead: bool, bounds: ControlBounds,
-                 shield_ttc_s: float):
+                 shield_ttc_s: float, command_history: int = 0):
         from carl_sumo.learn.env import PlatoonEnv
 
         self.env = PlatoonEnv(events, n, net_path, reward=reward, base=base, bounds=bounds,
-                              observe_ahead=observe_ahead, shield_ttc_s=shield_ttc_s)
+                              observe_ahead=observe_ahead, shield_ttc_s=shield_ttc_s,
+                              command_history=command_history)
         self.env.reset_array(seed=seed)
 
     def step(self, data: tuple[np.ndarray, Impairments | None]) -> tuple:
@@ -77,7 +78,8 @@ class VecPlatoon:
     def __init__(self, events: Sequence[Event], n_followers: int, net_path: str | Path,
                  num_envs: int = 2, seed: int = 0, reward: RewardConfig = REWARD,
                  base: str = "idm", observe_ahead: bool = False,
-                 bounds: ControlBounds = BOUNDS, shield_ttc_s: float = 0.0):
+                 bounds: ControlBounds = BOUNDS, shield_ttc_s: float = 0.0,
+                 command_history: int = 0):
         ctx = mp.get_context("spawn")
         self.num_envs, self.n = num_envs, n_followers
         self._conns, self._procs = [], []
@@ -85,7 +87,8 @@ class VecPlatoon:
             parent, child = ctx.Pipe()
             proc = ctx.Process(target=_worker, args=(child, list(events), n_followers,
                                                      str(net_path), seed * 1000 + i, reward, base,
-                                                     observe_ahead, bounds, shield_ttc_s),
+                                                     observe_ahead, bounds, shield_ttc_s,
+                                                     command_history),
                                daemon=True)
             proc.start()
             child.close()
@@ -146,7 +149,8 @@ class RayVecPlatoon(VecPlatoon):
     def __init__(self, events: Sequence[Event], n_followers: int, net_path: str | Path,
                  num_envs: int = 2, seed: int = 0, reward: RewardConfig = REWARD,
                  base: str = "idm", observe_ahead: bool = False,
-                 bounds: ControlBounds = BOUNDS, shield_ttc_s: float = 0.0):
+                 bounds: ControlBounds = BOUNDS, shield_ttc_s: float = 0.0,
+                 command_history: int = 0):
         import ray
 
         from carl_sumo.scale.cluster import require_cpus
@@ -157,7 +161,7 @@ class RayVecPlatoon(VecPlatoon):
         net = str(Path(net_path).resolve()) if Path(net_path).exists() else str(net_path)
         events_ref = ray.put(list(events))
         self._actors = [actor.remote(events_ref, n_followers, net, seed * 1000 + i, reward, base,
-                                     observe_ahead, bounds, shield_ttc_s)
+                                     observe_ahead, bounds, shield_ttc_s, command_history)
                         for i in range(num_envs)]
 
     def _exchange(self, messages: list[tuple]) -> list:

@@ -484,3 +484,27 @@ def test_training_with_a_warmup_settles_every_event_and_validates_the_recorded_p
     expected = score_event(run_event(cached_sim(NET, "external"), val[0], 3, ZeroAdjustment()))
     assert settled["jerk_mps3"] == pytest.approx(expected["jerk_mps3"], rel=1e-9)
     assert settled["n_speed"] == expected["n_speed"] == events[0].n_samples * 3
+
+
+def test_sine_leaders_join_training_span_the_gate_band_and_fit_the_road():
+    """--sine-events: the string-stability test's excitation, a quarter in validation, the
+    frequencies log-spaced over 0.1-3 rad/s, the leader's acceleration within ±2 m/s², each
+    leader fitting the network with 10 followers after a 60 s warm-up."""
+    from carl_sumo.data.synthetic import SINE_SOURCE, sine_events
+    from carl_sumo.sim.sumo import lane_route, check_fits
+
+    events = [dataclasses.replace(cruise_event(50), event_id=f"e{i}") for i in range(40)]
+    train_set, val = held_out_split(events, TrainConfig(eval_events=8, val_seed=0,
+                                                        sine_events=8))
+    assert [e.source for e in val].count(SINE_SOURCE) == 2
+    assert [e.source for e in train_set].count(SINE_SOURCE) == 6
+    route, peaks = lane_route(NET), []
+    for e in sine_events(8, 0):
+        v = e.leader_speed_mps
+        assert np.all(v[:200] == v[0]) and 10.0 <= v[0] <= 25.0
+        a = np.diff(v) / 0.1
+        assert np.abs(a).max() <= 2.0 + 1e-9 and np.abs(a).max() > 0.04
+        spectrum = np.abs(np.fft.rfft(v[200:] - v[0], n=1 << 16))
+        peaks.append(2 * np.pi * np.argmax(spectrum) / ((1 << 16) * 0.1))
+        check_fits(route, e.with_warmup(60.0), 10)
+    assert np.allclose(sorted(peaks), np.geomspace(0.1, 3.0, 8), rtol=0.1)
