@@ -373,3 +373,34 @@ def test_study_names_a_missing_external_controller(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "no attribute 'nothing_here'" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_a_policy_on_chains_remembers_each_vehicles_commands_by_id(tmp_path):
+    """--command-history on chains: the rows of a step are the CACC vehicles of that step, in
+    any order; each vehicle's history is its own last commands, found by its ID, and it moves
+    the policy's action."""
+    import torch
+
+    agent = Agent(AgentConfig(algo="ca-td3", base="ploeg:h=0.8", command_history=2))
+    with torch.no_grad():
+        for p in agent.actor.parameters():
+            p.add_(0.3 * torch.randn_like(p, generator=torch.Generator().manual_seed(1)))
+    save_policy(agent, tmp_path / "h.pt", {})
+    controller, amnesic = (ChainController(str(tmp_path / "h.pt")) for _ in range(2))
+    rng = np.random.default_rng(0)
+    ids, chains, ahead = ["a", "b", "c"], [[0, 1, 2]], [("h", 20.0)] * 3
+    sent: dict[str, list[float]] = {v: [] for v in ids}
+    for step in range(4):
+        order = [ids[(i + step) % 3] for i in range(3)]  # the rows change order every step
+        obs = np.column_stack([rng.uniform(10, 30, 3), rng.uniform(-1, 1, 3),
+                               rng.uniform(5, 60, 3), rng.uniform(-2, 2, 3)])
+        remembered = controller.history.columns(order)
+        for row, v in enumerate(order):
+            assert np.allclose(remembered[row], (sent[v][::-1] + [0.0, 0.0])[:2])
+        accel = controller.acceleration(obs, chains, order, ahead, {"h": 0.0})
+        amnesic.history.reset()
+        forgot = amnesic.acceleration(obs, chains, order, ahead, {"h": 0.0})
+        if step > 0:
+            assert np.abs(accel - forgot).max() > 1e-6
+        for row, v in enumerate(order):
+            sent[v].append(float(accel[row]))
