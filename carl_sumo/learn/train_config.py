@@ -119,6 +119,9 @@ class TrainConfig:
     sine_events: int = option(0, "synthetic sinusoidal leaders (the string-stability test's "
                               "excitation, 0.1-3 rad/s) added to training, a quarter of them to "
                               "validation", "data", low=0, high=1000, metavar="N")
+    sine_share: float = option(0.25, "the share of training episodes that replay one of the "
+                               "--sine-events (they are repeated in the draw to reach it)",
+                               "data", low=0.0, high=0.9, metavar="F")
     exclude_events: str | None = option(None, "file of training event IDs (one per line) left "
                                         "out of training and validation", "data",
                                         metavar="FILE")
@@ -402,6 +405,9 @@ class TrainConfig:
                 raise InputError(f"--scale-rates: --tau times --update-every is "
                                  f"{self.update_every * self.tau:g}, above 1; give a smaller "
                                  "--tau or --update-every")
+        if self.sine_share != 0.25 and self.sine_events == 0:
+            raise InputError("--sine-share is the share of episodes with a --sine-events "
+                             "leader; give --sine-events N too, or leave it out")
         if self.oversample_times != 4 and self.oversample is None:
             raise InputError("--oversample-times weights the --oversample events; give "
                              "--oversample FILE too, or leave it out")
@@ -543,7 +549,9 @@ def held_out_split(events: Sequence[Event], cfg: TrainConfig) -> tuple[list[Even
 
         sine = sine_events(cfg.sine_events, val_seed)
         k = max(1, cfg.sine_events // 4)
-        train, val = train + sine[k:], val + sine[:k]
+        times = max(1, round(cfg.sine_share * len(train) /
+                             ((1 - cfg.sine_share) * max(1, len(sine) - k))))
+        train, val = train + sine[k:] * times, val + sine[:k]
     if cfg.exclude_events is not None:  # e.g. recordings that start in a collision; the
         excluded = set(read_event_ids(cfg.exclude_events))  # draws above stay as without it
         _check_known("--exclude-events", sorted(excluded), events)

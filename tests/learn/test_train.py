@@ -497,7 +497,11 @@ def test_sine_leaders_join_training_span_the_gate_band_and_fit_the_road():
     train_set, val = held_out_split(events, TrainConfig(eval_events=8, val_seed=0,
                                                         sine_events=8))
     assert [e.source for e in val].count(SINE_SOURCE) == 2
-    assert [e.source for e in train_set].count(SINE_SOURCE) == 6
+    drawn = [e.source for e in train_set].count(SINE_SOURCE)  # a quarter of the draws (default)
+    assert len({e.event_id for e in train_set if e.source == SINE_SOURCE}) == 6
+    assert drawn == 6 * 2 and abs(drawn / len(train_set) - 0.25) < 0.05
+    with pytest.raises(InputError, match="--sine-events"):
+        TrainConfig(sine_share=0.5).check()
     route, peaks = lane_route(NET), []
     for e in sine_events(8, 0):
         v = e.leader_speed_mps
