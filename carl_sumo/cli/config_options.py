@@ -65,7 +65,8 @@ def config_from_args(args: argparse.Namespace, command: str = "",
                      converters: dict[str, Callable[[str], Any]] | None = None,
                      check: bool = True) -> TrainConfig:
     """The :class:`TrainConfig` of parsed options: the defaults, then the recipe of
-    ``args.config`` (when given), then every option given on the command line; checked
+    ``args.config`` (when given), then every option given on the command line (``none`` unsets
+    an option whose default is none, e.g. a recipe's ``--imitate``); checked
     (:meth:`TrainConfig.check`) unless ``check`` is False. InputError, one line, for a bad
     recipe or value."""
     values: dict[str, Any] = {}
@@ -73,7 +74,9 @@ def config_from_args(args: argparse.Namespace, command: str = "",
         values.update(read_recipe(args.config))
     for key, f in option_fields().items():
         given = getattr(args, key, None)
-        if given is not None:
+        if given is not None and f.default is None and given == "none":
+            values[f.name] = None  # e.g. --imitate none: a recipe's option left out
+        elif given is not None:
             values[f.name] = coerce(key, given, f, "--" + key.replace("_", "-"))
     for name, convert in (converters or {}).items():
         if isinstance(values.get(name), str):

@@ -69,6 +69,15 @@ def test_a_recipe_extends_another_and_the_command_line_overrides_it(tmp_path, ca
     assert recipe_toml(cfg) == printed
 
 
+def test_none_on_the_command_line_leaves_a_recipes_option_out(tmp_path, capsys):
+    recipe = _write(tmp_path / "r.toml", '[base]\nbase = "product-base"\n[training]\n'
+                    'imitate = "two-ahead:c=0.3"\n')
+    assert main(["train", "--config", str(recipe), "--print-config"]) == 0
+    assert 'imitate = "two-ahead:c=0.3"' in capsys.readouterr().out
+    assert main(["train", "--config", str(recipe), "--imitate", "none", "--print-config"]) == 0
+    assert "# imitate = (none)" in capsys.readouterr().out
+
+
 @pytest.mark.parametrize("text, needle", [
     ("[agent]\nsteps = 5\n", "steps belongs in [training], not [agent]"),
     ("[agent]\nnot_an_option = 1\n", "not_an_option is not a training option"),
