@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from carl_sumo.options import option
+
 DT_S = 0.1
 """Simulation step and data sampling period (s)."""
 
@@ -49,22 +51,37 @@ class RewardConfig:
     a collision (bumper gap ≤ 0) ends the episode and adds collision_penalty.
     """
 
-    w_gap: float = 1.0
-    w_safe: float = 1.0
-    w_comfort: float = 1.0
-    w_accel: float = 0.0           # optional control effort -w_accel·a² (a in m/s²); not the paper's
-    w_spacing: float = 0.0         # optional spacing term -w_spacing·min((e/v)², 1); not the paper's
-    spacing_gap_s: float = 0.8     # its time gap h_s (s)
-    spacing_head_gap_s: float | None = None  # the head's (first follower's) h_s (s; None: h_s)
-    spacing_heavy_gap_s: float | None = None  # a heavy vehicle's h_s (braking < 7 m/s²; None: h_s)
-    spacing_standstill_m: float = 2.0  # its standstill gap s0 (m; Ploeg's, control/cacc.py)
-    w_critical: float = 0.0        # optional -w_critical per step with 0 < TTC < 1.5 s
-    w_amplify: float = 0.0         # optional -w_amplify·max(a_i² - a_{i-1}², 0) (a in m/s²)
-    headway_mu: float = 0.4226     # μ of ln(h), h in s
-    headway_sigma: float = 0.4366  # σ of ln(h)
-    ttc_threshold_s: float = 4.0   # TTC below which r_safe is negative (s)
-    jerk_scale_mps3: float = 60.0  # (a_max - a_min)/dt of a ±3 m/s² range (m/s³)
-    collision_penalty: float = -100.0
+    w_gap: float = option(1.0, "weight of the headway term", "reward", low=0.0)
+    w_safe: float = option(1.0, "weight of the TTC term", "reward", low=0.0)
+    w_comfort: float = option(1.0, "weight of the jerk term", "reward", low=0.0)
+    w_accel: float = option(0.0, "weight of the control-effort term -w·a² (0: off)", "reward",
+                            low=0.0)
+    w_spacing: float = option(0.0, "weight of the spacing term -w·min((e/v)², 1), e = d - 2 m - "
+                              "h_s·v (0: off)", "reward", low=0.0)
+    spacing_gap_s: float = option(0.8, "the spacing term's time gap h_s", "reward", unit="s",
+                                  low=0.0, high=5.0, flag="spacing-gap")
+    spacing_head_gap_s: float | None = option(None, "the head's h_s (none: --spacing-gap), e.g. "
+                                              "a degraded CACC's ha", "reward", unit="s",
+                                              low=0.0, high=5.0, flag="spacing-head-gap")
+    spacing_heavy_gap_s: float | None = option(None, "h_s of a vehicle braking below 7 m/s² "
+                                               "(none: --spacing-gap)", "reward", unit="s",
+                                               low=0.0, high=5.0, flag="spacing-heavy-gap")
+    spacing_standstill_m: float = option(2.0, "the spacing term's standstill gap s0 (Ploeg's, "
+                                         "control/cacc.py)", "reward", unit="m", cli=False)
+    w_critical: float = option(0.0, "penalty per follower and step with a time to collision "
+                               "below 1.5 s (0: off)", "reward", low=0.0)
+    w_amplify: float = option(0.0, "weight of the amplification term -w·max(a_i² - a_(i-1)², 0) "
+                              "(0: off)", "reward", low=0.0)
+    headway_mu: float = option(0.4226, "μ of ln(h), h the time headway in s", "reward",
+                               cli=False)
+    headway_sigma: float = option(0.4366, "σ of ln(h)", "reward", cli=False)
+    ttc_threshold_s: float = option(4.0, "TTC below which r_safe is negative", "reward",
+                                    unit="s", cli=False)
+    jerk_scale_mps3: float = option(60.0, "the jerk term's scale ((a_max - a_min)/dt of a "
+                                    "±3 m/s² range)", "reward", unit="m/s³", low=0.0,
+                                    open_low=True, flag="jerk-scale")
+    collision_penalty: float = option(-100.0, "reward of a follower whose gap d ≤ 0 (the "
+                                      "episode ends)", "reward", cli=False)
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from carl_sumo.learn.ca_scan import ca_forward
 from carl_sumo.config import BOUNDS, DT_S, IDM
 from carl_sumo.control.channel import Impairments
 from carl_sumo.errors import InputError
+from carl_sumo.options import option
 from carl_sumo.learn.models import CentralCritic, CommunicationAware, PerAgentActors, PerVehicle
 
 Links = tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]
@@ -34,6 +35,8 @@ Links = tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]
 (:meth:`carl_sumo.learn.models.CommunicationAware.forward_over`)."""
 
 ALGOS = ("ca-td3", "ca-ddpg", "td3", "ddpg", "maddpg")
+MAX_TRAIN_VEHICLES = 200
+"""The longest platoon ``train`` accepts (its replay buffer grows with the platoon)."""
 COMM_FALLBACKS = ("boundary", "base")
 """What a CA vehicle does when it hears no neighbour (past the timeout; :mod:`carl_sumo.control.channel`):
 ``boundary``: its CA module takes the learned boundary messages and it acts as a chain end;
@@ -54,35 +57,67 @@ divided by this (m/s²)."""
 class AgentConfig:
     """Hyper-parameters of an agent (stored in every policy file)."""
 
-    algo: str = "ca-td3"
-    n_vehicles: int = 10          # platoon length trained on (MADDPG: the only one it runs)
-    message_dim: int = 16         # width of a V2V message (CA models)
-    hidden: int = 64              # hidden layer width
-    adj_max: float = 3.0          # |a_adj| bound (m/s²)
-    gamma: float = 0.98
-    tau: float = 0.005            # target network soft-update rate
-    actor_lr: float = 3e-4
-    critic_lr: float = 1e-3
-    batch_size: int = 128
-    policy_delay: int = 2         # TD3: actor update every this many critic updates
-    target_noise: float = 0.2     # TD3: target policy smoothing noise (fraction of adj_max)
-    target_noise_clip: float = 0.5
-    exploration_noise: float = 0.15  # std of the exploration noise (fraction of adj_max)
-    noise_correlation: float = 0.98  # AR(1) coefficient of that noise per 0.1 s step (τ ≈ 5 s)
-    preactivation_l2: float = 0.01  # actor loss penalty on tanh inputs: keeps tanh unsaturated
-    max_grad_norm: float = 10.0     # gradient norm clipping of actor and critic updates
-    smooth_jerk: float = 0.0      # actor loss weight on the policy's jerk, per (m/s³)² (CAPS-style)
-    smooth_accel: float = 0.0     # actor loss weight on the policy's acceleration, per (m/s²)²
-    adj_l2: float = 0.0           # actor loss weight on the adjustment itself, per (m/s²)²
-    base: str = "idm"             # base model under a_adj: idm, or a classical CACC name
-    observe_ahead: bool = False   # o has a fifth column a_ahead (IDM base; controllers.AheadAcceleration)
-    command_history: int = 0      # o ends with the vehicle's last k commands (classical base;
-                                  # controllers.CommandHistory)
-    shield_ttc_s: float = 0.0     # no a_adj > 0 while closing in below this TTC (s; 0: off)
-    comm_fallback: str = "boundary"  # hearing no neighbour: "boundary" (act as a chain end) or
-                                     # also "base" (a_adj fades out with the messages; channel.py)
-    comm_off: bool = False        # CA models: the messages are cut, every vehicle hears only the
-                                  # boundary messages (the communication ablation, "CA-off")
+    algo: str = option("ca-td3", "the algorithm", "agent", choices=ALGOS)
+    n_vehicles: int = option(10, "CACC followers trained on (a shared-weight policy runs any "
+                             "length; MADDPG only this one)", "agent", low=1,
+                             high=MAX_TRAIN_VEHICLES, flag="vehicles")
+    message_dim: int = option(16, "V2V message width (CA models)", "agent", low=1, high=4096)
+    hidden: int = option(64, "hidden layer width", "agent", low=1, high=65_536)
+    adj_max: float = option(3.0, "bound of the learned adjustment |a_adj|", "agent",
+                            unit="m/s²", low=0.0, open_low=True, high=100.0)
+    gamma: float = option(0.98, "discount per 0.1 s step", "agent", low=0.0, high=1.0,
+                          open_low=True)
+    tau: float = option(0.005, "soft-update rate of the target networks per update", "agent",
+                        low=0.0, high=1.0, open_low=True)
+    actor_lr: float = option(3e-4, "actor learning rate", "agent", low=0.0, open_low=True)
+    critic_lr: float = option(1e-3, "critic learning rate", "agent", low=0.0, open_low=True)
+    batch_size: int = option(128, "transitions per gradient update", "agent", low=1,
+                             high=1_000_000)
+    policy_delay: int = option(2, "TD3: an actor update every this many critic updates",
+                               "agent", cli=False)
+    target_noise: float = option(0.2, "TD3: target policy smoothing noise, a fraction of "
+                                 "adj_max", "agent", cli=False)
+    target_noise_clip: float = option(0.5, "TD3: clip of that noise, a fraction of adj_max",
+                                      "agent", cli=False)
+    exploration_noise: float = option(0.15, "exploration noise std, a fraction of the a_adj "
+                                      "bound", "agent", low=0.0, flag="noise")
+    noise_correlation: float = option(0.98, "AR(1) coefficient of the exploration noise per "
+                                      "step (0: white; 0.98: τ ≈ 5 s)", "agent", low=0.0,
+                                      high=1.0, open_high=True)
+    preactivation_l2: float = option(0.01, "actor loss penalty on tanh inputs (keeps tanh "
+                                     "unsaturated)", "agent", cli=False)
+    max_grad_norm: float = option(10.0, "gradient norm clipping of actor and critic updates",
+                                  "agent", cli=False)
+    smooth_jerk: float = option(0.0, "actor loss weight on the policy's jerk (CAPS-style)",
+                                "agent", unit="1/(m/s³)²", low=0.0)
+    smooth_accel: float = option(0.0, "actor loss weight on the policy's acceleration",
+                                 "agent", unit="1/(m/s²)²", low=0.0)
+    adj_l2: float = option(0.0, "actor loss weight on the adjustment itself, W·a_adj² (keeps "
+                           "the learned term near its base)", "agent", unit="1/(m/s²)²",
+                           low=0.0)
+    base: str = option("idm", "base model under the learned adjustment: idm (the paper's) or a "
+                       "classical law: a preset (product-base, cacc-real) or a name such as "
+                       "ploeg-tuned:h=0.8 (the actor then starts at a_adj = 0)", "base",
+                       metavar="NAME")
+    observe_ahead: bool = option(False, "IDM base: each vehicle also observes the acceleration "
+                                 "of the vehicle ahead as its radar measures it (a fifth "
+                                 "column a_ahead; controllers.AheadAcceleration)", "base")
+    command_history: int = option(0, "classical base: each vehicle also observes its own last "
+                                  "K commands, which the lagged plant has not realised yet (Lin "
+                                  "et al. 2019; the observation ends with them, the latest "
+                                  "first; controllers.CommandHistory)", "base", unit="steps",
+                                  low=0, high=50, metavar="K")
+    shield_ttc_s: float = option(0.0, "safety shield: a follower closing in below this time "
+                                 "to collision gets no positive adjustment (0: off); part of "
+                                 "the policy", "base", unit="s", low=0.0, high=60.0,
+                                 metavar="S", flag="shield-ttc")
+    comm_fallback: str = option("boundary", "hearing no neighbour at run time: boundary (act "
+                                "as a chain end) or base (also drop the adjustment, as Ploeg's "
+                                "CACC drops to ACC; channel.py); part of the policy", "agent",
+                                metavar="{boundary,base}")
+    comm_off: bool = option(False, "CA models: cut the V2V messages, every vehicle hears only "
+                            "the boundary messages (the communication ablation, CA-off); part "
+                            "of the policy", "agent")
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:

@@ -1,18 +1,21 @@
 """What ``carl-sumo train`` is asked to do (:class:`TrainConfig`), and the events and conditions
 it validates on: held-out training events, and the V2V and sensor impairments of validation.
 
-Every training option is defined here once, as a field of :class:`TrainConfig` made by
-:func:`option`: its type (the annotation), default, unit, one-line doc, range and the section of
-the recipe file it belongs to (data, plant, base, reward, agent, training, validation).
-``carl-sumo train``'s options (:mod:`carl_sumo.cli.config_options`), their ``--help``, the recipe
-files (:mod:`carl_sumo.learn.recipe`) and :meth:`TrainConfig.check` all derive from these fields.
+Every training option is defined once, as a dataclass field made by
+:func:`carl_sumo.options.option`: its type (the annotation), default, unit, one-line doc, range
+and the section of the recipe file it belongs to (data, plant, base, reward, agent, training,
+validation). The reward's live in :class:`carl_sumo.config.RewardConfig` and the agent's in
+:class:`carl_sumo.learn.agents.AgentConfig`, which :class:`TrainConfig` gathers with
+:func:`carl_sumo.options.shared` (and gives back as :attr:`TrainConfig.reward` and
+:meth:`TrainConfig.agent_config`); the rest are its own. ``carl-sumo train``'s options
+(:mod:`carl_sumo.cli.config_options`), their ``--help``, the recipe files
+(:mod:`carl_sumo.learn.recipe`) and :meth:`TrainConfig.check` all derive from these fields.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field, fields, replace
-from typing import Any, Sequence
+from dataclasses import dataclass, fields, replace
+from typing import Sequence
 
 import numpy as np
 
@@ -20,24 +23,12 @@ from carl_sumo.config import DT_S, REWARD, RewardConfig
 from carl_sumo.control.channel import Impairments, plant_impairments
 from carl_sumo.data.events import MAX_WARMUP_S, Event, read_event_ids
 from carl_sumo.errors import InputError
-from carl_sumo.learn.agents import ALGOS, AgentConfig
+from carl_sumo.learn.agents import AgentConfig
 from carl_sumo.learn.selection import VALIDATION_IMPAIRMENTS
+from carl_sumo.options import (SECTIONS, bounds_text, check_range, flag_of, option,  # noqa: F401
+                               shared, sourced)
 from carl_sumo.sim.sumo import DEFAULT_NET
 from carl_sumo.sim.vehicle import MAX_DEAD_TIME_S, MAX_LAG_S
-
-SECTIONS = {
-    "data": "the events trained and validated on",
-    "plant": "the followers' vehicle dynamics, V2V channel and sensors",
-    "base": "the classical law under the learned adjustment and its safety layers",
-    "reward": "the reward's terms and weights (defaults: carl_sumo.config.RewardConfig)",
-    "agent": "the algorithm, its networks, optimisers and exploration",
-    "training": "how long and how the run trains, and how it starts",
-    "validation": "the held-out events and how the kept checkpoint is chosen",
-}
-"""The sections of a recipe file, in order, with what each holds."""
-
-MAX_TRAIN_VEHICLES = 200
-"""The longest platoon ``train`` accepts (its replay buffer grows with the platoon)."""
 
 MAX_STEPS = 100_000_000
 """The most vector steps one run may take (a bound, so that a typo cannot allocate forever)."""
@@ -45,59 +36,6 @@ MAX_STEPS = 100_000_000
 
 MAX_COMM_DELAY_S = 5.0
 """The longest fixed V2V delay a run accepts (s)."""
-
-INF = math.inf
-
-
-def option(default: Any, doc: str, section: str, *, unit: str = "", low: float | None = None,
-           high: float | None = None, open_low: bool = False, open_high: bool = False,
-           choices: Sequence[str] | None = None, flag: str | None = None, metavar: str | None = None,
-           cli: bool = True) -> Any:
-    """A training option: a dataclass field with its doc, unit, range ([low, high], ends open
-    where said; finite in any case), allowed values, section and command-line flag (default:
-    the field name with dashes)."""
-    if section not in SECTIONS:
-        raise ValueError(f"unknown section {section!r}")
-    return field(default=default, metadata=dict(
-        doc=doc, section=section, unit=unit, low=low, high=high, open_low=open_low,
-        open_high=open_high, choices=tuple(choices) if choices else None, flag=flag,
-        metavar=metavar, cli=cli))
-
-
-def flag_of(f) -> str:
-    """The command-line flag of a :class:`TrainConfig` field (without the dashes)."""
-    return f.metadata.get("flag") or f.name.replace("_", "-")
-
-
-def bounds_text(meta: dict) -> str:
-    """``[0, inf)``-style text of a field's range ('' without one)."""
-    low, high = meta.get("low"), meta.get("high")
-    if low is None and high is None:
-        return ""
-    low = -INF if low is None else low
-    high = INF if high is None else high
-    left = "(" if meta["open_low"] or low == -INF else "["
-    right = ")" if meta["open_high"] or high == INF else "]"
-    return f"{left}{_number(low)}, {_number(high)}{right}"
-
-
-def _number(x: float) -> str:
-    return str(int(x)) if math.isfinite(x) and x == int(x) and abs(x) < 1e12 else f"{x:g}"
-
-
-def check_range(name: str, value: Any, meta: dict) -> None:
-    """InputError, one line, for a value outside its field's range (``name``: the flag)."""
-    low, high = meta.get("low"), meta.get("high")
-    if value is None or isinstance(value, (bool, str)) or (low is None and high is None):
-        return
-    low = -INF if low is None else low
-    high = INF if high is None else high
-    inside = math.isfinite(value) \
-        and (low < value if meta["open_low"] else low <= value) \
-        and (value < high if meta["open_high"] else value <= high)
-    if not inside:
-        kind = "a whole number" if isinstance(value, int) else "a finite number"
-        raise InputError(f"--{name} must be {kind} in {bounds_text(meta)}, got {value}")
 
 
 @dataclass
@@ -172,81 +110,43 @@ class TrainConfig:
                                      "episodes (--no-sensor-randomize: clean sensors, the same "
                                      "channel draws)", "plant", flag="sensor-randomize")
     # base
-    base: str = option(AgentConfig.base, "base model under the learned adjustment: idm (the "
-                       "paper's) or a classical law: a preset (product-base, cacc-real) or a name "
-                       "such as ploeg-tuned:h=0.8 (the actor then starts at a_adj = 0)", "base",
-                       metavar="NAME")
-    shield_ttc: float = option(0.0, "safety shield: a follower closing in below this time to "
-                               "collision gets no positive adjustment (0: off); part of the "
-                               "policy", "base", unit="s", low=0.0, high=60.0, metavar="S")
-    observe_ahead: bool = option(False, "IDM base: each vehicle also observes the acceleration "
-                                 "of the vehicle ahead as its radar measures it", "base")
-    command_history: int = option(0, "classical base: each vehicle also observes its own last "
-                                  "K commands, which the lagged plant has not realised yet (Lin "
-                                  "et al. 2019)", "base", unit="steps", low=0, high=50,
-                                  metavar="K")
+    base: str = shared(AgentConfig, "base")
+    shield_ttc: float = shared(AgentConfig, "shield_ttc_s")
+    observe_ahead: bool = shared(AgentConfig, "observe_ahead")
+    command_history: int = shared(AgentConfig, "command_history")
     # reward
-    w_gap: float = option(REWARD.w_gap, "weight of the headway term", "reward", low=0.0)
-    w_safe: float = option(REWARD.w_safe, "weight of the TTC term", "reward", low=0.0)
-    w_comfort: float = option(REWARD.w_comfort, "weight of the jerk term", "reward", low=0.0)
-    w_accel: float = option(REWARD.w_accel, "weight of the control-effort term -w·a² (0: off)",
-                            "reward", low=0.0)
-    w_spacing: float = option(REWARD.w_spacing, "weight of the spacing term -w·min((e/v)², 1), "
-                              "e = d - 2 m - h_s·v (0: off)", "reward", low=0.0)
-    spacing_gap: float = option(REWARD.spacing_gap_s, "the spacing term's time gap h_s",
-                                "reward", unit="s", low=0.0, high=5.0)
-    spacing_head_gap: float | None = option(REWARD.spacing_head_gap_s, "the head's h_s (none: "
-                                            "--spacing-gap), e.g. a degraded CACC's ha",
-                                            "reward", unit="s", low=0.0, high=5.0)
-    spacing_heavy_gap: float | None = option(REWARD.spacing_heavy_gap_s, "h_s of a vehicle "
-                                             "braking below 7 m/s² (none: --spacing-gap)",
-                                             "reward", unit="s", low=0.0, high=5.0)
-    w_critical: float = option(REWARD.w_critical, "penalty per follower and step with a time "
-                               "to collision below 1.5 s (0: off)", "reward", low=0.0)
-    w_amplify: float = option(REWARD.w_amplify, "weight of the amplification term "
-                              "-w·max(a_i² - a_(i-1)², 0) (0: off)", "reward", low=0.0)
+    w_gap: float = shared(RewardConfig, "w_gap")
+    w_safe: float = shared(RewardConfig, "w_safe")
+    w_comfort: float = shared(RewardConfig, "w_comfort")
+    w_accel: float = shared(RewardConfig, "w_accel")
+    w_spacing: float = shared(RewardConfig, "w_spacing")
+    spacing_gap: float = shared(RewardConfig, "spacing_gap_s")
+    spacing_head_gap: float | None = shared(RewardConfig, "spacing_head_gap_s")
+    spacing_heavy_gap: float | None = shared(RewardConfig, "spacing_heavy_gap_s")
+    w_critical: float = shared(RewardConfig, "w_critical")
+    w_amplify: float = shared(RewardConfig, "w_amplify")
     lagrange_lr: float = option(0.0, "RCPO: step of a learned multiplier pricing close calls "
                                 "while they are more frequent than the base's (0: off)",
                                 "reward", low=0.0)
-    jerk_scale: float = option(REWARD.jerk_scale_mps3, "the jerk term's scale", "reward",
-                               unit="m/s³", low=0.0, open_low=True)
+    jerk_scale: float = shared(RewardConfig, "jerk_scale_mps3")
     # agent
-    algo: str = option("ca-td3", "the algorithm", "agent", choices=ALGOS)
-    n_vehicles: int = option(10, "CACC followers trained on (a shared-weight policy runs any "
-                             "length)", "agent", low=1, high=MAX_TRAIN_VEHICLES, flag="vehicles")
-    message_dim: int = option(AgentConfig.message_dim, "V2V message width (CA models)", "agent",
-                              low=1, high=4096)
-    hidden: int = option(AgentConfig.hidden, "hidden layer width", "agent", low=1, high=65_536)
-    actor_lr: float = option(AgentConfig.actor_lr, "actor learning rate", "agent", low=0.0,
-                             open_low=True)
-    critic_lr: float = option(AgentConfig.critic_lr, "critic learning rate", "agent", low=0.0,
-                              open_low=True)
-    tau: float = option(AgentConfig.tau, "soft-update rate of the target networks per update",
-                        "agent", low=0.0, high=1.0, open_low=True)
-    gamma: float = option(AgentConfig.gamma, "discount per 0.1 s step", "agent", low=0.0,
-                          high=1.0, open_low=True)
-    batch_size: int = option(AgentConfig.batch_size, "transitions per gradient update", "agent",
-                             low=1, high=1_000_000)
-    noise: float = option(AgentConfig.exploration_noise, "exploration noise std, a fraction of "
-                          "the a_adj bound", "agent", low=0.0)
-    noise_correlation: float = option(AgentConfig.noise_correlation, "AR(1) coefficient of the "
-                                      "exploration noise per step (0: white)", "agent", low=0.0,
-                                      high=1.0, open_high=True)
-    adj_max: float = option(AgentConfig.adj_max, "bound of the learned adjustment |a_adj|",
-                            "agent", unit="m/s²", low=0.0, open_low=True, high=100.0)
-    smooth_jerk: float = option(AgentConfig.smooth_jerk, "actor loss weight on the policy's "
-                                "jerk", "agent", unit="1/(m/s³)²", low=0.0)
-    smooth_accel: float = option(AgentConfig.smooth_accel, "actor loss weight on the policy's "
-                                 "acceleration", "agent", unit="1/(m/s²)²", low=0.0)
-    adj_l2: float = option(AgentConfig.adj_l2, "actor loss weight on the adjustment itself, "
-                           "W·a_adj² (keeps the learned term near its base)", "agent",
-                           unit="1/(m/s²)²", low=0.0)
-    comm_fallback: str = option(AgentConfig.comm_fallback, "hearing no neighbour at run time: "
-                                "boundary (act as a chain end) or base (also drop the "
-                                "adjustment, as Ploeg's CACC drops to ACC); part of the policy",
-                                "agent", metavar="{boundary,base}")
-    comm_off: bool = option(False, "CA models: cut the V2V messages (the communication "
-                            "ablation); part of the policy", "agent")
+    algo: str = shared(AgentConfig, "algo")
+    n_vehicles: int = shared(AgentConfig, "n_vehicles")
+    message_dim: int = shared(AgentConfig, "message_dim")
+    hidden: int = shared(AgentConfig, "hidden")
+    actor_lr: float = shared(AgentConfig, "actor_lr")
+    critic_lr: float = shared(AgentConfig, "critic_lr")
+    tau: float = shared(AgentConfig, "tau")
+    gamma: float = shared(AgentConfig, "gamma")
+    batch_size: int = shared(AgentConfig, "batch_size")
+    noise: float = shared(AgentConfig, "exploration_noise")
+    noise_correlation: float = shared(AgentConfig, "noise_correlation")
+    adj_max: float = shared(AgentConfig, "adj_max")
+    smooth_jerk: float = shared(AgentConfig, "smooth_jerk")
+    smooth_accel: float = shared(AgentConfig, "smooth_accel")
+    adj_l2: float = shared(AgentConfig, "adj_l2")
+    comm_fallback: str = shared(AgentConfig, "comm_fallback")
+    comm_off: bool = shared(AgentConfig, "comm_off")
     bc_alpha: float = option(0.0, "behaviour-regularised actor (TD3+BC): it minimises "
                              "-α·Q/mean|Q| + ((a_adj - a_start)/adj_max)², a_start the start "
                              "policy's a_adj (0 on a residual start, the imitated or --init "
@@ -339,17 +239,8 @@ class TrainConfig:
         steps moves the networks about as far per env step as an update every step does
         (docs/bench.md: the same learning, measured over 10 seeds)."""
         k = self.update_every if self.scale_rates else 1
-        return AgentConfig(algo=self.algo, n_vehicles=self.n_vehicles,
-                           message_dim=self.message_dim, hidden=self.hidden,
-                           actor_lr=k * self.actor_lr, critic_lr=k * self.critic_lr,
-                           tau=k * self.tau,
-                           exploration_noise=self.noise, noise_correlation=self.noise_correlation,
-                           smooth_jerk=self.smooth_jerk, smooth_accel=self.smooth_accel,
-                           adj_l2=self.adj_l2,
-                           gamma=self.gamma, adj_max=self.adj_max, base=self.base,
-                           batch_size=self.batch_size, observe_ahead=self.observe_ahead,
-                           command_history=self.command_history, shield_ttc_s=self.shield_ttc, comm_fallback=self.comm_fallback,
-                           comm_off=self.comm_off)
+        return AgentConfig(**{**sourced(self, AgentConfig), "actor_lr": k * self.actor_lr,
+                              "critic_lr": k * self.critic_lr, "tau": k * self.tau})
 
     @property
     def fixed_impairments(self) -> Impairments | None:
@@ -358,12 +249,8 @@ class TrainConfig:
 
     @property
     def reward(self) -> RewardConfig:
-        return replace(REWARD, w_gap=self.w_gap, w_safe=self.w_safe, w_comfort=self.w_comfort,
-                       w_accel=self.w_accel, w_spacing=self.w_spacing,
-                       spacing_gap_s=self.spacing_gap, spacing_head_gap_s=self.spacing_head_gap,
-                       spacing_heavy_gap_s=self.spacing_heavy_gap,
-                       w_critical=self.w_critical, w_amplify=self.w_amplify,
-                       jerk_scale_mps3=self.jerk_scale)
+        """The reward this run trains on: :data:`carl_sumo.config.REWARD` with its options."""
+        return replace(REWARD, **sourced(self, RewardConfig))
 
     @property
     def policy_path(self) -> str:
@@ -389,8 +276,7 @@ class TrainConfig:
         from carl_sumo.control.controllers import check_base
 
         check_base(self.base)
-        AgentConfig(algo=self.algo, base=self.base, observe_ahead=self.observe_ahead,
-                    command_history=self.command_history, comm_fallback=self.comm_fallback, comm_off=self.comm_off)
+        self.agent_config()  # InputError for an inconsistent agent (AgentConfig's own checks)
         if self.learning_starts >= self.steps:
             raise InputError(f"--learning-starts {self.learning_starts} leaves no training step "
                              f"in --steps {self.steps}; give fewer learning starts or more steps")
