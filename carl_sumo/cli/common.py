@@ -9,6 +9,8 @@ import sys
 from contextlib import contextmanager
 from typing import Iterator
 
+from carl_sumo.cli.config_options import add_shared_options, check_shared_options, help_of
+from carl_sumo.learn.train_config import TrainConfig
 from carl_sumo.errors import InputError
 
 
@@ -52,104 +54,47 @@ def controller_option(text: str) -> str:
                     for c in text.split(","))
 
 
-NET_HELP = "SUMO network (.net.xml; a shipped network's file name works from any folder)"
+NET_HELP = help_of(TrainConfig.__dataclass_fields__["net"])
+"""``--net``'s help: ``train``'s (its default shown: the shipped network)."""
 
 
 def add_common(p: argparse.ArgumentParser, split_default: str = "test") -> None:
     p.add_argument("--net", type=net_option, default="i80.net.xml", help=NET_HELP)
-    p.add_argument("--data", default="default",
-                   help="default | stop-and-go | PATH of an event table or a raw NGSIM CSV")
+    add_shared_options(p, ("data",))
     p.add_argument("--split", default=split_default, help="test | train | us101 | all")
     p.add_argument("--vehicles", type=int, default=10, help="number of CACC followers")
 
 
+IMPAIRMENT_OPTIONS = ("comm_delay", "comm_loss", "comm_burst", "comm_timeout", "comm_fade",
+                      "sensor_noise", "sensor_filter", "impairment_seed")
+"""The V2V channel and sensor options (:mod:`carl_sumo.control.channel`): ``train``'s fields."""
+
+PLANT_OPTIONS = ("plant", "fleet", "vehicle_lag", "actuation_delay")
+"""The followers' vehicle dynamics options (:mod:`carl_sumo.sim.vehicle`): ``train``'s fields."""
+
+
 def add_impairments(p: argparse.ArgumentParser) -> None:
-    """The V2V channel and sensor options (:mod:`carl_sumo.control.channel`); defaults: perfect."""
-    p.add_argument("--comm-delay", type=float, default=None, metavar="S",
-                   help="every V2V message arrives S seconds late (a multiple of 0.1 s; default "
-                        "0, or 0.1 with --plant real)")
-    p.add_argument("--comm-loss", type=float, default=0.0, metavar="P",
-                   help="every V2V message is lost with probability P")
-    p.add_argument("--comm-burst", type=float, default=1.0, metavar="L",
-                   help="losses come in bursts of mean length L steps (Gilbert-Elliott; 1: "
-                        "independent)")
-    p.add_argument("--comm-timeout", type=float, default=1.0, metavar="S",
-                   help="a receiver falls back (CA: the boundary message; Ploeg: ACC) when its "
-                        "last message is older than S seconds (default 1)")
-    p.add_argument("--comm-fade", type=float, default=1.0, metavar="S",
-                   help="past the timeout the held message fades linearly into the fallback "
-                        "over S seconds (default 1; 0: a hard switch)")
-    p.add_argument("--sensor-noise", action="store_true",
-                   help="Gaussian noise on the measured gap (0.1 m) and relative speed (0.1 m/s)")
-    p.add_argument("--sensor-filter", action="store_true",
-                   help="with --sensor-noise: every follower filters its measured gap and "
-                        "relative speed with a Kalman tracker (docs/robustness.md)")
-    p.add_argument("--impairment-seed", type=int, default=0,
-                   help="seed of the losses, the noise and the fleet's draws (default 0)")
+    """The V2V channel, sensor and plant options, as ``train`` has them; defaults: perfect."""
+    add_shared_options(p, IMPAIRMENT_OPTIONS)
     add_plant(p)
 
 
 def add_plant(p: argparse.ArgumentParser) -> None:
-    """The vehicle dynamics of the followers (:mod:`carl_sumo.sim.vehicle`); default: ideal."""
-    p.add_argument("--plant", choices=("ideal", "real"), default="ideal",
-                   help="ideal: every follower applies its command at once (the paper's "
-                        "protocol, default); real: the default fleet (80 %% cars, 20 %% trucks, "
-                        "lag and dead time drawn per class) and a 0.1 s V2V delay; the options "
-                        "below replace its parts")
-    p.add_argument("--fleet", default=None, metavar="SPEC",
-                   help="vehicle classes with fractions, e.g. car:0.7,truck:0.3 (each "
-                        "follower's class drawn per event; docs/vehicles.md)")
-    p.add_argument("--vehicle-lag", type=float, default=None, metavar="S",
-                   help="powertrain lag tau of every follower (s; first order)")
-    p.add_argument("--actuation-delay", type=float, default=None, metavar="S",
-                   help="actuation dead time of every follower (s; a multiple of 0.1 s)")
-
-
-def add_event_choice(p: argparse.ArgumentParser) -> None:
-    """train's options that choose its validation events and weight its training events."""
-    p.add_argument("--eval-events", type=int, default=None,
-                   help="held-out training events used for validation (default 8)")
-    p.add_argument("--val-seed", type=int, default=None,
-                   help="seed choosing the held-out events (default: --seed); give runs of "
-                        "several seeds one --val-seed to compare them on the same events")
-    p.add_argument("--val-source", default=None,
-                   help="hold the validation events out of this event source only (the data "
-                        "file's `source` column), e.g. the one most like the test set")
-    p.add_argument("--val-events", default=None, metavar="FILE",
-                   help="a file of training event IDs (one per line) held out and validated "
-                        "on too, e.g. the hardest (benchmarks/hard_events.py)")
-    p.add_argument("--exclude-events", default=None, metavar="FILE",
-                   help="a file of training event IDs (one per line) left out of training and "
-                        "validation, e.g. recordings that start in a collision")
-    p.add_argument("--oversample", default=None, metavar="FILE",
-                   help="a file of training event IDs (one per line) drawn --oversample-times "
-                        "as often as the others in training, e.g. the hardest ones that "
-                        "validation does not hold out (benchmarks/hard_events.py)")
-    p.add_argument("--oversample-times", type=int, default=None, metavar="K",
-                   help="how many times as often the --oversample events are drawn (default 4)")
+    """The vehicle dynamics of the followers, as ``train`` has them; default: ideal."""
+    add_shared_options(p, PLANT_OPTIONS)
 
 
 def add_warmup(p: argparse.ArgumentParser) -> None:
     """``--warmup S``: a settling run before every event (:meth:`Event.with_warmup`)."""
-    p.add_argument("--warmup", type=float, default=0.0, metavar="S",
-                   help="run every event S seconds (a multiple of 0.1) longer at its start, the "
-                        "leader holding its initial speed, so the platoon settles at its own "
-                        "spacing before the recorded leader starts; metrics score the recorded "
-                        "part only (default 0: the platoon starts at the recorded gap)")
+    add_shared_options(p, ("warmup",))
 
 
 def warmup_from(args: argparse.Namespace) -> float:
     """The checked ``--warmup`` (s); InputError for a negative value or one that is not a whole
     number of 0.1 s steps."""
-    from carl_sumo.config import DT_S
+    from carl_sumo.data.events import check_warmup, check_whole_steps
 
-    from carl_sumo.data.events import check_warmup
-
-    s = check_warmup(args.warmup)
-    if abs(s / DT_S - round(s / DT_S)) > 1e-6:
-        raise InputError(f"--warmup {s} is not a multiple of the {DT_S} s step; give e.g. "
-                         f"{round(s / DT_S) * DT_S:g}")
-    return float(s)
+    return float(check_whole_steps(check_warmup(args.warmup)))
 
 
 def impairments_from(args: argparse.Namespace):
@@ -160,7 +105,9 @@ def impairments_from(args: argparse.Namespace):
     if args.sensor_filter and not args.sensor_noise and not getattr(args, "comm_randomize", None):
         raise InputError("--sensor-filter filters noisy measurements: give it with --sensor-noise"
                          + (" or --comm-randomize" if hasattr(args, "comm_randomize") else ""))
-    return Impairments.from_options(args)
+    impairments = Impairments.from_options(args)
+    check_shared_options(args, IMPAIRMENT_OPTIONS + PLANT_OPTIONS)  # train's bounds, as --help says
+    return impairments
 
 
 def positive(value: int, name: str) -> int:

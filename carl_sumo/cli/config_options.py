@@ -1,20 +1,24 @@
 """Command-line options generated from :class:`carl_sumo.learn.train_config.TrainConfig`.
 
-Every field becomes one option (``--flag``, its type from the annotation, its help from the
+``train``: every field becomes one option (``--flag``, its type from the annotation, its help from the
 field's doc, unit, default and range), grouped by the field's section. A parsed value is None
 unless given, so that a recipe (``--config``) supplies the rest: :func:`config_from_args` merges
-the defaults, the recipe and the options given, in that order of precedence.
+the defaults, the recipe and the options given, in that order of precedence. The commands
+that share some of these options (``simulate``, ``evaluate``, ``study`` ...: the V2V channel,
+sensors and plant) take them from the same fields (:func:`add_shared_options`).
 """
 
 from __future__ import annotations
 
 import argparse
+from dataclasses import fields
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 from carl_sumo.errors import InputError
 from carl_sumo.learn.recipe import base_type, coerce, key_of, option_fields, read_recipe
-from carl_sumo.learn.train_config import SECTIONS, TrainConfig, bounds_text
+from carl_sumo.learn.train_config import TrainConfig
+from carl_sumo.options import SECTIONS, bounds_text, check_range, flag_of
 
 
 def _shown(value: Any) -> str:
@@ -40,6 +44,12 @@ def help_of(f) -> str:
     return f"{parts[0]} ({'; '.join(extra)})"
 
 
+def _metavar(f, kind: type) -> str:
+    choices = f.metadata["choices"]
+    return f.metadata["metavar"] or ("{" + ",".join(choices) + "}" if choices else
+                                     {int: "N", float: "X"}.get(kind, "TEXT"))
+
+
 def add_config_options(p: argparse.ArgumentParser,
                        converters: dict[str, Callable[[str], Any]] | None = None) -> None:
     """One option per :class:`TrainConfig` field, in an argument group per section;
@@ -54,11 +64,34 @@ def add_config_options(p: argparse.ArgumentParser,
             group.add_argument(flag, dest=key, action=argparse.BooleanOptionalAction,
                                default=None, help=help_of(f))
         else:
-            choices = f.metadata["choices"]
-            metavar = f.metadata["metavar"] or ("{" + ",".join(choices) + "}" if choices else
-                                                {int: "N", float: "X"}.get(kind, "TEXT"))
             group.add_argument(flag, dest=key, type=converters.get(f.name, kind), default=None,
-                               metavar=metavar, help=help_of(f))
+                               metavar=_metavar(f, kind), help=help_of(f))
+
+
+def add_shared_options(p: argparse.ArgumentParser, names: Sequence[str]) -> None:
+    """``train``'s options of the :class:`TrainConfig` fields ``names`` for a command that reads
+    no recipe (simulate, evaluate, study ...): the same flag, type, allowed values and help, the
+    field's default as the default, a switch (``store_true``) for a boolean. Their ranges are
+    checked by :func:`check_shared_options`."""
+    by_name = {f.name: f for f in fields(TrainConfig)}
+    for name in names:
+        f = by_name[name]
+        kind, flag = base_type(f), "--" + flag_of(f)
+        if kind is bool:
+            p.add_argument(flag, dest=key_of(f), action="store_true", help=help_of(f))
+        else:
+            p.add_argument(flag, dest=key_of(f), type=kind, default=f.default,
+                           choices=f.metadata["choices"], metavar=_metavar(f, kind),
+                           help=help_of(f))
+
+
+def check_shared_options(args: argparse.Namespace, names: Sequence[str]) -> None:
+    """InputError, one line, for a value of the options of fields ``names``
+    (:func:`add_shared_options`) outside its field's range."""
+    by_name = {f.name: f for f in fields(TrainConfig)}
+    for name in names:
+        f = by_name[name]
+        check_range(flag_of(f), getattr(args, key_of(f), None), f.metadata)
 
 
 def config_from_args(args: argparse.Namespace, command: str = "",

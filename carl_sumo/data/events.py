@@ -144,6 +144,14 @@ def check_warmup(seconds: float, option: str = "--warmup") -> float:
     return float(seconds)
 
 
+def check_whole_steps(seconds: float, option: str = "--warmup") -> float:
+    """``seconds``, or InputError (one line) when it is not a whole number of simulation steps."""
+    if abs(seconds / DT_S - round(seconds / DT_S)) > 1e-6:
+        raise InputError(f"{option} {seconds} is not a multiple of the {DT_S} s step; give e.g. "
+                         f"{round(seconds / DT_S) * DT_S:g}")
+    return seconds
+
+
 def read_event_table(path: str | Path) -> pd.DataFrame:
     """Read and validate an event table (CSV, optionally gzip-compressed).
 

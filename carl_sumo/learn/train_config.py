@@ -19,9 +19,9 @@ from typing import Sequence
 
 import numpy as np
 
-from carl_sumo.config import DT_S, REWARD, RewardConfig
+from carl_sumo.config import REWARD, RewardConfig
 from carl_sumo.control.channel import Impairments, plant_impairments
-from carl_sumo.data.events import MAX_WARMUP_S, Event, read_event_ids
+from carl_sumo.data.events import MAX_WARMUP_S, Event, check_whole_steps, read_event_ids
 from carl_sumo.errors import InputError
 from carl_sumo.learn.agents import AgentConfig
 from carl_sumo.learn.selection import VALIDATION_IMPAIRMENTS
@@ -49,7 +49,8 @@ class TrainConfig:
     net: str = option(str(DEFAULT_NET), "SUMO network (.net.xml; a shipped network's file "
                       "name works from any folder)", "data", metavar="PATH")
     warmup: float = option(0.0, "settling run before every event, the leader holding its first "
-                           "speed (a multiple of 0.1 s); validation scores the recorded part",
+                           "speed (a multiple of 0.1 s), so that the platoon settles at its own "
+                           "spacing; metrics and validation score the recorded part only",
                            "data", unit="s", low=0.0, high=MAX_WARMUP_S, metavar="S")
     braking_events: int = option(0, "synthetic hard-braking leaders (15-30 m/s, -3 to -6 m/s²) "
                                  "added to training, a quarter of them to validation", "data",
@@ -70,9 +71,11 @@ class TrainConfig:
     # plant
     plant: str = option("ideal", "ideal: every follower applies its command at once (the "
                         "paper's); real: the default fleet (80 % cars, 20 % trucks, lag and dead "
-                        "time per class) and a 0.1 s V2V delay", "plant",
+                        "time drawn per class) and a 0.1 s V2V delay (--fleet, --vehicle-lag, "
+                        "--actuation-delay and --comm-delay replace its parts)", "plant",
                         choices=("ideal", "real"))
-    fleet: str | None = option(None, "vehicle classes with fractions, e.g. car:0.7,truck:0.3",
+    fleet: str | None = option(None, "vehicle classes with fractions, e.g. car:0.7,truck:0.3 "
+                               "(each follower's class drawn per event; docs/vehicles.md)",
                                "plant", metavar="SPEC")
     vehicle_lag: float | None = option(None, "powertrain lag tau of every follower (first "
                                        "order)", "plant", unit="s", low=0.0, high=MAX_LAG_S,
@@ -84,23 +87,25 @@ class TrainConfig:
                                    "V2V delay (0-0.3 s) and loss (0-30 %); validation on the "
                                    "real plant", "plant")
     comm_delay: float | None = option(None, "every V2V message arrives this late (a multiple of "
-                                      "0.1 s; none: 0, or 0.1 with plant real)", "plant",
+                                      "0.1 s; none: 0, or 0.1 with --plant real)", "plant",
                                       unit="s", low=0.0, high=MAX_COMM_DELAY_S, metavar="S")
     comm_loss: float = option(0.0, "probability that a V2V message is lost", "plant", low=0.0,
                               high=1.0, metavar="P")
     comm_burst: float = option(1.0, "mean length of a loss burst (Gilbert-Elliott; 1: "
                                "independent)", "plant", unit="steps", low=1.0, high=10_000,
                                metavar="L")
-    comm_timeout: float = option(1.0, "a receiver falls back when its last message is older "
-                                 "than this", "plant", unit="s", low=0.0, high=3_600,
+    comm_timeout: float = option(1.0, "a receiver falls back (CA: the boundary message; "
+                                 "Ploeg: ACC) when its last message is older than this", "plant", unit="s", low=0.0, high=3_600,
                                  open_low=True, metavar="S")
-    comm_fade: float = option(1.0, "past the timeout the held message fades into the fallback "
-                              "over this time (0: a hard switch)", "plant", unit="s", low=0.0,
+    comm_fade: float = option(1.0, "past the timeout the held message fades linearly into "
+                              "the fallback over this time (0: a hard switch)", "plant", unit="s", low=0.0,
                               high=3_600, metavar="S")
     sensor_noise: bool = option(False, "Gaussian noise on the measured gap (0.1 m) and relative "
                                 "speed (0.1 m/s)", "plant")
-    sensor_filter: bool = option(False, "noisy measurements are tracked by a Kalman filter "
-                                 "(sensors.py), fixed or randomised", "plant")
+    sensor_filter: bool = option(False, "noisy measurements (--sensor-noise, or train's "
+                                 "--comm-randomize) are filtered: every follower tracks its "
+                                 "measured gap and relative speed with a Kalman filter "
+                                 "(docs/robustness.md)", "plant")
     impairment_seed: int = option(0, "seed of the losses, the noise and the fleet's draws",
                                   "plant", low=0, high=2**31 - 1)
     comm_randomize: bool = option(False, "robust training: every episode draws its own V2V "
@@ -266,9 +271,7 @@ class TrainConfig:
                 raise InputError(f"unknown --{flag_of(f)} {value!r}; choose one of "
                                  + ", ".join(meta["choices"]))
             check_range(flag_of(f), value, meta)
-        if abs(self.warmup / DT_S - round(self.warmup / DT_S)) > 1e-6:
-            raise InputError(f"--warmup {self.warmup} is not a multiple of the {DT_S} s step; "
-                             f"give e.g. {round(self.warmup / DT_S) * DT_S:g}")
+        check_whole_steps(self.warmup)
         self._check_schedule()
         self._check_calibration()
         self._check_impairments()

@@ -193,3 +193,22 @@ def test_a_trained_policy_stores_its_configuration_and_says_how_it_compares_with
     wanted = asdict(TrainConfig(**read_recipe(recipe), out=str(out)))
     assert Path(retrained.pop("net")).name == wanted.pop("net")
     assert retrained == wanted
+
+
+def test_the_commands_sharing_train_options_take_them_from_its_fields(capsys):
+    """simulate, evaluate, study ... have train's channel, sensor, plant, data and warm-up
+    options from the same fields: one help text, default, allowed values and range."""
+    from carl_sumo.cli import build_parser
+    from carl_sumo.cli.common import IMPAIRMENT_OPTIONS, PLANT_OPTIONS
+    from carl_sumo.cli.config_options import help_of
+
+    parser = build_parser()
+    (sub,) = [a for a in parser._actions if hasattr(a, "choices") and a.choices]
+    by_name = {f.name: f for f in fields(TrainConfig)}
+    for command in ("simulate", "replay", "evaluate", "tune", "study", "string-stability"):
+        actions = {a.dest: a for a in sub.choices[command]._actions}
+        for name in (*IMPAIRMENT_OPTIONS, *PLANT_OPTIONS):
+            f, action = by_name[name], actions[name]
+            assert action.help == help_of(f) and action.default == f.default, (command, name)
+    assert main(["simulate", "--comm-delay", "6", "--events", "1"]) == 2
+    assert "--comm-delay must be a finite number in [0, 5]" in capsys.readouterr().err
