@@ -1,8 +1,8 @@
 """Where learned policies spend their close calls: each policy and its base on the events its
 training run validated on (the seed file's ``validation_events``), real plant, 10 followers,
 TTC < 1.5 s samples and collisions on the named hard events (``--hard``, default
-``policies/val_hard_real.txt``) and on the others, and the events where the policy has more than
-the base. Selection (``--select reward``) keeps a checkpoint only if it has no more of either
+``carl_sumo/data/event_lists/val_hard_real.txt``) and on the others, and the events where the
+policy has more than the base. Selection (``--select reward``) keeps a checkpoint only if it has no more of either
 than the base on these events; a run that kept its base can be looked into through its last
 actor (``carl-sumo export policies/seeds/STEM_seedK.ckpt --out last_seedK.pt``).
 
@@ -21,6 +21,7 @@ from carl_sumo.data import load_events
 from carl_sumo.data.events import read_event_ids
 from carl_sumo.experiments.simulate import event_trajectories
 from carl_sumo.learn.policy import read_policy_payload
+from carl_sumo.resources import EVENT_LISTS
 from carl_sumo.sim.metrics import score_event
 
 
@@ -30,7 +31,7 @@ def main() -> None:
     p.add_argument("seed_file", help="a seed file whose validation events and base are used")
     p.add_argument("policies", nargs="+")
     p.add_argument("--warmup", type=float, default=10.0, help="s of settling (training's: 10)")
-    p.add_argument("--hard", default="policies/val_hard_real.txt")
+    p.add_argument("--hard", default=str(EVENT_LISTS / "val_hard_real.txt"))
     p.add_argument("--all-train", action="store_true", help="every training event")
     args = p.parse_args()
     meta = read_policy_payload(args.seed_file)["metadata"]

@@ -13,7 +13,8 @@ Only training events are run, so the test split stays unseen.
 Usage: python benchmarks/hard_events.py DATA BASE OUT [--plant real|ideal] [--top K]
        [--exclude POLICY.pt]
 e.g.   python benchmarks/hard_events.py ../shared/data/ngsim/ngsim_cf_events.csv.gz \\
-           ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1 policies/val_hard_real.txt --top 32
+           ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1 \\
+           carl_sumo/data/event_lists/val_hard_real.txt --top 32
 About 1 minute on 2 cores for the 773 training events on the real plant (57 s measured).
 """
 import argparse

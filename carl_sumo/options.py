@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import MISSING, field, fields
+from pathlib import Path
 from typing import Any, Sequence
 
 from carl_sumo.errors import InputError
@@ -35,16 +36,18 @@ INF = math.inf
 def option(default: Any, doc: str, section: str, *, unit: str = "", low: float | None = None,
            high: float | None = None, open_low: bool = False, open_high: bool = False,
            choices: Sequence[str] | None = None, flag: str | None = None, metavar: str | None = None,
-           cli: bool = True) -> Any:
+           cli: bool = True, folder: Path | None = None) -> Any:
     """An option: a dataclass field with its doc, unit, range ([low, high], ends open where
     said; finite in any case), allowed values, section and command-line flag (default: the
-    field name with dashes); ``cli`` False: a parameter no command line or recipe sets."""
+    field name with dashes); ``cli`` False: a parameter no command line or recipe sets;
+    ``folder``: a path whose file, when it does not exist, is the file of that name shipped in
+    ``folder`` (:func:`carl_sumo.resources.shipped`)."""
     if section not in SECTIONS:
         raise ValueError(f"unknown section {section!r}")
     return field(default=default, metadata=dict(
         doc=doc, section=section, unit=unit, low=low, high=high, open_low=open_low,
         open_high=open_high, choices=tuple(choices) if choices else None, flag=flag,
-        metavar=metavar, cli=cli))
+        metavar=metavar, cli=cli, folder=folder))
 
 
 def shared(source: type, name: str) -> Any:

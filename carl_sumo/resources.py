@@ -1,7 +1,9 @@
 """Where the files carl-sumo ships are found, in a source checkout and an installed wheel alike.
 
 The SUMO network (``carl_sumo/networks``), the vehicle types and default leaders' routes
-(``carl_sumo/routes``) and the default leader set (``carl_sumo/data``) are package data. The
+(``carl_sumo/routes``), the default leader set (``carl_sumo/data``) and the event lists that
+recipes name (``carl_sumo/data/event_lists``: training event IDs held out, left out or drawn
+more often) are package data. The
 shipped policies and tuned gains live in the repository's ``policies/`` folder, which a wheel
 installs as ``carl_sumo/shipped`` (pyproject.toml maps one onto the other); :func:`policies_dir`
 is whichever of the two this installation has.
@@ -17,6 +19,9 @@ NETWORKS = PACKAGE / "networks"
 ROUTES = PACKAGE / "routes"
 DEFAULT_NET = NETWORKS / "i80.net.xml"
 VTYPES_FILE = ROUTES / "vtypes.add.xml"
+EVENT_LISTS = PACKAGE / "data" / "event_lists"
+"""Lists of event IDs (one a line, ``#`` comments) that recipes name by file name, e.g.
+``val_hard_real.txt`` (benchmarks/hard_events.py writes them)."""
 
 PRODUCT = "ca_td3_real_truck_10.pt"
 """The file of the real-plant product (``--controller product``): CA-TD3 on the tuned CACC at the
@@ -41,6 +46,14 @@ def shipped(text: str, folder: Path) -> str:
         return text
     candidate = folder / Path(text).name
     return str(candidate) if candidate.is_file() else text
+
+
+def shipped_name(text: str, folder: Path) -> str:
+    """The file name of the shipped file of ``folder`` that ``text`` stands for
+    (:func:`shipped`: a missing path, or that file itself), else ``text``: how a recipe names
+    it, so that it reads the same from any folder and installation."""
+    found = Path(shipped(text, folder))
+    return found.name if found.is_file() and found.resolve().parent == folder.resolve() else text
 
 
 def controller_name(name: str) -> str:

@@ -38,6 +38,34 @@ def test_a_shipped_file_is_found_by_its_name_and_a_real_path_wins(tmp_path, monk
     assert controller_name("ploeg:h=0.8") == "ploeg:h=0.8"
 
 
+def test_the_event_lists_are_package_data_that_recipes_name_from_any_folder(tmp_path,
+                                                                            monkeypatch):
+    """The event lists the recipes name live in the data layer and are found by file name from
+    any folder; a recipe printed back names them (and the network) by file name too."""
+    from carl_sumo.cli.config_options import config_from_args
+    from carl_sumo.cli.policies import train_parser
+    from carl_sumo.data.events import read_event_ids
+    from carl_sumo.learn.recipe import recipe_toml
+    from carl_sumo.resources import EVENT_LISTS, shipped_name
+
+    lists = sorted(p.name for p in EVENT_LISTS.glob("*.txt"))
+    assert lists == ["exclude_start_overlap.txt", "train_hard_real.txt", "val_hard_real.txt"]
+    assert not list((REPO / "policies").glob("*.txt"))
+    monkeypatch.chdir(tmp_path)
+    recipe = REPO / "recipes" / "ca_td3_real_truck_10.toml"
+    args = train_parser().parse_args(["train", "--config", str(recipe), "--data", "default"])
+    cfg = config_from_args(args, check=False)
+    assert cfg.val_events == str(EVENT_LISTS / "val_hard_real.txt")
+    assert len(read_event_ids(cfg.val_events)) == 32
+    text = recipe_toml(cfg)
+    assert 'val_events = "val_hard_real.txt"' in text and 'net = "i80.net.xml"' in text
+    assert shipped_name("policies/val_hard_real.txt", EVENT_LISTS) == "val_hard_real.txt"
+    own = tmp_path / "val_hard_real.txt"
+    own.write_text("x\n")
+    assert shipped_name("val_hard_real.txt", EVENT_LISTS) == "val_hard_real.txt"  # its own
+    assert shipped_name(str(own), EVENT_LISTS) == str(own)
+
+
 def test_the_product_runs_by_name_from_another_folder(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     assert main(["simulate", "--controller", "product", "--plant", "real", "--events", "1",

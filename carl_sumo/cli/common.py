@@ -30,8 +30,9 @@ class Parser(argparse.ArgumentParser):
         return super()._get_value(action, arg_string)
 
 
-PATH_DESTS = frozenset({"data", "init", "resume", "out", "json", "fcd", "plot", "policies",
-                        "results", "spec", "checkpoint", "policy", "files", "h_min_table"})
+PATH_DESTS = frozenset({"data", "net", "exclude_events", "oversample", "val_events", "init",
+                        "resume", "out", "json", "fcd", "plot", "policies", "results", "spec",
+                        "checkpoint", "policy", "files", "h_min_table"})
 """Options whose value is a path even where argparse keeps it as a string."""
 
 

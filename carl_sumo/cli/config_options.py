@@ -1,7 +1,7 @@
 """Command-line options generated from :class:`carl_sumo.learn.train_config.TrainConfig`.
 
-``train``: every field becomes one option (``--flag``, its type from the annotation, its help from the
-field's doc, unit, default and range), grouped by the field's section. A parsed value is None
+``train``: every field becomes one option (``--flag``, its type from the annotation, its help
+from the field's doc, unit, default and range), grouped by the field's section. A parsed value is None
 unless given, so that a recipe (``--config``) supplies the rest: :func:`config_from_args` merges
 the defaults, the recipe and the options given, in that order of precedence. The commands
 that share some of these options (``simulate``, ``evaluate``, ``study`` ...: the V2V channel,
@@ -11,6 +11,7 @@ sensors and plant) take them from the same fields (:func:`add_shared_options`).
 from __future__ import annotations
 
 import argparse
+import functools
 from dataclasses import fields
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -19,6 +20,7 @@ from carl_sumo.errors import InputError
 from carl_sumo.learn.recipe import base_type, coerce, key_of, option_fields, read_recipe
 from carl_sumo.learn.train_config import TrainConfig
 from carl_sumo.options import SECTIONS, bounds_text, check_range, flag_of
+from carl_sumo.resources import shipped
 
 
 def _shown(value: Any) -> str:
@@ -50,11 +52,21 @@ def _metavar(f, kind: type) -> str:
                                      {int: "N", float: "X"}.get(kind, "TEXT"))
 
 
+def field_converters(converters: dict[str, Callable[[str], Any]] | None = None
+                     ) -> dict[str, Callable[[str], Any]]:
+    """The functions that read the :class:`TrainConfig` fields given as text: for a field with
+    a shipped ``folder`` (``net``, the event lists), a shipped file found by its name
+    (:func:`carl_sumo.resources.shipped`); ``converters`` add to and replace them."""
+    shipped_in = {f.name: functools.partial(shipped, folder=f.metadata["folder"])
+                  for f in fields(TrainConfig) if f.metadata.get("folder") is not None}
+    return {**shipped_in, **(converters or {})}
+
+
 def add_config_options(p: argparse.ArgumentParser,
                        converters: dict[str, Callable[[str], Any]] | None = None) -> None:
     """One option per :class:`TrainConfig` field, in an argument group per section;
-    ``converters`` replace the type of named fields (e.g. ``net``: a shipped network by name)."""
-    converters = converters or {}
+    ``converters`` replace the type of named fields (:func:`field_converters`)."""
+    converters = field_converters(converters)
     groups = {s: p.add_argument_group(f"{s} options", doc) for s, doc in SECTIONS.items()}
     for key, f in option_fields().items():
         group = groups[f.metadata["section"]]
@@ -111,7 +123,7 @@ def config_from_args(args: argparse.Namespace, command: str = "",
             values[f.name] = None  # e.g. --imitate none: a recipe's option left out
         elif given is not None:
             values[f.name] = coerce(key, given, f, "--" + key.replace("_", "-"))
-    for name, convert in (converters or {}).items():
+    for name, convert in field_converters(converters).items():
         if isinstance(values.get(name), str):
             values[name] = convert(values[name])
     try:

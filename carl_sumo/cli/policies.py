@@ -13,8 +13,7 @@ import sys
 from pathlib import Path
 
 from carl_sumo.cli.common import (add_common, add_impairments, add_ray, add_warmup, check_ray,
-                                 fmt, impairments_from, net_option, positive, ray_session,
-                                 warmup_from)
+                                 fmt, impairments_from, positive, ray_session, warmup_from)
 from carl_sumo.cli.config_options import add_config_options
 from carl_sumo.control.ploeg_names import expand_preset
 from carl_sumo.errors import InputError
@@ -39,8 +38,9 @@ def check_train_args(args: argparse.Namespace, command: str = ""):
     return cfg, out
 
 
-TRAIN_CONVERTERS = {"net": net_option, "base": expand_preset}
-"""Training options read by a function of the command line rather than their type."""
+TRAIN_CONVERTERS = {"base": expand_preset}
+"""Training options read by a function of the command line rather than their type (besides the
+shipped files found by name: :func:`carl_sumo.cli.config_options.field_converters`)."""
 
 
 def _train_parser(sub: argparse._SubParsersAction) -> None:
@@ -283,8 +283,9 @@ def policy_index(folder: Path) -> str:
              "learning curve; `carl-sumo policy-info FILE` prints its card.",
              "- Re-train one: `carl-sumo train --config recipes/<stem>.toml --seed K`; "
              "`carl-sumo policy-info --recipe FILE` prints the configuration it was trained with.",
-             "- `*_tuned*.json`: classical gains tuned for a plant (`carl-sumo tune`); `*.txt`: "
-             "event lists the recipes name.",
+             "- `*_tuned*.json`: classical gains tuned for a plant (`carl-sumo tune`). The event "
+             "lists the recipes name (`val_hard_real.txt` ...) are package data: "
+             "`carl_sumo/data/event_lists/`, found by file name from any folder.",
              "- A checkpoint kept at step 1000 of a recipe with `imitate` is the copy of its "
              "teacher made before any RL update: its numbers are the teacher's, not a learned "
              "result (docs/training.md)."]

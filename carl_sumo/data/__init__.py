@@ -2,7 +2,9 @@
 
 :func:`load_events` is the one entry point: ``data`` is ``default`` (the set shipped in
 ``carl_sumo/data/default_events.csv.gz``), ``stop-and-go`` (synthetic), or the path of an event
-table (``ngsim_cf_events.csv.gz`` format) or of a raw NGSIM trajectory CSV.
+table (``ngsim_cf_events.csv.gz`` format) or of a raw NGSIM trajectory CSV. The lists of event
+IDs that recipes name (``event_lists/*.txt``, read by :func:`carl_sumo.data.events.read_event_ids`)
+ship beside the default set (:data:`carl_sumo.resources.EVENT_LISTS`).
 """
 
 from __future__ import annotations

@@ -32,6 +32,7 @@ from typing import Any, get_type_hints
 
 from carl_sumo.errors import InputError
 from carl_sumo.learn.train_config import SECTIONS, TrainConfig, flag_of
+from carl_sumo.resources import shipped_name
 
 TOP_KEYS = ("extends", "description")
 """Keys of a recipe outside its sections."""
@@ -128,6 +129,8 @@ def recipe_toml(cfg: TrainConfig, description: str = "") -> str:
     by_section: dict[str, list[str]] = {s: [] for s in SECTIONS}
     for key, f in option_fields().items():
         value = getattr(cfg, f.name)
+        if isinstance(value, str) and f.metadata.get("folder") is not None:
+            value = shipped_name(value, f.metadata["folder"])  # by name: it reads from anywhere
         unit = f" ({f.metadata['unit']})" if f.metadata["unit"] else ""
         text = f"{key} = {_toml_value(value)}" if value is not None else f"# {key} = (none)"
         by_section[f.metadata["section"]] += [f"# {f.metadata['doc']}{unit}", text]

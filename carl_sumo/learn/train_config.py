@@ -27,6 +27,7 @@ from carl_sumo.learn.agents import AgentConfig
 from carl_sumo.learn.selection import VALIDATION_IMPAIRMENTS
 from carl_sumo.options import (SECTIONS, bounds_text, check_range, flag_of, option,  # noqa: F401
                                shared, sourced)
+from carl_sumo.resources import EVENT_LISTS, NETWORKS
 from carl_sumo.sim.sumo import DEFAULT_NET
 from carl_sumo.sim.vehicle import MAX_DEAD_TIME_S, MAX_LAG_S
 
@@ -47,7 +48,7 @@ class TrainConfig:
                        "NGSIM CSV", "data", metavar="PATH")
     split: str = option("train", "the data's split trained on: train | test | us101 | all", "data")
     net: str = option(str(DEFAULT_NET), "SUMO network (.net.xml; a shipped network's file "
-                      "name works from any folder)", "data", metavar="PATH")
+                      "name works from any folder)", "data", metavar="PATH", folder=NETWORKS)
     warmup: float = option(0.0, "settling run before every event, the leader holding its first "
                            "speed (a multiple of 0.1 s), so that the platoon settles at its own "
                            "spacing; metrics and validation score the recorded part only",
@@ -62,10 +63,12 @@ class TrainConfig:
                                "--sine-events (they are repeated in the draw to reach it)",
                                "data", low=0.0, high=0.9, metavar="F")
     exclude_events: str | None = option(None, "file of training event IDs (one per line) left "
-                                        "out of training and validation", "data",
-                                        metavar="FILE")
+                                        "out of training and validation (a shipped list's "
+                                        "file name works from any folder)", "data",
+                                        metavar="FILE", folder=EVENT_LISTS)
     oversample: str | None = option(None, "file of training event IDs drawn --oversample-times "
-                                    "as often as the others in training", "data", metavar="FILE")
+                                    "as often as the others in training", "data", metavar="FILE",
+                                    folder=EVENT_LISTS)
     oversample_times: int = option(4, "how many times as often the --oversample events are "
                                    "drawn", "data", low=1, high=1_000, metavar="K")
     # plant
@@ -226,7 +229,8 @@ class TrainConfig:
     val_source: str | None = option(None, "hold the validation events out of this event source "
                                     "only (the data file's source column)", "validation")
     val_events: str | None = option(None, "file of training event IDs held out and validated "
-                                    "on too, e.g. the hardest", "validation", metavar="FILE")
+                                    "on too, e.g. the hardest", "validation", metavar="FILE",
+                                    folder=EVENT_LISTS)
     select: str = option("margin", "how the kept checkpoint is chosen: margin, comfort, "
                          "metrics or reward (learn/selection.py)", "validation",
                          choices=("margin", "comfort", "metrics", "reward"))
