@@ -26,6 +26,10 @@ hears no V2V message (the first follower behind a human leader, a follower behin
 human) runs the same law as an ACC at the longer time gap T (h → T in e_i, ė_i and the filter),
 as a radar-only link needs a longer gap to stay string stable (docs/string_stability.md).
 
+The safety layers below are parts of their own (:mod:`carl_sumo.control.layers`): the kernel runs
+the law on a chain (:func:`_ploeg_law`), then each layer in turn bounds its output; the scenario
+inputs (armed vehicles, distances to a merge point) reach only the layers.
+
 Reaction layer (``ttc=T`` in a name, e.g. ``ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2``): a
 vehicle that hears no V2V message reacts at once when it closes in on the vehicle ahead, which the
 law at T, filtered with time constant T, does too slowly on a lagging powertrain. When the time to
@@ -102,6 +106,9 @@ import numpy as np
 from numba import njit
 
 from carl_sumo.control.channel import Channel, Impairments, KeyedChannel
+from carl_sumo.control.layers import (  # noqa: F401 (the layers' constants are read from here too)
+    MERGE_MIN_SPEED_MPS, OPEN_GAP_S, OPEN_SPEED_TIME_S, OPEN_TIME_S, REACTION_LAG_S,
+    REACTION_MARGIN_M, apply_layers, layer_params, without_message)
 from carl_sumo.control.feed_forward import (  # noqa: F401 (mpf_*: read from here too)
     check_heard, message_size, mpf_feed_forward, mpf_relay, washed_adjustment, with_relays)
 from carl_sumo.control.ploeg_names import (  # noqa: F401 (the names are read from here too)
@@ -110,21 +117,6 @@ from carl_sumo.control.ploeg_names import (  # noqa: F401 (the names are read fr
 from carl_sumo.config import BOUNDS, DT_S, IDM, ControlBounds
 from carl_sumo.errors import InputError
 
-REACTION_MARGIN_M = 1.0
-"""The reaction layer brakes to keep this much bumper gap when closing in (m)."""
-REACTION_LAG_S = 0.5
-"""The reaction layer's allowance for dead time and powertrain lag: the gap it counts on is
-reduced by the closing speed times this (s; a truck's lag is 0.4-0.6 s, docs/vehicles.md)."""
-OPEN_GAP_S = 0.8
-"""``op=B``: the time gap an armed vehicle at the front of its chain opens (s; an armed vehicle
-stays armed until its spacing reaches it, carl_sumo.manoeuvres.simulation.JOIN_LINK_GAP_S)."""
-OPEN_TIME_S = 3.0
-"""``op=B``: the opening speed it asks for is the missing gap over this time (m / s)."""
-OPEN_SPEED_TIME_S = 1.0
-"""``op=B``: it reaches that opening speed with this time constant (s)."""
-MERGE_MIN_SPEED_MPS = 0.5
-"""Merge point: the speed below which the time to the merge point is taken at this speed (m/s),
-so a vehicle at a near stop beside the merge point is bounded by a finite time."""
 HEAVY_BRAKING_MPS2 = 7.0
 """``ht=T``: a vehicle whose own largest braking is below this (m/s²; a truck's 6, a car's 9),
 known with ``aw=1``, keeps at least the time gap T in its chain."""
@@ -132,87 +124,82 @@ CRUISE_GAIN_PER_S = 0.4
 """k_cc: cruise-control gain of the speed cap a ≤ k_cc·(v0 - v) (1/s)."""
 
 
+LAW = np.dtype([
+    ("h", np.float64),        # time gap (s)
+    ("h_alone", np.float64),  # time gap of a vehicle without a message, ha (s)
+    ("h_heavy", np.float64),  # time gap of a heavy vehicle, ht (s; 0: h)
+    ("kp", np.float64),       # 1/s²
+    ("kd", np.float64),       # 1/s
+    ("s0", np.float64),       # standstill gap (m)
+    ("dt", np.float64),       # step (s)
+    ("acc_min", np.float64),  # the vehicle's bounds (m/s²)
+    ("acc_max", np.float64),
+    ("v0", np.float64),       # cruise-control speed (m/s)
+    ("k_cc", np.float64),     # cruise-control gain (1/s)
+])
+"""The Ploeg law's numbers (the module docstring): the kernel's ``law``, an array of one record
+(:func:`_numbers`)."""
+
+
 @njit(cache=True)
-def _ploeg_step(obs, u, brake, u_lead, adj, h, h_alone, kp, kd, s0, dt, acc_min, acc_max, v0, k_cc,
-                pred_mode, pred_held, u_min, u_max, ttc_on, margin, lag, armed, a_ahead, safe_b,
-                safe_armed_only, open_b, h_heavy, merge_m):
-    """One step of every follower (head first): updates ``u`` in place, returns a (m/s²);
+def _ploeg_law(obs, u, brake, u_lead, adj, numbers, pred_mode, pred_held, u_min, u_max):
+    """The law alone, every follower (head first): updates ``u`` in place, returns a (m/s²).
     ``adj`` (m/s², shape (n,)) is the learned feed-forward term (zeros for the plain law).
     ``pred_mode`` / ``pred_held`` (shape (n,)): how follower i > 0 hears its predecessor's
-    message (carl_sumo.control.channel: 0 this step's, 1 the held value, 2 none: no feed-forward).
-    ``u_min`` / ``u_max`` (m/s², shape (n,)): each vehicle's own limits, which its state does not
-    pass (anti-windup; ±inf: none), so the message it sends is a command it can follow.
-    ``h_alone`` (s): the time gap of the head and of a follower that hears no message.
-    ``ttc_on`` (s; 0: off): below this time to collision, (d - margin)/closing speed, a vehicle
-    without a message applies at most -c²/(2·(d - margin - lag·c)) - max(-a_ahead, 0) (the module
-    docstring; ``a_ahead`` m/s², shape (n,)), and ``brake`` (m/s², inf: none; its message is
-    min(u, brake)) holds it; its state ``u`` stays the law's. ``armed`` (bool, shape (n,)):
-    vehicles whose reaction acts although they hear a message (a joiner that is joining).
-    ``safe_b`` (m/s²; 0: off): such a vehicle applies at most (v_safe - v)/lag, v_safe the speed
-    from which it stops behind the vehicle ahead when both brake at safe_b after its lag
-    (Gipps), and ``brake`` holds that too; ``safe_armed_only`` (``gn=B``): only an armed vehicle
-    at the front of its chain (i = 0: the vehicle ahead is no member it hears, a human) does.
-    ``merge_m`` (m, shape (n,); inf: none): the distance to the merge point of a vehicle whose
-    vehicle ahead is still on the other feeding lane of a zipper merge; with ``safe_b`` > 0 it
-    applies at most 2·(d - s0 + Δv·t)/t², t = its distance over its speed (the module
-    docstring), and ``brake`` holds that too."""
+    message (carl_sumo.control.channel: 0 this step's, 1 the held value, 2 none: no feed-forward);
+    the message is the predecessor's last min(u, brake) (``brake``: its last layers' braking,
+    m/s², inf: none). ``u_min`` / ``u_max`` (m/s², shape (n,)): each vehicle's own limits, which
+    its state does not pass (anti-windup; ±inf: none), so the message it sends is a command it
+    can follow. ``law.h_alone``: the time gap of the head and of a follower that hears no
+    message; ``law.h_heavy`` that of a heavy vehicle (its braking below 7 m/s²)."""
+    law = numbers[0]
     n = obs.shape[0]
     out = np.empty(n)
     u_pred = u_lead
     for i in range(n):
-        alone = i == 0 or pred_mode[i] == 2  # no message from ahead: ACC at h_alone, reacts
-        hi = h_alone if alone else h
+        alone = without_message(i, pred_mode)  # no message from ahead: ACC at h_alone
+        hi = law.h_alone if alone else law.h
         if not alone and -u_min[i] < HEAVY_BRAKING_MPS2:  # ht: a heavy vehicle keeps h_heavy
-            hi = max(h, h_heavy)
-        e = obs[i, 2] - s0 - hi * obs[i, 0]
+            hi = max(law.h, law.h_heavy)
+        e = obs[i, 2] - law.s0 - hi * obs[i, 0]
         e_dot = obs[i, 3] - hi * obs[i, 1]
         u_in = u_pred
         if i > 0 and pred_mode[i] == 1:
             u_in = pred_held[i]
         elif i > 0 and pred_mode[i] == 2:
             u_in = 0.0
-        sent_old = min(u[i], brake[i])  # its message of step k: u, or its reaction's braking
+        sent_old = min(u[i], brake[i])  # its message of step k: u, or its layers' braking
         u_old = u[i]
-        u[i] = min(u_old + (dt / hi) * (-u_old + kp * e + kd * e_dot + u_in + adj[i]),
-                   k_cc * (v0 - obs[i, 0]))
+        u[i] = min(u_old + (law.dt / hi) * (-u_old + law.kp * e + law.kd * e_dot + u_in + adj[i]),
+                   law.k_cc * (law.v0 - obs[i, 0]))
         u[i] = min(max(u[i], u_min[i]), u_max[i])
         u_pred = sent_old
-        out[i] = min(max(u[i], acc_min), acc_max)
-        brake[i] = np.inf
-        closing = -obs[i, 3]
-        if (alone or armed[i]) and ttc_on > 0.0 and closing > 0.0 \
-                and obs[i, 2] - margin < ttc_on * closing:
-            room = obs[i, 2] - margin - lag * closing
-            need = closing * closing / (2.0 * room) + max(-a_ahead[i], 0.0) if room > 0.0 \
-                else np.inf
-            out[i] = max(min(out[i], -need), acc_min, u_min[i])  # at most its own braking
-            brake[i] = out[i]  # its follower hears the reaction's braking
-        # gn and op: only a chain's first vehicle, whose vehicle ahead is not a member it hears
-        # (a human); behind a member of its chain a message is on its way (the V2V delay)
-        front_armed = i == 0 and armed[i]
-        guarded = front_armed if safe_armed_only else armed[i] or alone
-        if guarded and safe_b > 0.0:
-            v, v_ahead = obs[i, 0], max(obs[i, 0] + obs[i, 3], 0.0)
-            bl = safe_b * lag
-            v_safe = -bl + math.sqrt(bl * bl + v_ahead * v_ahead
-                                     + 2.0 * safe_b * max(obs[i, 2] - margin, 0.0))
-            if v > v_safe:
-                out[i] = max(min(out[i], (v_safe - v) / lag), acc_min, u_min[i])
-                brake[i] = min(brake[i], out[i])
-        if open_b > 0.0 and front_armed:  # op: it opens its gap to OPEN_GAP_S at up to open_b
-            short = s0 + OPEN_GAP_S * obs[i, 0] - obs[i, 2]
-            if short > 0.0:
-                a_open = max((obs[i, 3] - short / OPEN_TIME_S) / OPEN_SPEED_TIME_S, -open_b)
-                if a_open < out[i]:
-                    out[i] = max(a_open, acc_min, u_min[i])
-                    brake[i] = min(brake[i], out[i])
-        if safe_b > 0.0 and merge_m[i] < np.inf:  # reach the merge point s0 behind the other
-            t = merge_m[i] / max(obs[i, 0], MERGE_MIN_SPEED_MPS)
-            a_merge = 2.0 * (obs[i, 2] - s0 + obs[i, 3] * t) / (t * t)
-            if a_merge < out[i]:
-                out[i] = max(a_merge, acc_min, u_min[i])
-                brake[i] = min(brake[i], out[i])
+        out[i] = min(max(u[i], law.acc_min), law.acc_max)
     return out
+
+
+@njit(cache=True)
+def _ploeg_step(obs, u, brake, u_lead, adj, law, layers, pred_mode, pred_held, u_min, u_max,
+                armed, a_ahead, merge_m):
+    """One step of a chain: the law (:func:`_ploeg_law`), then its safety layers
+    (:func:`carl_sumo.control.layers.apply_layers`: ``armed``, ``a_ahead`` and ``merge_m`` are
+    theirs), which bound a and write the braking they applied into ``brake``. Returns a (m/s²)."""
+    out = _ploeg_law(obs, u, brake, u_lead, adj, law, pred_mode, pred_held, u_min, u_max)
+    apply_layers(obs, out, brake, pred_mode, armed, a_ahead, merge_m, u_min, layers)
+    return out
+
+
+def _numbers(p: PloegParams, b: ControlBounds) -> tuple[np.ndarray, np.ndarray]:
+    """The kernel's ``law`` (:data:`LAW`) and ``layers`` (:data:`carl_sumo.control.layers.LAYERS`)
+    of a law, read-only."""
+    law = np.array([(p.time_gap_s, p.gap_alone_s, p.heavy_gap_s or 0.0, p.kp, p.kd,
+                     p.standstill_gap_m, DT_S, b.acc_min_mps2, b.acc_max_mps2,
+                     IDM.desired_speed_mps, CRUISE_GAIN_PER_S)], dtype=LAW)
+    law.flags.writeable = False
+    layers = layer_params(p.reaction_ttc_s or 0.0, REACTION_MARGIN_M, REACTION_LAG_S,
+                          p.safe_braking_mps2 or 0.0, p.safe_new_only,
+                          p.opening_braking_mps2 or 0.0, p.standstill_gap_m, b.acc_min_mps2)
+    return law, layers
 
 
 @lru_cache(maxsize=64)
@@ -253,6 +240,7 @@ class PloegController:
         self.channel: Channel | None = None
         self._k = 0
         self.adj_mean = np.zeros(0)  # each follower's running mean of a_adj (m/s², ``wo=T``)
+        self._numbers: tuple = (None, None)  # (params, bounds, law, layers) of the kernel
 
     def reset(self, n_followers: int) -> None:
         check_heard(self.params, n_followers, self.name)
@@ -339,15 +327,13 @@ class PloegController:
             pred_mode, pred_held = np.zeros(n, dtype=np.int64), np.zeros(n)
         brake = np.full(n, np.inf) if brake is None else brake
         armed, a_ahead, merge_m = self._reaction_inputs(n, armed, a_ahead, merge_m)
-        return _ploeg_step(obs, u, brake, u_lead, adj, p.time_gap_s, p.gap_alone_s, p.kp, p.kd,
-                           p.standstill_gap_m,
-                           DT_S, b.acc_min_mps2, b.acc_max_mps2, IDM.desired_speed_mps,
-                           CRUISE_GAIN_PER_S, np.ascontiguousarray(pred_mode, dtype=np.int64),
+        if self._numbers[0] is not p or self._numbers[1] is not b:  # made once per law
+            self._numbers = (p, b, *_numbers(p, b))
+        law, layers = self._numbers[2:]
+        return _ploeg_step(obs, u, brake, u_lead, adj, law, layers,
+                           np.ascontiguousarray(pred_mode, dtype=np.int64),
                            np.ascontiguousarray(pred_held, dtype=np.float64), *self._limits(n),
-                           p.reaction_ttc_s or 0.0, REACTION_MARGIN_M, REACTION_LAG_S,
-                           armed, a_ahead, p.safe_braking_mps2 or 0.0,
-                           p.safe_new_only, p.opening_braking_mps2 or 0.0,
-                           p.heavy_gap_s or 0.0, merge_m)
+                           armed, a_ahead, merge_m)
 
     @staticmethod
     def _reaction_inputs(n: int, armed: np.ndarray | None, a_ahead: np.ndarray | None,
