@@ -14,10 +14,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from carl_sumo.config import DT_S  # the sampling period of every event and the SUMO step (s)
 from carl_sumo.errors import InputError
-
-DT_S = 0.1
-"""Sampling period of every event and of the SUMO step (s)."""
 
 DEFAULT_VEHICLE_LENGTH_M = 5.0
 """Vehicle length used where an event does not give one (m)."""
