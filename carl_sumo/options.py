@@ -88,6 +88,16 @@ def _number(x: float) -> str:
     return str(int(x)) if math.isfinite(x) and x == int(x) and abs(x) < 1e12 else f"{x:g}"
 
 
+def check_choices(config: Any) -> None:
+    """InputError, one line, for a field of ``config`` whose value is not one of its allowed
+    values (``choices``; None passes)."""
+    for f in fields(config):
+        choices, value = f.metadata.get("choices"), getattr(config, f.name)
+        if choices and value is not None and value not in choices:
+            raise InputError(f"unknown --{flag_of(f)} {value!r}; choose one of "
+                             + ", ".join(choices))
+
+
 def check_range(name: str, value: Any, meta: dict) -> None:
     """InputError, one line, for a value outside its field's range (``name``: the flag)."""
     low, high = meta.get("low"), meta.get("high")

@@ -27,7 +27,7 @@ from carl_sumo.learn.ca_scan import ca_forward
 from carl_sumo.config import BOUNDS, DT_S, IDM
 from carl_sumo.control.channel import Impairments
 from carl_sumo.errors import InputError
-from carl_sumo.options import option
+from carl_sumo.options import check_choices, option
 from carl_sumo.learn.models import CentralCritic, CommunicationAware, PerAgentActors, PerVehicle
 
 Links = tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]
@@ -114,23 +114,19 @@ class AgentConfig:
     comm_fallback: str = option("boundary", "hearing no neighbour at run time: boundary (act "
                                 "as a chain end) or base (also drop the adjustment, as Ploeg's "
                                 "CACC drops to ACC; channel.py); part of the policy", "agent",
-                                metavar="{boundary,base}")
+                                choices=COMM_FALLBACKS)
     comm_off: bool = option(False, "CA models: cut the V2V messages, every vehicle hears only "
                             "the boundary messages (the communication ablation, CA-off); part "
                             "of the policy", "agent")
 
     def __post_init__(self) -> None:
-        if self.algo not in ALGOS:
-            raise InputError(f"unknown algorithm {self.algo!r}; choose one of {', '.join(ALGOS)}")
+        check_choices(self)  # algo, comm_fallback
         if self.observe_ahead and self.base != "idm":
             raise InputError("--observe-ahead is for the IDM base; a classical base's command "
                              "a_base already carries its predecessor's acceleration")
         if self.command_history and self.base == "idm":
             raise InputError("--command-history is for a classical base (--base), whose law "
                              "sends the command the vehicle remembers")
-        if self.comm_fallback not in COMM_FALLBACKS:
-            raise InputError(f"unknown --comm-fallback {self.comm_fallback!r}; choose one of "
-                             f"{', '.join(COMM_FALLBACKS)}")
         if self.comm_off and not self.communication_aware:
             raise InputError("--comm-off cuts the CA messages: it is for ca-td3 and ca-ddpg")
         if self.comm_fallback != "boundary" and not self.communication_aware:

@@ -25,8 +25,8 @@ from carl_sumo.data.events import MAX_WARMUP_S, Event, check_whole_steps, read_e
 from carl_sumo.errors import InputError
 from carl_sumo.learn.agents import AgentConfig
 from carl_sumo.learn.selection import VALIDATION_IMPAIRMENTS
-from carl_sumo.options import (SECTIONS, bounds_text, check_range, flag_of, option,  # noqa: F401
-                               shared, sourced)
+from carl_sumo.options import (SECTIONS, bounds_text, check_choices,  # noqa: F401
+                               check_range, flag_of, option, shared, sourced)
 from carl_sumo.resources import EVENT_LISTS, NETWORKS
 from carl_sumo.sim.sumo import DEFAULT_NET
 from carl_sumo.sim.vehicle import MAX_DEAD_TIME_S, MAX_LAG_S
@@ -269,12 +269,9 @@ class TrainConfig:
     def check(self) -> TrainConfig:
         """InputError, one line, for any value out of its range or any inconsistent pair of
         options (before anything runs); the config itself."""
+        check_choices(self)
         for f in fields(self):
-            meta, value = f.metadata, getattr(self, f.name)
-            if meta.get("choices") and value is not None and value not in meta["choices"]:
-                raise InputError(f"unknown --{flag_of(f)} {value!r}; choose one of "
-                                 + ", ".join(meta["choices"]))
-            check_range(flag_of(f), value, meta)
+            check_range(flag_of(f), getattr(self, f.name), f.metadata)
         check_whole_steps(self.warmup)
         self._check_schedule()
         self._check_calibration()
