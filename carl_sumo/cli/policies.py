@@ -48,7 +48,9 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("train", help="train a CA-RL (or baseline) agent inside SUMO",
                        description="Train a CA-RL (or baseline) agent inside SUMO. Options come "
                        "from a recipe (--config) and the command line, which overrides it; "
-                       "each is defined once in carl_sumo/learn/train_config.py.")
+                       "each is defined once, as a field of TrainConfig (carl_sumo/learn/"
+                       "train_config.py) or of the RewardConfig and AgentConfig it gathers "
+                       "(docs/recipes.md).")
     p.add_argument("--config", type=Path, default=None, metavar="RECIPE.toml",
                    help="a recipe file (recipes/*.toml; see docs/recipes.md); options given "
                         "here override its values")
