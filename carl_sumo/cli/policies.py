@@ -49,8 +49,8 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
                        description="Train a CA-RL (or baseline) agent inside SUMO. Options come "
                        "from a recipe (--config) and the command line, which overrides it; "
                        "each is defined once, as a field of TrainConfig (carl_sumo/learn/"
-                       "train_config.py) or of the RewardConfig and AgentConfig it gathers "
-                       "(docs/recipes.md).")
+                       "train_config.py) or of the RewardConfig, AgentConfig and Impairments "
+                       "it gathers (docs/recipes.md).")
     p.add_argument("--config", type=Path, default=None, metavar="RECIPE.toml",
                    help="a recipe file (recipes/*.toml; see docs/recipes.md); options given "
                         "here override its values")

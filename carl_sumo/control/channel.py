@@ -63,6 +63,7 @@ import numpy as np
 
 from carl_sumo.config import DT_S
 from carl_sumo.errors import InputError
+from carl_sumo.options import option
 from carl_sumo.sim.vehicle import REAL_COMM_DELAY_S, REAL_PLANT, Plant, parse_fleet
 
 LIVE, HELD, FALLBACK = 0, 1, 2
@@ -72,19 +73,33 @@ LIVE, HELD, FALLBACK = 0, 1, 2
 @dataclass(frozen=True)
 class Impairments:
     """What ``--comm-delay``, ``--comm-loss``, ``--comm-burst``, ``--comm-timeout``,
-    ``--comm-fade``, ``--sensor-noise`` and ``--sensor-filter`` ask for (units in the names); the
-    defaults are a perfect channel and perfect sensors. ``plant``: the vehicle dynamics of the
+    ``--comm-fade``, ``--sensor-noise`` and ``--sensor-filter`` ask for (units in the names; those
+    options are these fields, :func:`carl_sumo.options.option`); the defaults are a perfect
+    channel and perfect sensors. ``plant``: the vehicle dynamics of the
     followers (``--plant``, ``--fleet``, ``--vehicle-lag``, ``--actuation-delay``,
     :mod:`carl_sumo.sim.vehicle`); None is the ideal plant."""
 
-    delay_s: float = 0.0
-    loss: float = 0.0
-    burst: float = 1.0
-    timeout_s: float = 1.0
-    fade_s: float = 1.0
-    sensor_noise: bool = False
-    sensor_filter: bool = False  # the followers track their noisy measurements (sensors.py)
-    seed: int = 0
+    delay_s: float = 0.0  # (--comm-delay: none means 0, or 0.1 s with --plant real)
+    loss: float = option(0.0, "probability that a V2V message is lost", "plant", low=0.0,
+                         high=1.0, metavar="P", flag="comm-loss")
+    burst: float = option(1.0, "mean length of a loss burst (Gilbert-Elliott; 1: independent)",
+                          "plant", unit="steps", low=1.0, high=10_000, metavar="L",
+                          flag="comm-burst")
+    timeout_s: float = option(1.0, "a receiver falls back (CA: the boundary message; Ploeg: ACC) "
+                              "when its last message is older than this", "plant", unit="s",
+                              low=0.0, high=3_600, open_low=True, metavar="S",
+                              flag="comm-timeout")
+    fade_s: float = option(1.0, "past the timeout the held message fades linearly into the "
+                           "fallback over this time (0: a hard switch)", "plant", unit="s",
+                           low=0.0, high=3_600, metavar="S", flag="comm-fade")
+    sensor_noise: bool = option(False, "Gaussian noise on the measured gap (0.1 m) and relative "
+                                "speed (0.1 m/s)", "plant")
+    sensor_filter: bool = option(False, "noisy measurements (--sensor-noise, or train's "
+                                 "--comm-randomize) are filtered: every follower tracks its "
+                                 "measured gap and relative speed with a Kalman filter "
+                                 "(sensors.py, docs/robustness.md)", "plant")
+    seed: int = option(0, "seed of the losses, the noise and the fleet's draws", "plant", low=0,
+                       high=2**31 - 1, flag="impairment-seed")
     plant: Plant | None = None
 
     def __post_init__(self) -> None:

@@ -92,25 +92,13 @@ class TrainConfig:
     comm_delay: float | None = option(None, "every V2V message arrives this late (a multiple of "
                                       "0.1 s; none: 0, or 0.1 with --plant real)", "plant",
                                       unit="s", low=0.0, high=MAX_COMM_DELAY_S, metavar="S")
-    comm_loss: float = option(0.0, "probability that a V2V message is lost", "plant", low=0.0,
-                              high=1.0, metavar="P")
-    comm_burst: float = option(1.0, "mean length of a loss burst (Gilbert-Elliott; 1: "
-                               "independent)", "plant", unit="steps", low=1.0, high=10_000,
-                               metavar="L")
-    comm_timeout: float = option(1.0, "a receiver falls back (CA: the boundary message; "
-                                 "Ploeg: ACC) when its last message is older than this", "plant", unit="s", low=0.0, high=3_600,
-                                 open_low=True, metavar="S")
-    comm_fade: float = option(1.0, "past the timeout the held message fades linearly into "
-                              "the fallback over this time (0: a hard switch)", "plant", unit="s", low=0.0,
-                              high=3_600, metavar="S")
-    sensor_noise: bool = option(False, "Gaussian noise on the measured gap (0.1 m) and relative "
-                                "speed (0.1 m/s)", "plant")
-    sensor_filter: bool = option(False, "noisy measurements (--sensor-noise, or train's "
-                                 "--comm-randomize) are filtered: every follower tracks its "
-                                 "measured gap and relative speed with a Kalman filter "
-                                 "(docs/robustness.md)", "plant")
-    impairment_seed: int = option(0, "seed of the losses, the noise and the fleet's draws",
-                                  "plant", low=0, high=2**31 - 1)
+    comm_loss: float = shared(Impairments, "loss")
+    comm_burst: float = shared(Impairments, "burst")
+    comm_timeout: float = shared(Impairments, "timeout_s")
+    comm_fade: float = shared(Impairments, "fade_s")
+    sensor_noise: bool = shared(Impairments, "sensor_noise")
+    sensor_filter: bool = shared(Impairments, "sensor_filter")
+    impairment_seed: int = shared(Impairments, "seed")
     comm_randomize: bool = option(False, "robust training: every episode draws its own V2V "
                                   "delay (0-0.5 s), loss (0-100 %, bursts half the time) and "
                                   "sensor noise (half the time), a quarter perfect", "plant")

@@ -39,9 +39,10 @@ def test_every_training_option_is_one_field_with_doc_section_and_a_generated_fla
                      "progress_every"}
 
 
-def test_reward_and_agent_options_are_defined_once_where_they_are_used():
-    """A reward or agent option of TrainConfig is RewardConfig's or AgentConfig's field (one
-    default, doc, unit and range), of the same type, and comes back as that field's value."""
+def test_reward_agent_and_channel_options_are_defined_once_where_they_are_used():
+    """A reward, agent or channel option of TrainConfig is RewardConfig's, AgentConfig's or
+    Impairments' field (one default, doc, unit and range), of the same type, and comes back as
+    that field's value."""
     from typing import get_type_hints
 
     from carl_sumo.config import REWARD, RewardConfig
@@ -56,8 +57,10 @@ def test_reward_and_agent_options_are_defined_once_where_they_are_used():
             assert f.default == src.default and hints[f.name] == get_type_hints(source)[name]
             assert {k: v for k, v in f.metadata.items() if k != "source"} == dict(src.metadata)
             taken.setdefault(source, set()).add(name)
-    for source in (RewardConfig, AgentConfig):  # every option they have that a user sets
-        assert taken[source] == {g.name for g in fields(source) if g.metadata["cli"]}
+    from carl_sumo.control.channel import Impairments
+
+    for source in (RewardConfig, AgentConfig, Impairments):  # every option they have a user sets
+        assert taken[source] == {g.name for g in fields(source) if g.metadata.get("cli")}
     cfg = TrainConfig(spacing_gap=1.1, noise=0.3, shield_ttc=2.0, update_every=2, scale_rates=True)
     assert cfg.reward.spacing_gap_s == 1.1 and cfg.reward.w_gap == REWARD.w_gap
     agent = cfg.agent_config()
