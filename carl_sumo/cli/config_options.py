@@ -1,8 +1,8 @@
 """Command-line options generated from :class:`carl_sumo.learn.train_config.TrainConfig`.
 
 ``train``: every field becomes one option (``--flag``, its type from the annotation, its help
-from the field's doc, unit, default and range), grouped by the field's section. A parsed value is None
-unless given, so that a recipe (``--config``) supplies the rest: :func:`config_from_args` merges
+from the field's doc, unit, default and range), grouped by the field's section. A parsed value
+is None unless given, so that a recipe (``--config``) supplies the rest: :func:`config_from_args` merges
 the defaults, the recipe and the options given, in that order of precedence. The commands
 that share some of these options (``simulate``, ``evaluate``, ``study`` ...: the V2V channel,
 sensors and plant) take them from the same fields (:func:`add_shared_options`).

@@ -4,10 +4,12 @@ it validates on: held-out training events, and the V2V and sensor impairments of
 Every training option is defined once, as a dataclass field made by
 :func:`carl_sumo.options.option`: its type (the annotation), default, unit, one-line doc, range
 and the section of the recipe file it belongs to (data, plant, base, reward, agent, training,
-validation). The reward's live in :class:`carl_sumo.config.RewardConfig` and the agent's in
-:class:`carl_sumo.learn.agents.AgentConfig`, which :class:`TrainConfig` gathers with
-:func:`carl_sumo.options.shared` (and gives back as :attr:`TrainConfig.reward` and
-:meth:`TrainConfig.agent_config`); the rest are its own. ``carl-sumo train``'s options
+validation). The reward's live in :class:`carl_sumo.config.RewardConfig`, the agent's in
+:class:`carl_sumo.learn.agents.AgentConfig` and the V2V channel's and sensors' in
+:class:`carl_sumo.control.channel.Impairments`, which :class:`TrainConfig` gathers with
+:func:`carl_sumo.options.shared` (and gives back as :attr:`TrainConfig.reward`,
+:meth:`TrainConfig.agent_config` and :attr:`TrainConfig.fixed_impairments`); the rest are its
+own. ``carl-sumo train``'s options
 (:mod:`carl_sumo.cli.config_options`), their ``--help``, the recipe files
 (:mod:`carl_sumo.learn.recipe`) and :meth:`TrainConfig.check` all derive from these fields.
 """
