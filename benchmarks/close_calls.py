@@ -3,8 +3,8 @@ training run validated on (the seed file's ``validation_events``), real plant, 1
 TTC < 1.5 s samples and collisions on the named hard events (``--hard``, default
 ``carl_sumo/data/event_lists/val_hard_real.txt``) and on the others, and the events where the
 policy has more than the base. Selection (``--select reward``) keeps a checkpoint only if it has
-no more of either than the base on these events; a run that kept its base can be looked into through its last
-actor (``carl-sumo export policies/seeds/STEM_seedK.ckpt --out last_seedK.pt``).
+no more of either than the base on these events; a run that kept its base can be looked into
+through its last actor (``carl-sumo export policies/seeds/STEM_seedK.ckpt --out last_seedK.pt``).
 
 ``--all-train``: every training event instead (the bar's 773, e.g. with ``--warmup 60``).
 
