@@ -2,12 +2,16 @@
 
 ``ploeg*``, ``acc*`` and ``mpf`` are the constant-time-gap laws of :mod:`carl_sumo.control.cacc`;
 ``mpc`` is the distributed MPC of :mod:`carl_sumo.control.mpc`. A platoon runs either through
-the same interface (``reset``, ``know_vehicles``, ``connect``, ``acceleration``)."""
+the same interface (``reset``, ``know_vehicles``, ``connect``, ``acceleration``), and the chains
+of CACC vehicles in traffic (the study, the scenarios) through that of
+:class:`carl_sumo.control.cacc.PloegChains`."""
 
 from __future__ import annotations
 
-from carl_sumo.control.cacc import PloegController, is_ploeg_name, parse_ploeg, ploeg_controller
-from carl_sumo.control.mpc import MPCController, is_mpc_name, mpc_controller, parse_mpc
+from carl_sumo.control.cacc import PloegChains, PloegController, is_ploeg_name, parse_ploeg, \
+    ploeg_controller
+from carl_sumo.control.mpc import MPCChains, MPCController, is_mpc_name, mpc_chains, \
+    mpc_controller, parse_mpc
 from carl_sumo.errors import InputError
 
 
@@ -23,6 +27,16 @@ def classical_controller(name: str, plant: str = "ideal") -> PloegController | M
         return mpc_controller(name)
     if is_ploeg_name(name):
         return ploeg_controller(name, plant=plant)
+    raise InputError(f"{name!r} is not a classical law (ploeg, acc, mpf, mpc)")
+
+
+def classical_chains(name: str, plant: str = "ideal") -> PloegChains | MPCChains:
+    """The chains controller of a classical law's name (study, scenarios); InputError, one
+    line, for a bad name."""
+    if is_mpc_name(name):
+        return mpc_chains(name)
+    if is_ploeg_name(name):
+        return PloegChains(parse_ploeg(name, plant=plant), name)
     raise InputError(f"{name!r} is not a classical law (ploeg, acc, mpf, mpc)")
 
 

@@ -65,7 +65,7 @@ from scipy import sparse
 from carl_sumo.config import BOUNDS, DT_S, IDM
 from carl_sumo.control.cacc import CRUISE_GAIN_PER_S, HEAVY_BRAKING_MPS2, REACTION_LAG_S, \
     REACTION_MARGIN_M
-from carl_sumo.control.channel import FALLBACK, LIVE, Channel, Impairments
+from carl_sumo.control.channel import FALLBACK, LIVE, Channel, Impairments, KeyedChannel
 from carl_sumo.control.ploeg_names import OptionSpec
 from carl_sumo.errors import InputError
 from carl_sumo.sim.vehicle import VEHICLE_CLASSES
@@ -337,107 +337,70 @@ def reaction_limit(gap_m: float, closing_mps: float, a_ahead: float, ttc_s: floa
     return -(closing_mps * closing_mps / (2.0 * room) + max(-a_ahead, 0.0))
 
 
-class MPCController:
-    """The distributed MPC of a platoon (module docstring): a full acceleration per follower."""
+class MPCLaw:
+    """The step of the MPC on a set of vehicles, shared by a platoon (:class:`MPCController`)
+    and the chains in traffic (:class:`MPCChains`): each vehicle's QP (its OSQP problem kept by
+    its key and model), the data of the step, the solve and the layers."""
 
-    def __init__(self, params: MPCParams = DEFAULTS, name: str | None = None):
-        self.params, self.name, self.bounds = params, name or params.name(), BOUNDS
-        self._solvers: dict[tuple, QPSolver] = {}  # (follower, model, QP): its problem
+    def __init__(self, params: MPCParams):
+        self.params = params
+        self.solvers: dict[tuple, QPSolver] = {}  # (vehicle key, QP): its problem
         self.timed = False  # True: every OSQP solve time is appended to solve_s (s)
         self.solve_s: list[float] = []
-        self.reset(0)
 
-    def reset(self, n_followers: int) -> None:
-        """A new platoon of ``n_followers``: ideal models, no plan, no channel."""
-        n, horizon = n_followers, self.params.horizon
-        self.model = [(0.0, 0)] * n
-        self.low = np.full(n, BOUNDS.acc_min_mps2)
-        self.high = np.full(n, BOUNDS.acc_max_mps2)
-        self.pipe = np.zeros((n, MAX_CLASS_DEAD_STEPS))  # u(k-P..k-1) of each follower
-        self.u_prev = np.zeros(n)
-        self.plans = np.zeros((n, horizon + 2))  # [1, k_s, a(k_s+1..k_s+N)] (0 row: none yet)
-        self._dv: np.ndarray | None = None
-        self.channel: Channel | None = None
-        self._k = 0
+    def forget(self, keys: set) -> None:
+        """Drop the problems of the vehicles not in ``keys`` (they left the road)."""
+        self.solvers = {k: s for k, s in self.solvers.items() if k[0] in keys}
 
-    def know_vehicles(self, a_max_mps2: np.ndarray, b_max_mps2: np.ndarray) -> None:
-        """Each follower's limits (m/s², positive), which bound its commands, and its class's
-        model (:func:`class_model`). Call after :meth:`reset`."""
-        self.high = np.asarray(a_max_mps2, dtype=np.float64).copy()
-        self.low = -np.asarray(b_max_mps2, dtype=np.float64)
-        self.model = [class_model(a, b) for a, b in zip(self.high, -self.low)]
-
-    def connect(self, impairments: Impairments, event_id: str) -> None:
-        """Carry the plans over impaired links (one per follower, link stream 1 of the event,
-        :class:`carl_sumo.control.channel.Channel`). Call after :meth:`reset`."""
-        self.channel = Channel(len(self.u_prev), self.params.horizon + 2, impairments,
-                               impairments.rng(event_id, 1))
-
-    def _heard(self, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """(mode (n,), message (n, N + 2)) each follower has of its predecessor's plan this
-        step, and sends the plans of the last step."""
-        sent = np.vstack([np.zeros((1, self.plans.shape[1])), self.plans[:-1]])
-        if self.channel is None:
-            mode = np.full(n, LIVE)
-            mode[0] = FALLBACK
-            return mode, sent
-        mode, held = self.channel.receive(self._k)
-        held = np.where((mode == LIVE)[:, None], sent, held)
-        self.channel.send(self._k, sent)
-        return mode, held
-
-    def acceleration(self, obs: np.ndarray) -> np.ndarray:
-        """a (m/s², shape (n,)) from the observations [v, a, d, Δv] (shape (n, 4+), head first);
-        every follower's plan of this step is kept, to be sent at the next."""
+    def step(self, keys: list, obs: np.ndarray, state: dict, messages: np.ndarray,
+             a_hold: np.ndarray, react: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """(the commands applied (n,), the plans [1, k, a(k+1..k+N)] (n, N + 2)) of n vehicles
+        at step k from their observations [v, a, d, Δv] (n, 4+); ``state``: their ``model``
+        (list of (τ, D)), ``low``, ``high`` (m/s², (n,)), ``pipe`` (n, P) and ``u_prev`` (n,);
+        ``messages`` (n, N + 2): the plan each hears (weight 0: none, it is an ACC at ha);
+        ``a_hold`` (n,): the measured acceleration of the vehicle ahead; ``react`` (n,): whose
+        reaction layer acts (``ttc``)."""
         n, p = obs.shape[0], self.params
-        a_ahead = np.zeros(n) if self._dv is None else obs[:, 1] + (obs[:, 3] - self._dv) / DT_S
-        self._dv = np.array(obs[:, 3], dtype=np.float64)
-        mode, heard = self._heard(n)
-        heard[mode == FALLBACK] = 0.0
-        heard[0] = 0.0  # the head hears no plan: the recorded leader sends none
-        alone = heard[:, 0] <= 0.0
         z = np.empty((n, 5 + MAX_CLASS_DEAD_STEPS + p.horizon))
-        z[:, 0], z[:, 1], z[:, 2], z[:, 3], z[:, 4] = 1.0, obs[:, 1], obs[:, 0], obs[:, 2], self.u_prev
-        z[:, 5:5 + MAX_CLASS_DEAD_STEPS] = self.pipe
-        z[:, 5 + MAX_CLASS_DEAD_STEPS:] = predecessor_speeds(obs[:, 0] + obs[:, 3], a_ahead,
-                                                             heard, self._k)
-        out, plans = np.empty(n), np.zeros_like(self.plans)
+        z[:, 0], z[:, 1], z[:, 2], z[:, 3] = 1.0, obs[:, 1], obs[:, 0], obs[:, 2]
+        z[:, 4], z[:, 5:5 + MAX_CLASS_DEAD_STEPS] = state["u_prev"], state["pipe"]
+        z[:, 5 + MAX_CLASS_DEAD_STEPS:] = predecessor_speeds(obs[:, 0] + obs[:, 3], a_hold,
+                                                             messages, k)
+        out, plans = np.empty(n), np.zeros((n, p.horizon + 2))
         for i in range(n):
-            out[i], plans[i, 2:] = self._solve(i, obs[i], z[i], a_ahead[i], bool(alone[i]))
-        self.pipe = np.column_stack([self.pipe[:, 1:], out])
-        self.u_prev = out
-        plans[:, 0], plans[:, 1] = 1.0, self._k
-        self.plans = plans
-        self._k += 1
-        return out
+            alone = messages[i, 0] <= 0.0
+            out[i], plans[i, 2:] = self._solve(keys[i], obs[i], z[i], state["model"][i],
+                                               (state["low"][i], state["high"][i]), alone,
+                                               bool(react[i]), a_hold[i])
+        plans[:, 0], plans[:, 1] = 1.0, k
+        return out, plans
 
-    def _time_gap(self, i: int, alone: bool) -> float:
+    def _time_gap(self, alone: bool, low: float) -> float:
         p = self.params
         if alone:
             return p.gap_alone_s
-        if p.heavy_gap_s is not None and -self.low[i] < HEAVY_BRAKING_MPS2:
+        if p.heavy_gap_s is not None and -low < HEAVY_BRAKING_MPS2:
             return max(p.time_gap_s, p.heavy_gap_s)
         return p.time_gap_s
 
-    def _solve(self, i: int, o: np.ndarray, z: np.ndarray, a_ahead: float, alone: bool
+    def _solve(self, key, o: np.ndarray, z: np.ndarray, model: tuple[float, int],
+               limits: tuple[float, float], alone: bool, react: bool, a_ahead: float
                ) -> tuple[float, np.ndarray]:
-        """(the command applied, the predicted accelerations a(k+1..k+N)) of follower i with
+        """(the command applied, the predicted accelerations a(k+1..k+N)) of one vehicle with
         the step's data ``z`` (:class:`CondensedQP`)."""
         p = self.params
-        tau, dead = self.model[i]
-        qp = condensed_qp(tau, dead, self._time_gap(i, alone), p)
+        low, high = limits
+        qp = condensed_qp(*model, self._time_gap(alone, low), p)
         v, gap, dv = float(o[0]), float(o[2]), float(o[3])
-        low, high = self.low[i], self.high[i]
         high = max(min(high, CRUISE_GAIN_PER_S * (IDM.desired_speed_mps - v)), low)
-        key = (i, qp)
-        solver = self._solvers.get(key)
+        solver = self.solvers.get((key, qp))
         if solver is None:
-            solver = self._solvers[key] = qp.solver(low, high)
+            solver = self.solvers[(key, qp)] = qp.solver(low, high)
         u, seconds = solver.solve(qp.linear @ z, low, high)
         if self.timed:
             self.solve_s.append(seconds)
         a = min(max(float(u[0]), BOUNDS.acc_min_mps2, low), BOUNDS.acc_max_mps2, high)
-        if alone and p.reaction_ttc_s is not None:
+        if react and p.reaction_ttc_s is not None:
             limit = reaction_limit(gap, -dv, a_ahead if p.reaction_braking_ahead else 0.0,
                                    p.reaction_ttc_s)
             a = max(min(a, limit), BOUNDS.acc_min_mps2, low)
@@ -446,6 +409,213 @@ class MPCController:
         return a, qp.acc_z @ z + qp.acc_u @ u
 
 
+def _fresh_state(n: int, horizon: int) -> dict:
+    """The state of n vehicles new to the MPC: the ideal model and limits, no command sent, no
+    plan (its rows are sent as [0, ...]: no plan yet)."""
+    return {"model": [(0.0, 0)] * n, "low": np.full(n, BOUNDS.acc_min_mps2),
+            "high": np.full(n, BOUNDS.acc_max_mps2),
+            "pipe": np.zeros((n, MAX_CLASS_DEAD_STEPS)), "u_prev": np.zeros(n),
+            "plan": np.zeros((n, horizon + 2))}
+
+
+class MPCController:
+    """The distributed MPC of a platoon (module docstring): a full acceleration per follower."""
+
+    def __init__(self, params: MPCParams = DEFAULTS, name: str | None = None):
+        self.params, self.name, self.bounds = params, name or params.name(), BOUNDS
+        self.law = MPCLaw(params)
+        self.reset(0)
+
+    @property
+    def model(self) -> list[tuple[float, int]]:
+        """Each follower's model (τ s, dead time in steps)."""
+        return self.state["model"]
+
+    @property
+    def timed(self) -> bool:
+        return self.law.timed
+
+    @timed.setter
+    def timed(self, value: bool) -> None:
+        self.law.timed = value
+
+    @property
+    def solve_s(self) -> list[float]:
+        """Every OSQP solve time since ``timed`` was set (s)."""
+        return self.law.solve_s
+
+    @solve_s.setter
+    def solve_s(self, value: list[float]) -> None:
+        self.law.solve_s = value
+
+    def reset(self, n_followers: int) -> None:
+        """A new platoon of ``n_followers``: ideal models, no plan, no channel."""
+        self.state = _fresh_state(n_followers, self.params.horizon)
+        self._dv: np.ndarray | None = None
+        self.channel: Channel | None = None
+        self._k = 0
+
+    def know_vehicles(self, a_max_mps2: np.ndarray, b_max_mps2: np.ndarray) -> None:
+        """Each follower's limits (m/s², positive), which bound its commands, and its class's
+        model (:func:`class_model`). Call after :meth:`reset`."""
+        self.state["high"] = np.asarray(a_max_mps2, dtype=np.float64).copy()
+        self.state["low"] = -np.asarray(b_max_mps2, dtype=np.float64)
+        self.state["model"] = [class_model(a, b) for a, b in zip(a_max_mps2, b_max_mps2)]
+
+    def connect(self, impairments: Impairments, event_id: str) -> None:
+        """Carry the plans over impaired links (one per follower, link stream 1 of the event,
+        :class:`carl_sumo.control.channel.Channel`). Call after :meth:`reset`."""
+        self.channel = Channel(len(self.state["u_prev"]), self.params.horizon + 2, impairments,
+                               impairments.rng(event_id, 1))
+
+    def _heard(self, n: int) -> np.ndarray:
+        """The message (n, N + 2) each follower has of its predecessor's plan this step (the
+        head and a follower that falls back: none), having sent the plans of the last step."""
+        plans = self.state["plan"]
+        sent = np.vstack([np.zeros((1, plans.shape[1])), plans[:-1]])
+        if self.channel is not None:
+            mode, held = self.channel.receive(self._k)
+            self.channel.send(self._k, sent)
+            sent = np.where((mode == LIVE)[:, None], sent, held)
+            sent[mode == FALLBACK] = 0.0
+        sent[0] = 0.0  # the head hears no plan: the recorded leader sends none
+        return sent
+
+    def acceleration(self, obs: np.ndarray) -> np.ndarray:
+        """a (m/s², shape (n,)) from the observations [v, a, d, Δv] (shape (n, 4+), head first);
+        every follower's plan of this step is kept, to be sent at the next."""
+        n = obs.shape[0]
+        a_ahead = np.zeros(n) if self._dv is None else obs[:, 1] + (obs[:, 3] - self._dv) / DT_S
+        self._dv = np.array(obs[:, 3], dtype=np.float64)
+        messages = self._heard(n)
+        out, self.state["plan"] = self.law.step(list(range(n)), obs, self.state, messages,
+                                                a_ahead, messages[:, 0] <= 0.0, self._k)
+        self.state["pipe"] = np.column_stack([self.state["pipe"][:, 1:], out])
+        self.state["u_prev"] = out
+        self._k += 1
+        return out
+
+
+class MPCChains:
+    """The distributed MPC on chains of CACC vehicles that form and break in traffic (the study,
+    the scenarios; :class:`carl_sumo.control.cacc.PloegChains`' interface). Each vehicle's
+    state (its model and limits, the commands in its dead time, its last plan) is kept by its
+    ID; inside a chain each vehicle hears its predecessor's plan of the last step (over
+    vehicle-keyed impaired links when connected); a chain's head hears none and plans as an ACC
+    at ``ha`` with the vehicle ahead holding its acceleration of the last step. ``arm``: those
+    vehicles' reaction layer acts although they hear a plan; the merge-point layer of
+    :meth:`carl_sumo.control.cacc.PloegChains.merge_behind` is not kept (accepted, unused)."""
+
+    FORGET_EVERY = 100
+    """Steps between two clean-ups of the OSQP problems of vehicles that left."""
+
+    def __init__(self, params: MPCParams = DEFAULTS, name: str | None = None):
+        self.params, self.name = params, name or params.name()
+        self.law = MPCLaw(params)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget every vehicle, limit and link: a new run starts."""
+        self.vehicles: dict[str, dict] = {}  # ID: model, low, high, pipe, u_prev, plan
+        self.limits: dict[str, tuple[float, float]] = {}  # ID: (a_max, b_max) (m/s²)
+        self.links: KeyedChannel | None = None
+        self.armed: set[str] = set()
+        self._k = 0
+
+    def arm(self, vehicle_ids: set[str]) -> None:
+        """Arm these vehicles' reaction layer (``ttc=T``) although they hear a plan."""
+        self.armed = set(vehicle_ids)
+
+    def merge_behind(self, merge_m: dict[str, float]) -> None:
+        """Accepted for the chains' interface; the MPC has no merge-point layer."""
+
+    def know_vehicle(self, vehicle_id: str, a_max_mps2: float, b_max_mps2: float) -> None:
+        """What one vehicle's powertrain can do (m/s², positive): its limits and model."""
+        self.limits[vehicle_id] = (a_max_mps2, b_max_mps2)
+
+    def connect(self, impairments: Impairments, run_id: str) -> None:
+        """Carry the plans over impaired vehicle-keyed links (stream 1 of ``run_id``)."""
+        self.links = KeyedChannel(self.params.horizon + 2, impairments,
+                                  impairments.rng(run_id, 1))
+        self._k = 0
+
+    def _state(self, row_ids: list[str]) -> dict:
+        """The state of these vehicles (a vehicle new to the MPC: fresh, with its limits)."""
+        state = _fresh_state(len(row_ids), self.params.horizon)
+        state["model"] = list(state["model"])
+        for j, vid in enumerate(row_ids):
+            if vid in self.vehicles:
+                for key in state:
+                    state[key][j] = self.vehicles[vid][key]
+            elif vid in self.limits:
+                a_max, b_max = self.limits[vid]
+                state["model"][j] = class_model(a_max, b_max)
+                state["low"][j], state["high"][j] = -b_max, a_max
+        return state
+
+    def _messages(self, chains: list[list[int]], ids: list[str], plans: np.ndarray,
+                  commit: bool) -> np.ndarray:
+        """The plan each chain row hears (rows in chain order; heads: none), sending the plans
+        of the last step over the links when connected."""
+        index, at = {}, 0
+        for chain in chains:
+            for j, i in enumerate(chain):
+                index[i] = at + j
+            at += len(chain)
+        pairs = [(ids[c[j]], ids[c[j - 1]]) for c in chains for j in range(1, len(c))]
+        rows = [index[c[j]] for c in chains for j in range(1, len(c))]
+        senders = plans[[index[c[j - 1]] for c in chains for j in range(1, len(c))]]
+        messages = np.zeros_like(plans)
+        if self.links is None or not pairs:
+            messages[rows] = senders
+            return messages
+        mode, held = self.links.receive(self._k, pairs)
+        if commit:
+            self.links.send(self._k, pairs, senders)
+        heard = np.where((mode == LIVE)[:, None], senders, held)
+        heard[mode == FALLBACK] = 0.0
+        messages[rows] = heard
+        return messages
+
+    def acceleration(self, obs: np.ndarray, chains: list[list[int]], ids: list[str],
+                     ahead: list[tuple[str, float] | None], last_acc: dict[str, float],
+                     adjustment: np.ndarray | None = None, commit: bool = True) -> np.ndarray:
+        """a (m/s², shape (m,)) of the CACC vehicles ``ids`` with observations ``obs`` (m, 4+);
+        ``chains`` index rows head first, ``ahead`` is each row's (vehicle ahead, gap) or None
+        and ``last_acc`` every vehicle's acceleration over the last step (m/s²).
+        ``adjustment``: none (the MPC is no learned policy's base); ``commit=False``: a preview
+        that leaves the states as they are."""
+        if adjustment is not None:
+            raise InputError("the MPC takes no learned adjustment (it is no policy's base)")
+        rows = [i for chain in chains for i in chain]
+        out = np.zeros(obs.shape[0])
+        if not rows:
+            return out
+        row_ids = [ids[i] for i in rows]
+        state = self._state(row_ids)
+        messages = self._messages(chains, ids, state["plan"], commit)
+        a_hold = np.array([last_acc.get(ahead[i][0], 0.0) if ahead[i] is not None else 0.0
+                           for i in rows])
+        react = (messages[:, 0] <= 0.0) | np.array([v in self.armed for v in row_ids])
+        out[rows], plans = self.law.step(row_ids, np.ascontiguousarray(obs[rows]), state,
+                                         messages, a_hold, react, self._k)
+        if commit:
+            pipe = np.column_stack([state["pipe"][:, 1:], out[rows]])
+            self.vehicles = {vid: {"model": state["model"][j], "low": state["low"][j],
+                                   "high": state["high"][j], "pipe": pipe[j],
+                                   "u_prev": out[rows[j]], "plan": plans[j]}
+                             for j, vid in enumerate(row_ids)}
+            self._k += 1
+            if self._k % self.FORGET_EVERY == 0:
+                self.law.forget(set(row_ids))
+        return out
+
+
 def mpc_controller(name: str) -> MPCController:
     """An :class:`MPCController` from an ``mpc`` name."""
     return MPCController(parse_mpc(name), name=name)
+
+
+def mpc_chains(name: str) -> MPCChains:
+    """An :class:`MPCChains` from an ``mpc`` name."""
+    return MPCChains(parse_mpc(name), name=name)

@@ -186,3 +186,41 @@ def test_the_commands_run_mpc_by_name_and_refuse_bad_input_before_any_run(
         err = capsys.readouterr().err
         assert words in err and err.count("\n") == 1, err
     assert not (tmp_path / "s.json").exists()
+
+
+def test_on_one_chain_the_chains_controller_is_the_platoons():
+    from carl_sumo.control.mpc import mpc_chains
+
+    name, n = "mpc:N=20", 4
+    platoon, chains = mpc_controller(name), mpc_chains(name)
+    platoon.reset(n)
+    chains.reset()
+    a_max, b_max = np.array([3.0, 1.0, 3.0, 3.0]), np.array([9.0, 6.0, 9.0, 9.0])
+    platoon.know_vehicles(a_max, b_max)
+    ids = [f"c{i}" for i in range(n)]
+    for vid, a, b in zip(ids, a_max, b_max):
+        chains.know_vehicle(vid, a, b)
+    ahead = [("L", 10.0)] + [(ids[i - 1], 10.0) for i in range(1, n)]
+    rng, dv_before = np.random.default_rng(5), None
+    for k in range(30):
+        obs = np.column_stack([15 + rng.normal(0, 1, n), rng.normal(0, 0.5, n),
+                               12 + rng.normal(0, 2, n), rng.normal(0, 0.5, n)])
+        a_lead = 0.0 if dv_before is None else obs[0, 1] + (obs[0, 3] - dv_before) / DT_S
+        dv_before = obs[0, 3]
+        a = platoon.acceleration(obs)
+        b = chains.acceleration(obs, [list(range(n))], ids, ahead, {"L": a_lead})
+        assert np.allclose(a, b, rtol=0, atol=1e-9), k
+    assert chains.vehicles["c1"]["model"] == (0.5, 2)  # the truck's model
+
+
+def test_a_cut_in_scenario_runs_mpc_on_its_chains(capsys, tmp_path):
+    import json
+
+    out_json = tmp_path / "cut.json"
+    code = main(["simulate", "--scenario", "cut-in", "--events", "1", "--vehicles", "5",
+                 "--controller", "mpc", "--workers", "1", "--plant", "real", "--json",
+                 str(out_json)])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    rows = json.loads(out_json.read_text())["controllers"]
+    assert rows[0]["metrics"]["collisions"] == 0
