@@ -44,13 +44,15 @@ the commands in the dead time, the predecessor's predicted speeds).
 **Layers kept from Ploeg's law** (:mod:`carl_sumo.control.cacc`): the vehicle's own limits (as
 ``aw=1``, always on), the degraded ACC gap ``ha``, the heavy vehicles' gap ``ht`` (a vehicle whose
 braking is below 7 m/s² keeps max(h, ht) in its chain), the reaction layer ``ttc=T`` (with
-``rb=1``: counting the braking ahead) for a vehicle that hears no plan, and the cruise cap
-a ≤ k_cc·(v0 - v). Not kept: the washout and learned term (``wo``), Gipps' safe speed (``gs``,
-``gn``), the gap opening (``op``) and the merge-point layer; the MPC does not run in the mixed
-traffic chains (study, scenarios) nor as a learned policy's base.
+``rb=1``: counting the braking ahead) and the cruise cap a ≤ k_cc·(v0 - v). In Ploeg's law the
+reaction layer guards only a vehicle that hears no message (the feed-forward passes a braking
+on); the MPC's quadratic cost has no notion of a collision (it trades a spacing error against
+its command), so with ``ra=1`` the layer guards every vehicle. Not kept: the washout and learned
+term (``wo``: the MPC is no policy's base), Gipps' safe speed (``gs``, ``gn``), the gap opening
+(``op``) and the merge-point layer.
 
-Names: ``mpc`` (:data:`DEFAULTS`), ``mpc:h=0.6:N=30:wq=0.1:wv=1:wu=0.5:wj=0.05:ha=1.4:ttc=2:rb=1``
-with the options of :data:`MPC_OPTIONS`.
+Names: ``mpc`` (:data:`DEFAULTS`: ``mpc:h=0.6:N=30:wq=0.1:wv=1:wu=2:wj=0.2:ha=1.4:ht=0.8:ttc=2:
+rb=1:ra=1``), or ``mpc`` with any of the options of :data:`MPC_OPTIONS`, e.g. ``mpc:h=0.8:N=40``.
 """
 
 from __future__ import annotations
@@ -79,25 +81,6 @@ MAX_HORIZON = 100
 MAX_CLASS_DEAD_STEPS = max(int(round(c.dead_time_s[1] / DT_S)) for c in VEHICLE_CLASSES.values())
 """The longest dead time a model of a class has (steps; a truck's 0.2 s): N must exceed it."""
 
-_W = (1e-6, 1e6)  # the range of a weight: positive and finite (0 would make P singular)
-MPC_OPTIONS = (
-    OptionSpec("h", float, "s", "0.6", 0.05, 10.0, "the time gap in a chain"),
-    OptionSpec("N", int, "steps of 0.1 s", "30", 1, MAX_HORIZON,
-               "the prediction horizon, longer than the dead time of every class (0.2 s)"),
-    OptionSpec("wq", float, "1/m²", "0.1", *_W, "the weight of the squared spacing error e"),
-    OptionSpec("wv", float, "s²/m²", "1", *_W, "the weight of the squared relative speed"),
-    OptionSpec("wu", float, "s⁴/m²", "0.5", *_W, "the weight of the squared command"),
-    OptionSpec("wj", float, "s⁶/m²", "0.05", *_W, "the weight of the squared command rate"),
-    OptionSpec("ha", float, "s", "h", 0.05, 10.0,
-               "the time gap of a vehicle that hears no plan (an ACC)"),
-    OptionSpec("ht", float, "s", "h", 0.05, 10.0,
-               "the time gap of a heavy vehicle (braking below 7 m/s²) in its chain"),
-    OptionSpec("ttc", float, "s", "off", 0.1, 60.0,
-               "below this time to collision a vehicle that hears no plan brakes (Ploeg's layer)"),
-    OptionSpec("rb", int, "-", "0", 0, 1, "1: the reaction counts the braking ahead"),
-)
-"""The options of an ``mpc`` name: key, type, unit, default, range (inclusive) and meaning."""
-
 
 @dataclass(frozen=True)
 class MPCParams:
@@ -107,12 +90,14 @@ class MPCParams:
     horizon: int = 30                 # N (steps)
     w_spacing: float = 0.1            # wq (1/m²)
     w_speed: float = 1.0              # wv (s²/m²)
-    w_command: float = 0.5            # wu (s⁴/m²)
-    w_rate: float = 0.05              # wj (s⁶/m²)
+    w_command: float = 2.0            # wu (s⁴/m²)
+    w_rate: float = 0.2               # wj (s⁶/m²)
     alone_gap_s: float | None = None  # ha (None: h)
     heavy_gap_s: float | None = None  # ht (None: h)
     reaction_ttc_s: float | None = None  # ttc (None: no reaction layer)
     reaction_braking_ahead: bool = False  # rb
+    reaction_all: bool = False        # ra: the reaction layer on every vehicle (False: only one
+                                      # that hears no plan, as Ploeg's law)
 
     def __post_init__(self) -> None:
         if self.horizon <= MAX_CLASS_DEAD_STEPS:
@@ -136,18 +121,53 @@ class MPCParams:
             (f":ha={self.alone_gap_s:g}" if self.alone_gap_s is not None else "") + \
             (f":ht={self.heavy_gap_s:g}" if self.heavy_gap_s is not None else "") + \
             (f":ttc={self.reaction_ttc_s:g}" if self.reaction_ttc_s is not None else "") + \
-            (":rb=1" if self.reaction_braking_ahead else "")
+            (":rb=1" if self.reaction_braking_ahead else "") + \
+            (":ra=1" if self.reaction_all else "")
 
 
 _FIELD = {"h": "time_gap_s", "N": "horizon", "wq": "w_spacing", "wv": "w_speed",
           "wu": "w_command", "wj": "w_rate", "ha": "alone_gap_s", "ht": "heavy_gap_s",
-          "ttc": "reaction_ttc_s", "rb": "reaction_braking_ahead"}
+          "ttc": "reaction_ttc_s", "rb": "reaction_braking_ahead", "ra": "reaction_all"}
 assert set(_FIELD.values()) == {f.name for f in fields(MPCParams)}
 
 DEFAULTS = MPCParams(alone_gap_s=1.4, heavy_gap_s=0.8, reaction_ttc_s=2.0,
-                     reaction_braking_ahead=True)
-"""``mpc`` alone: the product's time gaps (cars 0.6 s, trucks 0.8 s, 1.4 s as an ACC) and the
-reaction layer of the product's base (``ttc=2:rb=1``); options given replace these."""
+                     reaction_braking_ahead=True, reaction_all=True)
+"""``mpc`` alone: the product's time gaps (cars 0.6 s, trucks 0.8 s, 1.4 s as an ACC), the
+reaction layer of the product's base (``ttc=2:rb=1``) on every vehicle (``ra=1``), a 3 s horizon
+and the weights chosen on 40 training events (docs/baselines.md); options given replace these."""
+
+_W = (1e-6, 1e6)  # the range of a weight: positive and finite (0 would make P singular)
+
+
+def _default(key: str) -> str:
+    """The default of an option as :data:`DEFAULTS` has it."""
+    value = getattr(DEFAULTS, _FIELD[key])
+    return str(int(value)) if isinstance(value, bool) else f"{value:g}"
+
+
+MPC_OPTIONS = (
+    OptionSpec("h", float, "s", _default("h"), 0.05, 10.0, "the time gap in a chain"),
+    OptionSpec("N", int, "steps of 0.1 s", _default("N"), 1, MAX_HORIZON,
+               "the prediction horizon, longer than the dead time of every class (0.2 s)"),
+    OptionSpec("wq", float, "1/m²", _default("wq"), *_W,
+               "the weight of the squared spacing error e"),
+    OptionSpec("wv", float, "s²/m²", _default("wv"), *_W,
+               "the weight of the squared relative speed"),
+    OptionSpec("wu", float, "s⁴/m²", _default("wu"), *_W, "the weight of the squared command"),
+    OptionSpec("wj", float, "s⁶/m²", _default("wj"), *_W,
+               "the weight of the squared command rate"),
+    OptionSpec("ha", float, "s", _default("ha"), 0.05, 10.0,
+               "the time gap of a vehicle that hears no plan (an ACC)"),
+    OptionSpec("ht", float, "s", _default("ht"), 0.05, 10.0,
+               "the time gap of a heavy vehicle (braking below 7 m/s²) in its chain"),
+    OptionSpec("ttc", float, "s", _default("ttc"), 0.1, 60.0,
+               "below this time to collision the reaction layer brakes (Ploeg's layer)"),
+    OptionSpec("rb", int, "-", _default("rb"), 0, 1, "1: the reaction counts the braking ahead"),
+    OptionSpec("ra", int, "-", _default("ra"), 0, 1,
+               "1: the reaction layer guards every vehicle, 0: only one that hears no plan"),
+)
+"""The options of an ``mpc`` name: key, type, unit, default (that of ``mpc``, :data:`DEFAULTS`),
+range (inclusive) and meaning."""
 
 
 def is_mpc_name(name: str) -> bool:
@@ -171,7 +191,7 @@ def parse_mpc(name: str) -> MPCParams:
         if _FIELD[key] in given:
             raise InputError(f"controller {name!r}: {key} is given twice")
         value = specs[key].value(name, text)
-        given[_FIELD[key]] = bool(value) if key == "rb" else value
+        given[_FIELD[key]] = bool(value) if key in ("rb", "ra") else value
     values = {f.name: getattr(DEFAULTS, f.name) for f in fields(MPCParams)}
     values.update(given)
     try:
@@ -481,6 +501,11 @@ class MPCController:
         sent[0] = 0.0  # the head hears no plan: the recorded leader sends none
         return sent
 
+    def _reacting(self, messages: np.ndarray) -> np.ndarray:
+        """Whose reaction layer acts: every vehicle's with ``ra=1``, else those without a plan."""
+        alone = messages[:, 0] <= 0.0
+        return np.ones_like(alone) if self.params.reaction_all else alone
+
     def acceleration(self, obs: np.ndarray) -> np.ndarray:
         """a (m/s², shape (n,)) from the observations [v, a, d, Δv] (shape (n, 4+), head first);
         every follower's plan of this step is kept, to be sent at the next."""
@@ -489,7 +514,7 @@ class MPCController:
         self._dv = np.array(obs[:, 3], dtype=np.float64)
         messages = self._heard(n)
         out, self.state["plan"] = self.law.step(list(range(n)), obs, self.state, messages,
-                                                a_ahead, messages[:, 0] <= 0.0, self._k)
+                                                a_ahead, self._reacting(messages), self._k)
         self.state["pipe"] = np.column_stack([self.state["pipe"][:, 1:], out])
         self.state["u_prev"] = out
         self._k += 1
@@ -596,7 +621,8 @@ class MPCChains:
         messages = self._messages(chains, ids, state["plan"], commit)
         a_hold = np.array([last_acc.get(ahead[i][0], 0.0) if ahead[i] is not None else 0.0
                            for i in rows])
-        react = (messages[:, 0] <= 0.0) | np.array([v in self.armed for v in row_ids])
+        react = (messages[:, 0] <= 0.0) | np.array([v in self.armed for v in row_ids]) | \
+            self.params.reaction_all
         out[rows], plans = self.law.step(row_ids, np.ascontiguousarray(obs[rows]), state,
                                          messages, a_hold, react, self._k)
         if commit:
