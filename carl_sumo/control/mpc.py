@@ -285,8 +285,9 @@ class QPSolver:
     """One OSQP problem of a :class:`CondensedQP` (P and A = I fixed, set up once); per step
     :meth:`solve` updates q, and l and u only when they changed, and warm-starts from the last
     solution. It calls the compiled solver of :class:`osqp.OSQP` directly: the Python wrapper's
-    ``update`` and ``solve`` (argument checks and a namespace of the results per call) cost 3
-    times the solve itself on these small problems."""
+    ``update`` and ``solve`` check their arguments and build a namespace of the results per call
+    (under cProfile, 4,485 calls took 1.15 s, 0.41 s of it in the compiled solve); where an OSQP
+    version has no compiled solver object it goes through the wrapper."""
 
     def __init__(self, qp: CondensedQP, low: float, high: float):
         self.problem = osqp.OSQP()

@@ -81,6 +81,10 @@ def test_osqp_without_active_bounds_is_the_linear_solve():
         exact = np.linalg.solve(qp.hessian, -qp.linear @ z)
         assert np.abs(exact).max() < 100 and seconds > 0
         assert np.allclose(u, exact, atol=2e-4), np.abs(u - exact).max()
+    wrapped = qp.solver(-100.0, 100.0)
+    wrapped.core = None  # through OSQP's Python wrapper: the same solution
+    assert np.allclose(wrapped.solve(qp.linear @ z, -1.0, 1.0)[0],
+                       solver.solve(qp.linear @ z, -1.0, 1.0)[0], atol=1e-6)
 
 
 def test_a_binding_bound_gives_the_bounded_minimiser():
