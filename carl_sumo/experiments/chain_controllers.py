@@ -8,14 +8,17 @@ from pathlib import Path
 import numpy as np
 
 from carl_sumo.config import BOUNDS
-from carl_sumo.control.cacc import PloegChains, is_ploeg_name, parse_ploeg
+from carl_sumo.control.cacc import PloegChains, parse_ploeg
+from carl_sumo.control.classical import classical_chains, is_classical_name
+from carl_sumo.control.mpc import MPCChains
 from carl_sumo.control.channel import Impairments, KeyedChannel
 from carl_sumo.control.controllers import (CommandHistory, adjustment_bounds, applied_acceleration,
                                            shield_adjustment, total_acceleration)
 from carl_sumo.control.external import is_external_name, load_external
 from carl_sumo.errors import InputError
 
-STUDY_CONTROLLERS = ("idm-external", "sumo-cacc", "ploeg[:h=H:kp=KP:kd=KD]", "ploeg-tuned:h=H")
+STUDY_CONTROLLERS = ("idm-external", "sumo-cacc", "ploeg[:h=H:kp=KP:kd=KD]", "ploeg-tuned:h=H",
+                     "mpc[:h=H:...]")
 """Built-in CACC controllers of a study; a policy file (.pt) and ``module:attribute`` /
 ``file.py:attribute`` (:mod:`carl_sumo.control.external`) are the others."""
 
@@ -168,12 +171,12 @@ def know_vehicle(controller, vehicle_id: str, a_max_mps2: float, b_max_mps2: flo
 
 
 def resolve_study_controller(name: str) -> tuple[str, ChainController | PloegChains
-                                                 | ExternalChains | None]:
+                                                 | MPCChains | ExternalChains | None]:
     """(CACC kind of :data:`carl_sumo.sim.traffic.CACC_TYPES`, controller); InputError if unknown."""
     if name == "sumo-cacc":
         return "sumo", None
-    if is_ploeg_name(name):
-        return "external", PloegChains(parse_ploeg(name), name)
+    if is_classical_name(name):
+        return "external", classical_chains(name)
     if name == "idm-external" or name.endswith(".pt"):
         return "external", ChainController(name)
     if is_external_name(name):

@@ -9,6 +9,8 @@ Controllers by name:
   :mod:`carl_sumo.control.cacc`, applied through libsumo; ``acc``, ``acc:h=3``, ``acc-tuned:h=H``:
   the same law fed by radar only; ``mpf:r=2:w2=0.3`` (and Ploeg's gains and options): the law
   with the commands of the r vehicles ahead in its feed-forward, relayed over V2V;
+- ``mpc``, ``mpc:h=0.6:N=30:wq=0.1:...``: the distributed MPC of :mod:`carl_sumo.control.mpc`
+  (every follower solves a QP each step with its predecessor's plan received over V2V);
 - ``human``: the recorded NGSIM follower of each event (one follower), scored the same way;
 - a path to a policy file (``.pt``): a learned a_adj on top of IDM (:mod:`carl_sumo.learn.policy`);
 - ``module:attribute`` or ``file.py:attribute``: a controller from outside carl-sumo
@@ -22,7 +24,7 @@ from typing import Callable, Iterator, Sequence, TypeVar
 
 import numpy as np
 
-from carl_sumo.control.cacc import is_ploeg_name, ploeg_controller
+from carl_sumo.control.classical import classical_controller, is_classical_name
 from carl_sumo.control.channel import Impairments
 from carl_sumo.control.external import is_external_name, load_external
 from carl_sumo.control.controllers import AccelerationController, Controller, ZeroAdjustment, \
@@ -40,7 +42,8 @@ from carl_sumo.scale.workers import run_parallel
 NATIVE_CONTROLLERS = {"idm": "idm", "krauss": "krauss", "sumo-cacc": "sumo-cacc"}
 BUILTIN_CONTROLLERS = ("idm", "krauss", "sumo-cacc", "idm-external", "ploeg[:h=H:kp=KP:kd=KD]",
                        "ploeg-tuned:h=H", "acc[:h=H:kp=KP:kd=KD]", "acc-tuned:h=H",
-                       "mpf[:r=R:wJ=W:h=H:kp=KP:kd=KD]", "human")
+                       "mpf[:r=R:wJ=W:h=H:kp=KP:kd=KD]", "mpc[:h=H:N=N:wq=WQ:wv=WV:wu=WU:wj=WJ]",
+                       "human")
 
 
 def resolve_controller(name: str, plant: str = "ideal"
@@ -51,8 +54,8 @@ def resolve_controller(name: str, plant: str = "ideal"
         return NATIVE_CONTROLLERS[name], None
     if name == "idm-external":
         return "external", ZeroAdjustment()
-    if is_ploeg_name(name):
-        return "external", ploeg_controller(name, plant=plant)
+    if is_classical_name(name):  # ploeg, acc, mpf, mpc (carl_sumo.control.classical)
+        return "external", classical_controller(name, plant=plant)
     if name == "human":
         return "human", None
     if is_external_name(name):  # module:attribute or file.py:attribute
@@ -150,7 +153,7 @@ def event_trajectories(controller_name: str, events: Sequence[Event], n_follower
 def impairable(controller_name: str) -> bool:
     """Whether a controller runs in carl-sumo and so can have impairments (not SUMO's native
     models, whose V2V and sensing are inside SUMO, nor the recorded human follower)."""
-    if is_ploeg_name(controller_name) or is_external_name(controller_name):
+    if is_classical_name(controller_name) or is_external_name(controller_name):
         return True
     return resolve_controller(controller_name)[0] == "external"
 

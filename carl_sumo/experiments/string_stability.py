@@ -32,6 +32,8 @@ import numpy as np
 from carl_sumo.config import DT_S
 from carl_sumo.control.cacc import TEXTBOOK, check_heard, is_ploeg_name, parse_ploeg
 from carl_sumo.control.channel import Impairments, plant_impairments
+from carl_sumo.control.classical import time_gap_of
+from carl_sumo.control.mpc import is_mpc_name
 from carl_sumo.control.transfer import gamma_continuous, gamma_discrete, links_theory, \
     smallest_stable_gap, widen_bracket, \
     log_frequencies
@@ -124,6 +126,9 @@ def equilibrium_gap(controller: str, speed_mps: float) -> float:
         base = read_policy_payload(Path(controller))["agent_config"].get("base") or ""
         if is_ploeg_name(base):
             return equilibrium_gap(base, speed_mps)
+    if is_mpc_name(controller):  # the MPC keeps s0 + h·v in its chain
+        s0, h = time_gap_of(controller)
+        return s0 + h * speed_mps
     if is_ploeg_name(controller):
         if controller.split(":")[0].endswith("-tuned"):  # its time gap, whichever plant's gains
             options = dict(part.partition("=")[::2] for part in controller.split(":")[1:])

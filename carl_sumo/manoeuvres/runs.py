@@ -18,7 +18,7 @@ vehicle's state, the message it sends, within its own class's limits. Every cont
 
 - ``idm``, ``krauss``, ``sumo-cacc``: SUMO's own models drive the members, as in a plain run;
 - ``ploeg*``, ``acc*``: :class:`carl_sumo.control.cacc.PloegChains` (a ``-tuned`` name: the
-  gains tuned for the plant); ``idm-external`` and policy files:
+  gains tuned for the plant); ``mpc``: :class:`carl_sumo.control.mpc.MPCChains`; ``idm-external`` and policy files:
   :class:`carl_sumo.experiments.chain_controllers.ChainController` (one shared-weight policy on every chain,
   whatever its length);
 - a MADDPG policy: not applicable (``n/a: fixed size``: one actor per platoon position); the
@@ -37,7 +37,7 @@ from typing import Sequence
 import numpy as np
 
 from carl_sumo.config import DT_S, SCENARIO
-from carl_sumo.control.cacc import PloegChains, is_ploeg_name, parse_ploeg
+from carl_sumo.control.classical import classical_chains, is_classical_name
 from carl_sumo.control.channel import Impairments
 from carl_sumo.control.controllers import applied_acceleration
 from carl_sumo.control.external import is_external_name, load_external
@@ -85,8 +85,8 @@ def scenario_controller(name: str, plant: str = "ideal"):
     if name == "human":
         raise NotApplicable("n/a: recorded follower (the recorded NGSIM follower cannot be made "
                             "to manoeuvre; choose a controller that runs in SUMO)")
-    if is_ploeg_name(name):
-        return "external", PloegChains(parse_ploeg(name, plant=plant), name)
+    if is_classical_name(name):  # ploeg, acc, mpf, mpc
+        return "external", classical_chains(name, plant)
     if is_external_name(name):
         return "external", WholePlatoon(load_external(name))
     if name == "idm-external":
