@@ -122,3 +122,26 @@ def test_the_shipped_mpf_tuned_runs_on_the_real_plant(capsys, small_table_path):
     printed = capsys.readouterr().out
     assert "mpf-tuned" in printed
     assert PRESETS["product-base"].startswith("ploeg:h=0.6")
+
+
+def test_the_tables_list_mpf_tuned_beside_the_product_and_its_base():
+    from carl_sumo.experiments.chain_controllers import resolve_study_controller
+    from carl_sumo.experiments.suite import PRODUCT_MPF, PRODUCT_STEM, plan_suite
+    from carl_sumo.manoeuvres.tables import PLANT_CONTROLLERS, PRODUCT_BASE
+
+    from conftest import NET
+
+    suite = plan_suite("real", quick=True, events=1, net=NET, warmup_s=0.0,
+                       plant=REAL.plant_key)
+    table1 = suite.tables[0]
+    assert PRODUCT_MPF == "mpf-tuned:h=0.6"
+    for key in (PRODUCT_MPF, PRESETS["product-base"], PRODUCT_STEM):
+        assert key in table1.models
+    assert (PRODUCT_STEM, PRODUCT_MPF) in table1.paired
+    assert PRODUCT_MPF not in plan_suite(quick=True, events=1, net=NET).tables[0].models
+    real = PLANT_CONTROLLERS["real"]
+    assert real.index(PRODUCT_MPF) + 1 == real.index(PRODUCT_BASE)
+    _, chains = resolve_study_controller("mpf-tuned", REAL.plant_key)  # the study's plant
+    assert chains.controller.params == parse_ploeg("mpf-tuned", None, REAL.plant_key)
+    with pytest.raises(InputError, match="no mpf weights tuned for the plant 'ideal'"):
+        resolve_study_controller("mpf-tuned")
