@@ -123,22 +123,33 @@ def compare_with_base(path: Path) -> str:
 
 
 def _tune_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("tune", help="tune a classical CACC's or ACC's gains on the training events")
-    p.add_argument("controller", choices=("ploeg", "acc"),
-                   help="ploeg (CACC) or acc (the same law, radar only)")
+    p = sub.add_parser("tune", help="tune a classical CACC's or ACC's gains, or the multi-"
+                                    "predecessor CACC's weights, on the training events")
+    p.add_argument("controller", choices=("ploeg", "acc", "mpf"),
+                   help="ploeg (CACC) or acc (the same law, radar only): their gains kp, kd; "
+                        "mpf: the feed-forward weights of r = 2, 3 vehicles ahead on --base")
     add_common(p, split_default="train")
     p.add_argument("--gaps", default=None,
                    help="time gaps h to tune (s), commas (default 0.6,0.8,1.0,1.2; acc: "
-                        "2,2.5,3,3.5)")
-    p.add_argument("--kp", default="0.1,0.15,0.2,0.3,0.45,0.675,1.0125",
-                   help="starting grid of kp (1/s²)")
-    p.add_argument("--kd", default="0.5,0.7,1.0,1.4,2.1,3.15,4.725",
-                   help="starting grid of kd (1/s)")
+                        "2,2.5,3,3.5; mpf: the base's)")
+    p.add_argument("--kp", default=None,
+                   help="starting grid of kp (1/s²; default 0.1,0.15,0.2,0.3,0.45,0.675,1.0125)")
+    p.add_argument("--kd", default=None,
+                   help="starting grid of kd (1/s; default 0.5,0.7,1.0,1.4,2.1,3.15,4.725)")
+    p.add_argument("--base", default=None,
+                   help="mpf: the base law whose weights are tuned (default product-base, "
+                        "without its washout wo)")
+    p.add_argument("--heard", default=None,
+                   help="mpf: vehicles heard r of the grid, commas (default 2,3)")
+    p.add_argument("--w2", default=None,
+                   help="mpf: starting grid of w2, the weight two ahead (default 0.1,...,0.5)")
+    p.add_argument("--w3", default=None,
+                   help="mpf: starting grid of w3, the weight three ahead (default 0.1,0.2)")
     p.add_argument("--reuse", type=Path, default=None,
                    help="an earlier result file on the same events: its gains are not run again")
     p.add_argument("--headway-tolerance", type=float, default=0.05,
                    help="safe: mean headway at most this fraction above the textbook gains' "
-                        "(default 0.05)")
+                        "(mpf: the base's; default 0.05)")
     p.add_argument("--max-extensions", type=int, default=3,
                    help="times the grid may grow beyond an edge where the best point lies")
     p.add_argument("--events", type=int, default=None, metavar="K", help="only the first K events")
@@ -151,9 +162,11 @@ def _tune_parser(sub: argparse._SubParsersAction) -> None:
     add_warmup(p)
 
 
-def cmd_tune(args: argparse.Namespace) -> None:
-    from carl_sumo.control.cacc import tuned_file_for
-    from carl_sumo.experiments.tune import TuneConfig, format_result, grid_figure, parse_values, tune_ploeg
+def _tune_config(args: argparse.Namespace):
+    """The checked :class:`carl_sumo.experiments.tune.TuneConfig` of ``tune``'s options, and
+    for ``mpf`` its :class:`carl_sumo.experiments.tune_mpf.MpfGrid` (None otherwise)."""
+    from carl_sumo.experiments.tune import TuneConfig, parse_values
+    from carl_sumo.experiments.tune_mpf import HEARD, W2, W3, DEFAULT_BASE, MpfGrid
 
     positive(args.vehicles, "--vehicles")
     positive(args.workers, "--workers")
@@ -164,26 +177,60 @@ def cmd_tune(args: argparse.Namespace) -> None:
     if not (math.isfinite(args.headway_tolerance) and args.headway_tolerance >= 0):
         raise InputError(f"--headway-tolerance must be a non-negative fraction, got "
                          f"{args.headway_tolerance}")
+    mpf = args.controller == "mpf"
+    given = [o for o, v in (("--kp", args.kp), ("--kd", args.kd), ("--reuse", args.reuse))
+             if v is not None] if mpf else \
+        [o for o, v in (("--base", args.base), ("--heard", args.heard), ("--w2", args.w2),
+                        ("--w3", args.w3)) if v is not None]
+    if given:
+        raise InputError(f"{', '.join(given)}: not an option of `carl-sumo tune "
+                         f"{args.controller}`" + (" (its base's gains are fixed: --base)"
+                                                  if mpf else " (mpf only)"))
+    grid = None
+    if mpf:
+        heard = parse_values(args.heard or ",".join(map(str, HEARD)), "--heard")
+        if any(r != int(r) for r in heard):
+            raise InputError(f"--heard must be whole numbers, got {args.heard}")
+        grid = MpfGrid(args.base or DEFAULT_BASE, tuple(int(r) for r in heard),
+                       parse_values(args.w2 or ",".join(map(str, W2)), "--w2"),
+                       parse_values(args.w3 or ",".join(map(str, W3)), "--w3"))
+        grid.check(args.vehicles)
     impairments = impairments_from(args)
-    gaps = args.gaps or ("2,2.5,3,3.5" if args.controller == "acc" else "0.6,0.8,1.0,1.2")
-    cfg = TuneConfig(gaps_s=parse_values(gaps, "--gaps"), kp=parse_values(args.kp, "--kp"),
-                     kd=parse_values(args.kd, "--kd"), n_followers=args.vehicles,
-                     headway_tolerance=args.headway_tolerance,
+    gaps = args.gaps or ("2,2.5,3,3.5" if args.controller == "acc" else
+                         f"{grid.base_params().time_gap_s:g}" if mpf else "0.6,0.8,1.0,1.2")
+    cfg = TuneConfig(gaps_s=parse_values(gaps, "--gaps"),
+                     kp=parse_values(args.kp or "0.1,0.15,0.2,0.3,0.45,0.675,1.0125", "--kp"),
+                     kd=parse_values(args.kd or "0.5,0.7,1.0,1.4,2.1,3.15,4.725", "--kd"),
+                     n_followers=args.vehicles, headway_tolerance=args.headway_tolerance,
                      max_extensions=args.max_extensions, data=args.data, split=args.split,
                      net=str(args.net), workers=args.workers,
                      command="carl-sumo " + " ".join(sys.argv[1:]), law=args.controller,
                      impairments=impairments, warmup_s=warmup_from(args),
                      string_stable=impairments is not None and impairments.plant is not None)
+    return cfg, grid
+
+
+def cmd_tune(args: argparse.Namespace) -> None:
+    from carl_sumo.control.cacc import tuned_file_for
+    from carl_sumo.experiments import tune, tune_mpf
+
+    cfg, grid = _tune_config(args)
     out = args.out or tuned_file_for(cfg.law, cfg.plant_key)
     check_output_file(out, "--out")
     from carl_sumo.sim.sumo import lane_route
 
     lane_route(args.net)  # a missing or broken network fails before any worker starts
-    payload = tune_ploeg(cfg, Path(out), args.events, progress=sys.stderr.isatty(),
-                         log=lambda line: print(line, file=sys.stderr, flush=True),
-                         reuse=args.reuse)
-    figure = grid_figure(payload, Path(out).with_suffix(".png"))
-    print(format_result(payload))
+    log = lambda line: print(line, file=sys.stderr, flush=True)  # noqa: E731
+    if grid is not None:
+        payload = tune_mpf.tune_mpf(cfg, grid, Path(out), args.events, log=log)
+        print(tune_mpf.format_result(payload))
+        print(f"wrote {out}: {len(payload['grid'])} weight sets on {payload['events']} events "
+              f"of split {cfg.split}, {payload['wall_time_s']:.0f} s")
+        return
+    payload = tune.tune_ploeg(cfg, Path(out), args.events, progress=sys.stderr.isatty(),
+                              log=log, reuse=args.reuse)
+    figure = tune.grid_figure(payload, Path(out).with_suffix(".png"))
+    print(tune.format_result(payload))
     print(f"wrote {out} and {figure}: {len(payload['grid'])} gains on {payload['events']} events "
           f"of split {cfg.split}, {payload['wall_time_s']:.0f} s")
 

@@ -116,7 +116,7 @@ def cmd_study(args: argparse.Namespace) -> None:
                       detector_pos_m=args.detector_pos, heatmap_lane=args.heatmap_lane,
                       net=str(args.net), demand=demand, fcd=args.fcd, workers=1,
                       human_sigma=args.human_sigma, impairments=impairments_from(args))
-    kind, _ = resolve_study_controller(cfg.controller)
+    kind, _ = resolve_study_controller(cfg.controller, cfg.plant_key)
     if cfg.impairments is not None and kind != "external":
         raise InputError(f"{cfg.controller}: impairments (--comm-*, --sensor-noise) apply to "
                          "CACC vehicles controlled in carl-sumo (idm-external, ploeg, a policy "

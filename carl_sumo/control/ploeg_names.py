@@ -109,9 +109,10 @@ def _parse_options(name: str, allowed: tuple[str, ...]) -> dict[str, float]:
     return options
 
 
-CLASSICAL_KINDS = ("ploeg", "ploeg-tuned", "acc", "acc-tuned", "mpf")
+CLASSICAL_KINDS = ("ploeg", "ploeg-tuned", "acc", "acc-tuned", "mpf", "mpf-tuned")
 """The names of the constant-time-gap laws: Ploeg's CACC, the same law as a radar-only ACC, and
-the multi-predecessor CACC (``mpf``)."""
+the multi-predecessor CACC (``mpf``; ``mpf-tuned``: its weights tuned for a plant by
+``carl-sumo tune mpf``)."""
 
 
 @dataclass(frozen=True)
@@ -252,6 +253,8 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
     bad name or value, or on a plant the gains were not tuned for."""
     kind = name.split(":")[0]
     law = "acc" if kind.startswith("acc") else "ploeg"
+    if kind == "mpf-tuned":
+        return parse_ploeg(mpf_tuned_law(name, tuned_file, plant))
     if kind == "mpf":  # Ploeg's options, and r and the weights (MPF_OPTIONS)
         parts = [part.partition("=") for part in name.split(":")[1:]]
         mpf = {k: v for k, sep, v in parts if sep and (k == "r" or (k[:1] == "w" and
@@ -296,6 +299,57 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
         return PloegParams(float(entry["h"]), float(entry["kp"]), float(entry["kd"]),
                            feed_forward=law == "ploeg", **_switches(name, opts))
     raise InputError(f"{name!r} is not a Ploeg CACC or ACC controller name")
+
+
+def _mpf_entries(tuned_file: Path | None, plant: str | None) -> dict[str, dict]:
+    """The entries of ``carl-sumo tune mpf`` for ``plant`` (None: every plant), by gap."""
+    return {f"{float(e['h']):g}": e for e in read_tuned_entries(tuned_file)
+            if e.get("law") == "mpf" and (plant is None or e.get("plant", "ideal") == plant)}
+
+
+def _mpf_key(name: str, entries: dict[str, dict]) -> str:
+    """The gap (as written) whose weights ``mpf-tuned[:h=H]`` runs: h, else the only gap tuned,
+    else the base's own gap; InputError (one line) when there is none."""
+    opts = _parse_options(name, ("h",))
+    key = f"{opts['h']:g}" if "h" in opts else next(iter(entries)) if len(entries) == 1 else \
+        next((k for k, e in entries.items() if e.get("base_h") == float(k)), "")
+    if key not in entries:
+        raise InputError(f"controller {name!r}: mpf weights are tuned for h = "
+                         f"{', '.join(sorted(entries, key=float)) or 'none'} s on this plant; "
+                         "name one (mpf-tuned:h=H)")
+    return key
+
+
+def mpf_tuned_law(name: str, tuned_file: Path | None = None, plant: str = "ideal") -> str:
+    """The law (an ``mpf`` name, or the base's ``ploeg`` name where no weights beat it) that
+    ``mpf-tuned`` or ``mpf-tuned:h=H`` stands for on ``plant``: the weights ``carl-sumo tune mpf``
+    chose for that plant at h (without h: at the only gap tuned, else at the base's). InputError
+    (one line) when none were tuned for the plant or the gap."""
+    entries = _mpf_entries(tuned_file, plant)
+    if not entries:
+        raise InputError(f"controller {name!r}: no mpf weights tuned for the plant {plant!r}; "
+                         "run `carl-sumo tune mpf` with this plant's options, or give the "
+                         "weights (mpf:r=2:w2=0.3)")
+    key = _mpf_key(name, entries)
+    if not entries[key].get("name"):
+        raise InputError(f"controller {name!r}: the tuning found no safe weights for h = {key} s "
+                         f"(see {tuned_file or TUNED_FILE.parent})")
+    return str(entries[key]["name"])
+
+
+def tuned_gap(name: str) -> float:
+    """The time gap (s) of a ``-tuned`` name whichever plant's gains it reads: its ``h``, or for
+    ``mpf-tuned`` without one the gap of the weights it runs (:func:`mpf_tuned_law`)."""
+    options = dict(part.partition("=")[::2] for part in name.split(":")[1:])
+    if "h" in options:
+        return float(options["h"])
+    return float(_mpf_key(name, _mpf_entries(None, None)))
+
+
+def without_washout(name: str) -> str:
+    """A law's name (a preset expanded) without its washout ``wo``, which only acts on a learned
+    term: the classical law itself (``carl-sumo tune mpf``'s base)."""
+    return ":".join(part for part in expand_preset(name).split(":") if not part.startswith("wo="))
 
 
 PRESETS = {

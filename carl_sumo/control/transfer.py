@@ -216,14 +216,34 @@ def h_min_links(kp: float, kd: float, tau: float, delay_steps: int = 0,
 
 ROBUST_OMEGAS = np.geomspace(0.01, 10.0, 400)
 """Frequencies (rad/s) of the robust check: the peak of a constant-time-gap link lies in them."""
+ROBUST_LINKS = 10
+"""Followers of the homogeneous platoon in which the robust check of a multi-predecessor law
+takes each link's gain (the platoon length of the tables and of ``carl-sumo tune``)."""
 
 
 def robust_hinf(h: float, kp: float, kd: float, corners: list[tuple[float, int]],
                 delay_steps: int, cacc: bool = True, omegas: np.ndarray = ROBUST_OMEGAS,
-                mixed: bool = False, first_link: bool = False) -> float:
+                mixed: bool = False, first_link: bool = False,
+                weights: tuple[float, ...] = (1.0,), n_links: int = ROBUST_LINKS) -> float:
     """The largest ‖Γ‖∞ of the discrete law over platoons of each vehicle (τ s, dead steps) in
     ``corners``, behind one like itself (a V2V link of a CACC); ``mixed``: also behind every
-    other corner (a heterogeneous link); ``first_link``: also behind the leader."""
+    other corner (a heterogeneous link); ``first_link``: also behind the leader.
+
+    A multi-predecessor law (``weights`` w_1..w_r other than (1,), with ``cacc``): the gain of
+    each link depends on the r links before it (:func:`gamma_links_discrete`), so each corner is
+    a homogeneous platoon of ``n_links`` followers and the largest |Γ_i| over its links behind a
+    follower (i ≥ 1, those the relayed messages reach) counts; ``first_link`` adds the head's
+    link, and ``mixed`` is not defined for it (InputError is the caller's: ValueError here)."""
+    if cacc and tuple(weights) != (1.0,):
+        if mixed:
+            raise ValueError("robust_hinf: a mixed platoon of a multi-predecessor law is not "
+                             "a single link; give corners as homogeneous platoons")
+        worst = 0.0
+        for tau, dead in corners:
+            links = np.abs(gamma_links_discrete(omegas, max(n_links, 2), h, kp, kd, tau, dead,
+                                                delay_steps, tuple(weights)))
+            worst = max(worst, float((links if first_link else links[1:]).max()))
+        return worst
     worst = 0.0
     for tau, dead in corners:
         if first_link:

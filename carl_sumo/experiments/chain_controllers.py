@@ -170,13 +170,15 @@ def know_vehicle(controller, vehicle_id: str, a_max_mps2: float, b_max_mps2: flo
         law.know_vehicle(vehicle_id, a_max_mps2, b_max_mps2)
 
 
-def resolve_study_controller(name: str) -> tuple[str, ChainController | PloegChains
-                                                 | MPCChains | ExternalChains | None]:
-    """(CACC kind of :data:`carl_sumo.sim.traffic.CACC_TYPES`, controller); InputError if unknown."""
+def resolve_study_controller(name: str, plant: str = "ideal"
+                             ) -> tuple[str, ChainController | PloegChains | MPCChains
+                                        | ExternalChains | None]:
+    """(CACC kind of :data:`carl_sumo.sim.traffic.CACC_TYPES`, controller); InputError if unknown.
+    ``plant``: the plant a ``-tuned`` law's gains are read for (:attr:`Impairments.plant_key`)."""
     if name == "sumo-cacc":
         return "sumo", None
     if is_classical_name(name):
-        return "external", classical_chains(name)
+        return "external", classical_chains(name, plant)
     if name == "idm-external" or name.endswith(".pt"):
         return "external", ChainController(name)
     if is_external_name(name):

@@ -31,6 +31,7 @@ import numpy as np
 
 from carl_sumo.config import DT_S
 from carl_sumo.control.cacc import TEXTBOOK, check_heard, is_ploeg_name, parse_ploeg
+from carl_sumo.control.ploeg_names import tuned_gap
 from carl_sumo.control.channel import Impairments, plant_impairments
 from carl_sumo.control.classical import time_gap_of
 from carl_sumo.control.mpc import is_mpc_name
@@ -131,8 +132,7 @@ def equilibrium_gap(controller: str, speed_mps: float) -> float:
         return s0 + h * speed_mps
     if is_ploeg_name(controller):
         if controller.split(":")[0].endswith("-tuned"):  # its time gap, whichever plant's gains
-            options = dict(part.partition("=")[::2] for part in controller.split(":")[1:])
-            return TEXTBOOK.standstill_gap_m + float(options["h"]) * speed_mps
+            return TEXTBOOK.standstill_gap_m + tuned_gap(controller) * speed_mps
         p = parse_ploeg(controller)
         return p.standstill_gap_m + p.time_gap_s * speed_mps
     return 2.0 + 1.5 * speed_mps

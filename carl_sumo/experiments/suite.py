@@ -37,7 +37,8 @@ from carl_sumo.data import load_events
 from carl_sumo.data.events import Event
 from carl_sumo.data.synthetic import stop_and_go_event
 from carl_sumo.errors import InputError
-from carl_sumo.resources import DEFAULT_NET, policies_dir
+from carl_sumo.control.ploeg_names import PRESETS, parse_ploeg
+from carl_sumo.resources import DEFAULT_NET, PRODUCT, policies_dir
 from carl_sumo.sim.sumo import check_fits, lane_route
 
 
@@ -88,7 +89,7 @@ TEXTBOOK_GAPS = (0.6, 0.8, 1.0, 1.2, 1.5)
 def is_classical(key: str) -> bool:
     """Whether a model key is a built-in (not learned) controller."""
     return key in BUILTIN_MODELS or key.startswith(("ploeg:", "ploeg-tuned:", "acc:",
-                                                    "acc-tuned:", "mpf:"))
+                                                    "acc-tuned:", "mpf:", "mpf-tuned"))
 
 
 ALGO_NAMES = {"ca-td3": "CA-TD3", "ca-ddpg": "CA-DDPG", "td3": "TD3", "ddpg": "DDPG",
@@ -147,14 +148,21 @@ class JobResult:
     cpu_seconds: float = 0.0    # CPU time of those chunks (s)
 
 
+PRODUCT_STEM = Path(PRODUCT).stem
+"""The real-plant product's row in the real suite (``policies/ca_td3_real_truck_10.pt``)."""
+PRODUCT_MPF = f"mpf-tuned:h={parse_ploeg(PRESETS['product-base']).time_gap_s:g}"
+"""The multi-predecessor CACC tuned on the product's base, at the product's gap: the classical
+law the product is paired with in the real suite."""
 PAIRED_COMPARISONS = (("ca_td3_10", "idm"), ("ca_ddpg_10", "idm"), ("ca_td3_10", "td3_1"),
                       ("ca_ddpg_10", "ddpg_1"), ("td3_1", "idm"), ("ddpg_1", "idm"),
                       ("maddpg_10", "idm"), ("ca_td3_10", "ploeg:h=1.5"),
-                      ("ca_ddpg_10", "ploeg:h=1.5"), ("ca_td3_ploeg_10", "ploeg-tuned:h=0.8"))
+                      ("ca_ddpg_10", "ploeg:h=1.5"), ("ca_td3_ploeg_10", "ploeg-tuned:h=0.8"),
+                      (PRODUCT_STEM, PRODUCT_MPF))
 """Table 1's paired comparisons: the quality bar's (CA models against IDM and against their
 plain variants), the other learned models against IDM, the CA models against the textbook
-Ploeg CACC at h = 1.5 s, which follows at the same mean headway (1.75 s), and the product
-configuration (CA-TD3 on the tuned Ploeg CACC) against its base alone."""
+Ploeg CACC at h = 1.5 s, which follows at the same mean headway (1.75 s), the product
+configuration (CA-TD3 on the tuned Ploeg CACC) against its base alone, and in the real suite the
+real-plant product against the multi-predecessor law tuned on its base (``mpf-tuned``)."""
 SEED_MODELS = tuple(dict.fromkeys(key for pair in PAIRED_COMPARISONS
                                   if not is_classical(pair[1]) or pair[0] == "ca_td3_ploeg_10"
                                   for key in pair if not is_classical(key)))
@@ -185,7 +193,18 @@ def classical_models(tuned_file: Path | None = None, plant: str = "ideal") -> di
         models.update({f"{law}-tuned:h={h}": f"{label} tuned h={h} s"
                        for h, e in sorted(entries.items(), key=lambda kv: float(kv[0]))
                        if e.get("kp") is not None})
+    models[PRESETS["product-base"]] = PRODUCT_BASE_LABEL
+    entries = read_tuned(None, "mpf", plant)
+    models.update({f"mpf-tuned:h={h}": f"multi-predecessor CACC tuned h={h} s, r = "
+                                       f"{e['r']} (the product's base)"
+                   for h, e in sorted(entries.items(), key=lambda kv: float(kv[0]))
+                   if e.get("name")})
     return models
+
+
+PRODUCT_BASE_LABEL = "Ploeg tuned h=0.6 s, trucks 0.8 s, its layers (the product's base)"
+"""The row of ``product-base`` (:data:`carl_sumo.control.ploeg_names.PRESETS`) in the real
+suite, beside the multi-predecessor law tuned on it (``mpf-tuned``) and the product."""
 
 
 def default_data(quick: bool) -> str:
@@ -331,8 +350,9 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
                   note="one synthetic leader: 25 m/s, " + ("one braking (--quick)" if quick else
                                                            "three brakings") + " at -5 m/s² to 1 m/s")
     classical = classical_models(plant=plant if suite == "real" else "ideal")
-    if suite == "real":
+    if suite == "real":  # with the product beside its base and the laws on it
         classical = {"idm-external": BUILTIN_MODELS["idm-external"], **classical}
+        extra = (PRODUCT_STEM, *extra)
     table1_models = ("human", "idm", "krauss", *classical, "maddpg_10", "ddpg_1", "ca_ddpg_10",
                      "td3_1", "ca_td3_10", "ca_td3_ploeg_10", *extra)
     seed_models = None if all_seeds else SEED_MODELS if seeds else ()

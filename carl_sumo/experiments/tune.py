@@ -166,8 +166,11 @@ class _Runner:
             self.pool = None
             _worker_init(cfg.data, cfg.split, limit, cfg.warmup_s)
 
-    def run(self, points: list[GridPoint]) -> None:
-        names = {self.cfg.params(p.h, p.kp, p.kd).name(): p for p in points}
+    def run(self, points: list, namer: Callable[[object], str] | None = None) -> None:
+        """Score every point on all events (its ``metrics``); ``namer``: its controller name
+        (default: the gains of a :class:`GridPoint` under ``cfg.law``)."""
+        namer = namer or (lambda p: self.cfg.params(p.h, p.kp, p.kd).name())
+        names = {namer(p): p for p in points}
         tasks = [(name, a, b, self.cfg.n_followers, self.cfg.net, self.cfg.impairments)
                  for name in names for a, b in self.chunks]
         parts: dict[str, list[tuple[int, list[dict]]]] = {name: [] for name in names}

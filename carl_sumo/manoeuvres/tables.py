@@ -22,7 +22,7 @@ from carl_sumo.data.events import Event
 # The real plant's tables start settled, as ``evaluate --suite real``: from the recorded gap,
 # plain runs (no manoeuvre) of the tuned CACC on the real fleet have 16 collisions in the 53
 # default test events, on the ideal plant none.
-from carl_sumo.experiments.suite import REAL_WARMUP_S
+from carl_sumo.experiments.suite import PRODUCT_BASE_LABEL, PRODUCT_MPF, REAL_WARMUP_S
 from carl_sumo.files import write_text_atomic
 from carl_sumo.scale.workers import run_parallel
 from carl_sumo.manoeuvres.metrics import aggregate_manoeuvres
@@ -47,7 +47,7 @@ PLANT_CONTROLLERS = {
     "ideal": ("idm", "sumo-cacc", "acc:h=2.5:kp=0.45:kd=1.5", "ploeg-tuned:h=0.8",
               "ca_td3_10.pt", "ca_td3_ploeg_10.pt", "maddpg_10.pt"),
     "real": ("idm-external", "acc-tuned:h=2.5", "ploeg-tuned:h=0.8", ROBUST_AW, ROBUST_HA,
-             ROBUST_TTC, "ca_td3_10.pt", "ca_td3_ploeg_10.pt", PRODUCT_BASE,
+             ROBUST_TTC, "ca_td3_10.pt", "ca_td3_ploeg_10.pt", PRODUCT_MPF, PRODUCT_BASE,
              "ca_td3_real_truck_10.pt", "maddpg_10.pt"),
 }
 """The controllers of each plant's tables (policy files in the policies folder): SUMO's IDM (run
@@ -58,7 +58,9 @@ at h = 0.8 s (the gains tuned for each plant; on the real plant also with anti-w
 layer, :data:`ROBUST_TTC`), the paper's CA-TD3 on IDM, CA-TD3 on the tuned CACC of the ideal
 plant, the real-plant product (its two-ahead feed-forward on the CACC at h = 0.6 s with its
 layers, ``gn=6``, ``op=2`` and trucks at 0.8 s, ``ht=0.8``) beside that CACC without it,
-:data:`PRODUCT_BASE`, and MADDPG (n/a: fixed size)."""
+:data:`PRODUCT_BASE`, and with the feed-forward of the vehicles ahead tuned for the fleet
+(:data:`carl_sumo.experiments.suite.PRODUCT_MPF`, ``carl-sumo tune mpf``), and MADDPG (n/a:
+fixed size)."""
 LABELS = {"idm": "IDM (SUMO)", "idm-external": "IDM (carl-sumo, on the plant)",
           "sumo-cacc": "CACC (SUMO)", "acc:h=2.5:kp=0.45:kd=1.5": "ACC h=2.5 s (fleet gains)",
           "acc-tuned:h=2.5": "ACC tuned h=2.5 s", "ploeg-tuned:h=0.8": "Ploeg tuned h=0.8 s",
@@ -66,7 +68,8 @@ LABELS = {"idm": "IDM (SUMO)", "idm-external": "IDM (carl-sumo, on the plant)",
           ROBUST_AW: "Ploeg tuned h=0.8 s, aw=1",
           ROBUST_HA: "Ploeg tuned h=0.8 s, aw=1, degraded ha=1.4 s",
           ROBUST_TTC: "the same with its reaction layer ttc=2 s",
-          PRODUCT_BASE: "Ploeg tuned h=0.6 s, trucks 0.8 s, its layers (the product's base)",
+          PRODUCT_BASE: PRODUCT_BASE_LABEL,
+          PRODUCT_MPF: "multi-predecessor CACC tuned for the fleet on the product's base",
           "ca_td3_real_truck_10.pt": "CA-TD3 product (real, h=0.6 s, trucks 0.8 s, two-ahead)",
           "maddpg_10.pt": "MADDPG"}
 TABLE_COLUMNS = (

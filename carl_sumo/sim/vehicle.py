@@ -142,13 +142,17 @@ class Plant:
     def corners(self) -> list[tuple[float, int]]:
         """(τ s, dead time in steps) at both ends of every class's ranges (or the fixed values):
         the vehicles a robust check runs against."""
+        return sorted({corner for name in self.classes for corner in self.class_corners(name)})
+
+    def class_corners(self, class_name: str) -> list[tuple[float, int]]:
+        """(τ s, dead time in steps) of one class at both ends of its ranges (or the fixed
+        values): :meth:`corners` of that class alone."""
+        c = VEHICLE_CLASSES[class_name]
         out = set()
-        for name in self.classes:
-            c = VEHICLE_CLASSES[name]
-            for tau, dead in ((c.tau_s[0], c.dead_time_s[0]), (c.tau_s[1], c.dead_time_s[1])):
-                tau = self.lag_s if self.lag_s is not None else tau
-                dead = self.dead_time_s if self.dead_time_s is not None else dead
-                out.add((float(tau), int(round(dead / DT_S))))
+        for tau, dead in ((c.tau_s[0], c.dead_time_s[0]), (c.tau_s[1], c.dead_time_s[1])):
+            tau = self.lag_s if self.lag_s is not None else tau
+            dead = self.dead_time_s if self.dead_time_s is not None else dead
+            out.add((float(tau), int(round(dead / DT_S))))
         return sorted(out)
 
     def worst_case(self, class_name: str) -> Plant:

@@ -117,6 +117,11 @@ class StudyConfig:
     human_sigma: float = 0.0           # human driver imperfection (see set_human_variability)
     impairments: Impairments | None = None  # V2V delay/loss and sensor noise of the CACC vehicles
 
+    @property
+    def plant_key(self) -> str:
+        """The plant a ``-tuned`` law reads its gains for (``ideal`` without impairments)."""
+        return self.impairments.plant_key if self.impairments is not None else "ideal"
+
 
 # ------------------------------------------------------------------------------------ runs
 @dataclass
@@ -177,7 +182,7 @@ def run_one(cfg: StudyConfig, penetration: float, seed: int, out_dir: Path) -> R
     """Simulate one (p, seed) run in this process and score it; its SUMO files go to out_dir."""
     import libsumo as ls
 
-    kind, controller = resolve_study_controller(cfg.controller)
+    kind, controller = resolve_study_controller(cfg.controller, cfg.plant_key)
     out_dir = Path(out_dir)
     name = run_name(penetration, seed)
     final = out_dir / "runs" / name
@@ -428,7 +433,7 @@ def run_study(cfg: StudyConfig, out_dir: Path, progress: bool | float = False
               ) -> list[RunResult]:
     """All (p, seed) runs, in ``cfg.workers`` spawned processes (one libsumo each); progress as
     :class:`carl_sumo.progress.Tracker` shows it."""
-    resolve_study_controller(cfg.controller)  # fails before any simulation starts
+    resolve_study_controller(cfg.controller, cfg.plant_key)  # fails before any simulation starts
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     tasks = sorted(((p, s) for p in cfg.penetrations for s in cfg.seeds),

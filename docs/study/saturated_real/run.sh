@@ -21,3 +21,4 @@ carl-sumo study $common --controller policies/ca_td3_real_two_10.pt --out $out/c
 carl-sumo study $common --controller policies/ca_td3_real_truck_10.pt --out $out/ca_td3_real_truck_10
 carl-sumo study $common --controller ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1:wo=5:gn=6:op=2:ht=0.8 --out $out/ploeg_product_base
 carl-sumo study $common --controller policies/ca_td3_real_two_open_10.pt --out $out/ca_td3_real_two_open_10
+carl-sumo study $common --controller mpf-tuned --out $out/mpf_tuned
