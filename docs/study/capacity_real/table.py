@@ -22,7 +22,7 @@ FOLDERS = {  # folder: the controller as it is named in docs/study.md
     "mpc": "`mpc`",
     "product_base_ha1.0": "`product-base` with ha = 1.0 s",
     "product_base_ha0.8": "`product-base` with ha = 0.8 s",
-    "product_base_ha0.6": "`product-base` with ha = 0.6 s (= h: no degraded gap)",
+    "product_base_cars": "`product-base`, a fleet of cars only (`--fleet car:1`)",
 }
 
 
