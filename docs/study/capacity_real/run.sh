@@ -32,3 +32,5 @@ for seed in ${SEEDS:-0}; do
   done
   for p in 0.25 1; do study $seed mpf_r2/p$p "$MPF" $p; done
 done
+# diagnostic: the same law at p = 0.5 with a fleet of cars only (no trucks), seed 0
+$PY -m carl_sumo study $common --seeds 1 --fleet car:1 --penetration 0.5 --controller product-base --out $out/s0/product_base_cars/p0.5
