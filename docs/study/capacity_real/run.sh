@@ -34,3 +34,6 @@ for seed in ${SEEDS:-0}; do
 done
 # diagnostic: the same law at p = 0.5 with a fleet of cars only (no trucks), seed 0
 $PY -m carl_sumo study $common --seeds 1 --fleet car:1 --penetration 0.5 --controller product-base --out $out/s0/product_base_cars/p0.5
+# seed 1 where the table has it beyond the reused runs: p = 0.5, product-base and its 0.8 s fallback
+study 1 product_base/p0.5 product-base 0.5
+study 1 product_base_ha0.8/p0.5 "$(base 0.8)" 0.5
