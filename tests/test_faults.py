@@ -762,11 +762,11 @@ def test_a_tune_pool_stops_after_a_worker_start_up_failure(tmp_path):
     script = tmp_path / "pool.py"
     script.write_text(f'''
 from carl_sumo.errors import InputError
-from carl_sumo.experiments.tune import GridPoint, TuneConfig, _Runner
+from carl_sumo.experiments.tune import GridPoint, TuneConfig, Runner
 
 if __name__ == "__main__":
     cfg = TuneConfig(data={str(tmp_path / "missing.csv")!r}, workers=2, n_followers=2)
-    runner = _Runner(cfg, 4, None, None)
+    runner = Runner(cfg, 4, None, None)
     try:
         runner.run([GridPoint(0.8, 0.2, 0.7)])
     except InputError as exc:

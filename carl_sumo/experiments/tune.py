@@ -146,7 +146,7 @@ def _score(point: GridPoint, per_event: list[dict]) -> None:
     point.colliding_events = sum(1 for e in per_event if e["collisions"] > 0)
 
 
-class _Runner:
+class Runner:
     """Evaluates grid points on all events in a pool of worker processes (or in this one)."""
 
     def __init__(self, cfg: TuneConfig, n_events: int, limit: int | None,
@@ -192,7 +192,7 @@ class _Runner:
 
 
 # -------------------------------------------------------------------------------- search
-def _judge(point: GridPoint, reference: GridPoint, cfg: TuneConfig) -> None:
+def judge(point: GridPoint, reference: GridPoint, cfg: TuneConfig) -> None:
     if not point.metrics:  # not simulated: string unstable in theory
         point.safe = False
         return
@@ -213,7 +213,7 @@ def _grown(values: list[float], at_low: bool, at_high: bool) -> list[float]:
     return values
 
 
-def tune_gap(h: float, cfg: TuneConfig, runner: _Runner,
+def tune_gap(h: float, cfg: TuneConfig, runner: Runner,
              known: dict[tuple[float, float], GridPoint] | None = None
              ) -> tuple[GridPoint | None, list[GridPoint], bool, GridPoint]:
     """Search one time gap: (best safe point or None, every point, interior?, textbook point).
@@ -235,7 +235,7 @@ def tune_gap(h: float, cfg: TuneConfig, runner: _Runner,
             points[(point.kp, point.kd)] = point
         reference = points[(TEXTBOOK.kp, TEXTBOOK.kd)]
         for point in points.values():
-            _judge(point, reference, cfg)
+            judge(point, reference, cfg)
         safe = [p for p in points.values() if p.safe and p.kp in kp and p.kd in kd]
         if not safe:
             return None, sorted(points.values(), key=lambda p: (p.kp, p.kd)), False, reference
@@ -306,7 +306,7 @@ def tune_ploeg(cfg: TuneConfig, out: Path = TUNED_FILE, events_limit: int | None
 
         bar = tqdm(desc=f"tune {cfg.law}", unit="gains", leave=False)
     start = time.perf_counter()
-    runner = _Runner(cfg, len(events), events_limit, bar.update if bar is not None else None)
+    runner = Runner(cfg, len(events), events_limit, bar.update if bar is not None else None)
     entries, grid = [], []
     partial = Path(out).with_suffix(".partial.json")
 
@@ -349,7 +349,12 @@ def tune_ploeg(cfg: TuneConfig, out: Path = TUNED_FILE, events_limit: int | None
         runner.close(failed)
         if bar is not None:
             bar.close()
-    payload = result()
+    return write_result(result(), out, partial)
+
+
+def write_result(payload: dict, out: Path, partial: Path) -> dict:
+    """Write a finished tuning's ``payload`` to ``out`` (atomically) and drop the partial file
+    that was rewritten after every gap; returns ``payload``."""
     write_text_atomic(Path(out), json.dumps(payload, indent=1, allow_nan=True) + "\n")
     partial.unlink(missing_ok=True)
     return payload

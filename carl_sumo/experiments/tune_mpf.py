@@ -45,7 +45,7 @@ from carl_sumo.control.cacc import HEAVY_BRAKING_MPS2, PloegParams, parse_ploeg
 from carl_sumo.control.ploeg_names import MAX_HEARD, without_washout
 from carl_sumo.control.transfer import robust_hinf
 from carl_sumo.errors import InputError
-from carl_sumo.experiments.tune import TuneConfig, _judge, _Runner
+from carl_sumo.experiments.tune import Runner, TuneConfig, judge, write_result
 from carl_sumo.files import write_text_atomic
 from carl_sumo.sim.vehicle import VEHICLE_CLASSES
 
@@ -168,7 +168,7 @@ def _edges(best: MpfPoint, w2s: list[float], w3s: list[float]) -> tuple[bool, ..
             w3 is not None and w3 == w3s[-1])
 
 
-def tune_gap_weights(h: float, cfg: TuneConfig, grid: MpfGrid, runner: _Runner
+def tune_gap_weights(h: float, cfg: TuneConfig, grid: MpfGrid, runner: Runner
                      ) -> tuple[MpfPoint | None, list[MpfPoint], bool, MpfPoint]:
     """Search one time gap: (best safe point or None, every point, interior?, the base's)."""
     base = grid.base_params(h)
@@ -185,7 +185,7 @@ def tune_gap_weights(h: float, cfg: TuneConfig, grid: MpfGrid, runner: _Runner
         points.update({t.weights: t for t in todo})
         reference = points[(1.0,)]
         for point in points.values():
-            _judge(point, reference, cfg)
+            judge(point, reference, cfg)
         current = set(candidates(grid.heard, w2s, w3s)) | {(1.0,)}
         safe = [p for p in points.values() if p.safe and p.weights in current]
         if not safe:
@@ -246,7 +246,7 @@ def tune_mpf(cfg: TuneConfig, grid: MpfGrid, out: Path, events_limit: int | None
     if not events:
         raise InputError(f"{cfg.data} has no {cfg.split} events to tune on")
     start = time.perf_counter()
-    runner = _Runner(cfg, len(events), events_limit, None)
+    runner = Runner(cfg, len(events), events_limit, None)
     entries, rows = [], []
     partial = Path(out).with_suffix(".partial.json")
 
@@ -280,10 +280,7 @@ def tune_mpf(cfg: TuneConfig, grid: MpfGrid, out: Path, events_limit: int | None
         failed = False
     finally:
         runner.close(failed)
-    payload = result()
-    write_text_atomic(Path(out), json.dumps(payload, indent=1, allow_nan=True) + "\n")
-    partial.unlink(missing_ok=True)
-    return payload
+    return write_result(result(), out, partial)
 
 
 def format_result(payload: dict) -> str:
