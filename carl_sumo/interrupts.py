@@ -23,7 +23,8 @@ import os
 import signal
 import sys
 import threading
-from typing import Any, Callable
+from contextlib import contextmanager
+from typing import Any, Callable, Iterator
 
 STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP")
                      if hasattr(signal, name))
@@ -122,14 +123,26 @@ def stop_on_signals() -> Callable[[], None]:
     return restore
 
 
-def reinstall() -> None:
-    """Take the stop signals back after a library replaced their handlers (``ray.init`` makes
-    SIGTERM a plain ``sys.exit``); nothing changes where :func:`stop_on_signals` is not active."""
-    if threading.current_thread() is not threading.main_thread():
+@contextmanager
+def held() -> Iterator[bool]:
+    """Stop signals that arrive while the block runs wait until it has ended, then stop the
+    command as usual (a library's start-up that a signal must not cut in half: ``ray.init``,
+    whose half-started runtime crashes the process on its way out). Yields whether it holds
+    them: only where :func:`stop_on_signals` is active, in the main thread."""
+    if threading.current_thread() is not threading.main_thread() or not any(
+            signal.getsignal(s) is _raise for s in STOP_SIGNALS):
+        yield False
         return
-    if any(signal.getsignal(s) is _raise for s in STOP_SIGNALS):
+    pending: list[int] = []
+    for s in STOP_SIGNALS:
+        signal.signal(s, lambda signum, frame: pending.append(signum))
+    try:
+        yield True
+    finally:
         for s in STOP_SIGNALS:
             signal.signal(s, _raise)
+    if pending:
+        _raise(pending[0], None)
 
 
 _in_task = False  # whether this worker process runs a task now

@@ -325,6 +325,26 @@ def test_a_signal_that_lands_in_a_c_callback_is_delivered_again(capsys):
     assert "Exception ignored" not in capsys.readouterr().err
 
 
+def test_a_held_signal_stops_the_command_once_the_block_has_ended():
+    """interrupts.held (around ray.init): a SIGTERM inside the block does not cut it; when the
+    block ends the command stops with that signal; outside stop_on_signals nothing is held."""
+    from carl_sumo.interrupts import Interrupted, held, stop_on_signals
+
+    with held() as holding:
+        assert not holding
+    finished = []
+    restore = stop_on_signals()
+    try:
+        with pytest.raises(Interrupted) as stopped:
+            with held() as holding:
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(0.2)
+                finished.append(holding)
+    finally:
+        restore()
+    assert finished == [True] and stopped.value.signum == signal.SIGTERM
+
+
 def test_sigterm_to_replay_leaves_no_fcd_and_no_temporary_file(tmp_path):
     fcd = tmp_path / "f.xml"
     code, err, _ = run_and_signal(

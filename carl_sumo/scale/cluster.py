@@ -21,11 +21,12 @@ import os
 import re
 import socket
 from collections import Counter
+from contextlib import contextmanager
 from typing import Any, Callable, Iterator, Sequence
 
 from carl_sumo.scale import workers
 from carl_sumo.errors import InputError
-from carl_sumo.interrupts import reinstall
+from carl_sumo.interrupts import held
 
 EXTRA_HINT = ("--ray needs the optional Ray extra: pip install -e \".[ray]\" (or leave out --ray "
               "to use local processes)")
@@ -42,7 +43,12 @@ last_nodes: Counter = Counter()
 
 
 def import_ray():
-    """The ``ray`` module, or InputError (one line: how to install it) when it is missing."""
+    """The ``ray`` module, or InputError (one line: how to install it) when it is missing.
+
+    Ray's C++ failure-signal handler is left out (unless the environment asks for it): it would
+    take SIGTERM from this process's own handler and can abort the process instead of letting
+    the command clean up and exit with 143."""
+    os.environ.setdefault("RAY_DISABLE_FAILURE_SIGNAL_HANDLER", "1")
     try:
         import ray
     except ImportError:
@@ -75,6 +81,20 @@ def _probe(address: str) -> None:
                          f"--head --port {port}` on that machine, or give --ray local") from None
 
 
+@contextmanager
+def _keeping_sigterm(ray: Any, keep: bool) -> Iterator[None]:
+    """While the block runs, and where ``keep``, ``ray.init`` leaves SIGTERM's handler as it is
+    (it would make SIGTERM a bare ``sys.exit(15)`` in the middle of its start-up)."""
+    utils = ray._private.utils
+    original = utils.set_sigterm_handler
+    if keep:
+        utils.set_sigterm_handler = lambda handler: None
+    try:
+        yield
+    finally:
+        utils.set_sigterm_handler = original
+
+
 def connect(address: str, num_cpus: int | None = None) -> None:
     """Start (``local``, with ``num_cpus`` CPUs) or join (``auto``, ``HOST:PORT``) a Ray runtime
     and make it the backend of :func:`carl_sumo.scale.workers.run_parallel`; InputError (one line) for
@@ -85,17 +105,20 @@ def connect(address: str, num_cpus: int | None = None) -> None:
         _probe(address)
     options: dict[str, Any] = {"logging_level": logging.ERROR, "configure_logging": True}
     try:
-        if address == "local":
-            ray.init(num_cpus=num_cpus, include_dashboard=False, **options)
-        else:
-            ray.init(address=address, **options)
+        with held() as holding, _keeping_sigterm(ray, holding):
+            if address == "local":
+                ray.init(num_cpus=num_cpus, include_dashboard=False, **options)
+            else:
+                ray.init(address=address, **options)
     except ConnectionError as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise InputError(f"--ray {address}: cannot join a Ray cluster ({first}); start one with "
                          "`ray start --head`, or give --ray local (a cluster with token "
                          "authentication, Ray's default for `ray start`, needs RAY_AUTH_MODE=token "
                          "and its token: docs/scale.md)") from None
-    reinstall()  # ray.init makes SIGTERM a bare sys.exit: it stops the command cleanly again
+    except BaseException:  # a stop signal held while Ray started: Ray's processes stop too
+        ray.shutdown()
+        raise
     last_nodes.clear()
     workers.set_backend(run_ray)
 
