@@ -67,6 +67,18 @@ def _train_parser(sub: argparse._SubParsersAction) -> None:
     add_config_options(p, TRAIN_CONVERTERS)
 
 
+def stability_check(cfg):
+    """``--trust-string-stable``'s check (a policy file's worst ‖Γ‖∞ on the gate's plant, at
+    the gate's frequencies and amplitudes, :func:`carl_sumo.experiments.string_stability.
+    worst_hinf`); None without the option."""
+    if not cfg.trust_string_stable:
+        return None
+    from carl_sumo.experiments.string_stability import plant_impairments, worst_hinf
+
+    impairments = plant_impairments(cfg.gate_string_stable)
+    return lambda path: worst_hinf(str(path), impairments, net=cfg.net)
+
+
 def cmd_train(args: argparse.Namespace) -> None:
     from carl_sumo.data import load_events
     from carl_sumo.experiments.string_stability import keep_string_stable
@@ -95,8 +107,11 @@ def cmd_train(args: argparse.Namespace) -> None:
         result = train(cfg, events, resume=args.resume,
                        progress=True if sys.stderr.isatty() else args.progress_every,
                        rollouts="processes" if args.ray is None else "ray",
-                       tensorboard=args.tensorboard)
-    if cfg.gate_string_stable is not None:
+                       tensorboard=args.tensorboard, stability_check=stability_check(cfg))
+    if cfg.trust_string_stable:  # each kept checkpoint was checked as it was validated
+        print(f"{out}: kept the best-scoring checkpoint that was string stable when validated "
+              f"(--trust-string-stable)", file=sys.stderr)
+    elif cfg.gate_string_stable is not None:
         keep_string_stable(out, cfg.select, cfg.gate_string_stable)  # says what it kept
     val = result["validation"]
     kept = (f"the best string-stable checkpoint; the best score before the gate "

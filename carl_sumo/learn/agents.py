@@ -328,6 +328,24 @@ class Agent(nn.Module):
         if start is not None:
             self.start_actor.load_state_dict(start)
 
+    def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
+        """As nn.Module's; the anchor's weights (``start_actor.*``, a run's checkpoint holds
+        them) are left out where this agent has no anchor yet: a resumed run sets its anchor
+        apart (:meth:`anchor` with the checkpoint's ``start_actor``), an exported one needs none."""
+        if self.start_actor is None:
+            state_dict = {k: v for k, v in state_dict.items() if not k.startswith("start_actor.")}
+        return super().load_state_dict(state_dict, strict=strict, assign=assign)
+
+    def revert_to_anchor(self) -> None:
+        """The actor and its target back to the anchor of :meth:`anchor` (the actor it is held
+        near), the actor optimiser's moments cleared (they point where the actor went)."""
+        if self.start_actor is None:
+            raise ValueError("revert_to_anchor needs an anchored actor (bc_alpha > 0)")
+        state = self.start_actor.state_dict()
+        self.actor.load_state_dict(state)
+        self.actor_target.load_state_dict(state)
+        self.actor_opt.state.clear()
+
     def _q_objective(self, q: torch.Tensor, action_now: torch.Tensor, x: torch.Tensor,
                      mask: torch.Tensor | None, links: Links | None) -> torch.Tensor:
         """The per-vehicle actor loss's Q term: -Q, or with :meth:`anchor` the behaviour-

@@ -48,6 +48,7 @@ from carl_sumo.sim.sumo import check_fits
 
 from carl_sumo.learn.curve import LOG_COLUMNS, LearningCurve  # noqa: F401
 from carl_sumo.learn.report import Report
+from carl_sumo.learn.trust import StableTrust
 from carl_sumo.learn.curve import upgrade_log as _upgrade_log  # noqa: F401
 
 
@@ -96,15 +97,18 @@ def _metadata(cfg: TrainConfig, agent: Agent, val: dict[str, float], wall_s: flo
 
 def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
           progress: bool | float = True, log=print, rollouts: str = "processes",
-          on_checkpoint=None, tensorboard: Path | None = None) -> dict[str, Any]:
+          on_checkpoint=None, tensorboard: Path | None = None,
+          stability_check=None) -> dict[str, Any]:
     """Train an agent into ``cfg.policy_path`` (checkpoints and a CSV log beside it); the loop
     (act, step, store, update, validate, keep, checkpoint) reads top to bottom, as in CleanRL.
     ``rollouts``: spawned processes or ``"ray"`` actors; ``on_checkpoint(step)`` after each
-    checkpoint (``sweep``); ``progress``, ``tensorboard``: :class:`Report`. Returns the final
-    validation metrics and timing."""
+    checkpoint (``sweep``); ``progress``, ``tensorboard``: :class:`Report`;
+    ``stability_check(policy file) -> worst ‖Γ‖∞`` for ``--trust-string-stable``
+    (:mod:`carl_sumo.learn.trust`). Returns the final validation metrics and timing."""
     clock = WallClock()
     train_events, val_events = held_out_split(events, cfg)  # InputError before any file
     teacher = _teacher(cfg)  # InputError before any file
+    trust = _trust(cfg, stability_check)  # InputError before any file
     init_actor = initial_actor(cfg)  # InputError before any file
     out = _prepare_out(Path(cfg.policy_path), resume)
     agent, channels, buffer, rng = _build(cfg, init_actor if resume is None else None)
@@ -124,7 +128,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     t0 = time.perf_counter()
     recent, val = [float(r) for r in saved.get("recent", ())], {}
     noise, lagrange, calibration = _schedules(cfg, agent, rng, saved)
-    first_actor = _restore_start(cfg, agent, buffer, calibration, saved, start_step, log)
+    first_actor = _restore_start(cfg, agent, buffer, calibration, saved, start_step, log, trust)
     probe = _probe(cfg, buffer, calibration, log) if start_step > cfg.learning_starts else None
     try:
         for step in range(start_step, cfg.steps):
@@ -155,20 +159,20 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
                     val, best = _validate_step(cfg, agent, buffer, val_env, val_events, baseline,
                                                baseline_events, out, best, done_steps, report,
                                                probe, lagrange, recent,
-                                               wall_before + time.perf_counter() - t0)
+                                               wall_before + time.perf_counter() - t0, trust)
             if done_steps % cfg.checkpoint_every == 0 or done_steps == cfg.steps:
                 with clock("checkpoints"):
                     save_checkpoint(out.with_suffix(".ckpt"), cfg, agent, buffer, rng, done_steps,
                                     best, wall_before + time.perf_counter() - t0,
                                     _rollout_state(history, noise, recent, cfg.eval_every, lagrange)
-                                    | _start_state(agent, calibration, first_actor))
+                                    | _start_state(agent, calibration, first_actor, trust))
                 _checkpoint_written(report, on_checkpoint, done_steps)
             report.advance()
     finally:
         with clock("simulation"):
             vec.close()
         report.close()
-    training = _training_record(cfg, calibration, first_actor, clock)
+    training = _training_record(cfg, calibration, first_actor, clock, agent, trust)
     _record_training(out, training)
     log(clock.line())
     return {"validation": val, "validation_base": baseline, "best_score": best,
@@ -255,12 +259,13 @@ def _begin_rl(cfg: TrainConfig, agent: Agent, teacher, buffer: ReplayBuffer, rng
 
 def _validate_step(cfg: TrainConfig, agent: Agent, buffer: ReplayBuffer, val_env, val_events,
                    baseline, baseline_events, out: Path, best: float, done_steps: int, report,
-                   probe, lagrange, recent: list[float], wall: float):
+                   probe, lagrange, recent: list[float], wall: float,
+                   trust: StableTrust | None = None):
     """One validation: the candidate scored and kept if best, the curve's row written;
     (validation metrics, best score)."""
     train_reward = float(np.mean(recent[-cfg.eval_every:])) if recent else float("nan")
     val, best = _validate_and_select(cfg, agent, val_env, val_events, baseline, baseline_events,
-                                     out, wall, best, done_steps)
+                                     out, wall, best, done_steps, trust)
     logged = {"score": selection_score(val, cfg.select, baseline),
               **(probe.measure(agent, buffer) if probe is not None else {})}
     report.validation(done_steps, wall, train_reward, val | lagrange.logged() | logged)
@@ -327,37 +332,53 @@ def _calibration_check(calibration: Calibration, probe: CriticProbe, agent: Agen
             f"critic_rank {measured['critic_rank']:.3f}): the actor moves from here")
 
 
-def _start_state(agent: Agent, calibration: Calibration, first_actor: int | None) -> dict:
+def _start_state(agent: Agent, calibration: Calibration, first_actor: int | None,
+                 trust: StableTrust | None = None) -> dict:
     """What a checkpoint keeps of the RL start: the calibration's state, the step of the first
-    actor update (-1: none yet) and the actor the behaviour regulariser holds to."""
+    actor update (-1: none yet), the actor the behaviour regulariser holds to and its α now
+    (``--trust-string-stable`` moves both), and the trust region's record."""
     state = {"calibration": torch.tensor(calibration.state(), dtype=torch.float64),
-             "first_actor": torch.tensor(-1 if first_actor is None else first_actor)}
+             "first_actor": torch.tensor(-1 if first_actor is None else first_actor),
+             "bc_alpha_now": torch.tensor(agent.bc_alpha, dtype=torch.float64)}
     if agent.start_actor is not None:
         state["start_actor"] = agent.start_actor.state_dict()
+    if trust is not None:
+        state["trust"] = torch.tensor(trust.state(), dtype=torch.int64)
     return state
 
 
 def _restore_start(cfg: TrainConfig, agent: Agent, buffer: ReplayBuffer,
-                   calibration: Calibration, saved: dict, start_step: int, log) -> int | None:
+                   calibration: Calibration, saved: dict, start_step: int, log,
+                   trust: StableTrust | None = None) -> int | None:
     """A resumed run's RL start as its checkpoint left it (see :func:`_start_state`); the step
     of the first actor update (None: none yet)."""
     if saved.get("calibration") is not None:
         calibration.restore(saved["calibration"].tolist())
     if start_step > cfg.learning_starts:
-        agent.anchor(cfg.bc_alpha, saved.get("start_actor"))
+        alpha = saved.get("bc_alpha_now")
+        agent.anchor(cfg.bc_alpha if alpha is None else float(alpha), saved.get("start_actor"))
+    if trust is not None and saved.get("trust") is not None:
+        trust.restore(saved["trust"].tolist())
     first = int(saved["first_actor"]) if saved.get("first_actor") is not None else -1
     return None if first < 0 else first
 
 
 def _training_record(cfg: TrainConfig, calibration: Calibration, first_actor: int | None,
-                     clock: WallClock) -> dict:
+                     clock: WallClock, agent: Agent | None = None,
+                     trust: StableTrust | None = None) -> dict:
     """What the run's policy files record of how it trained: the step of RL's first actor
-    update, the critic burn-in's end and checks, the behaviour regulariser and the wall time's
+    update, the critic burn-in's end and checks, the behaviour regulariser (and, with
+    ``--trust-string-stable``, its rejections, accepted steps and final α) and the wall time's
     parts (s)."""
-    return {"first_actor_update_step": first_actor, "actor_from_step": calibration.actor_from,
-            "critic_calibration": {"criterion": cfg.critic_calibration,
-                                   "checks": [[s, v] for s, v in calibration.checks]},
-            "bc_alpha": cfg.bc_alpha, "wall_s": clock.totals()}
+    record = {"first_actor_update_step": first_actor, "actor_from_step": calibration.actor_from,
+              "critic_calibration": {"criterion": cfg.critic_calibration,
+                                     "checks": [[s, v] for s, v in calibration.checks]},
+              "bc_alpha": cfg.bc_alpha, "wall_s": clock.totals()}
+    if trust is not None:
+        record["trust_string_stable"] = {"rejected": trust.rejected,
+                                         "accepted_steps": trust.accepted,
+                                         "final_bc_alpha": agent.bc_alpha}
+    return record
 
 
 def _record_training(out: Path, training: dict) -> None:
@@ -477,19 +498,30 @@ def _store(buffer: ReplayBuffer, channels: RandomisedChannels | None, agent: Age
 def _validate_and_select(cfg: TrainConfig, agent: Agent, val_env: PlatoonEnv,
                          val_events: Sequence[Event], baseline: dict[str, float],
                          baseline_events: list[dict], out: Path, wall_s: float, best: float,
-                         step: int) -> tuple[dict[str, float], float]:
+                         step: int, trust: StableTrust | None = None
+                         ) -> tuple[dict[str, float], float]:
     """Validate the actor; write it to ``out`` when it scores better than ``best`` (and, with
-    ``--gate-string-stable``, every trained one to the candidates). Returns its validation
+    ``--gate-string-stable``, every trained one to the candidates). With ``trust`` the actor's
+    ‖Γ‖∞ is checked first (``worst_hinf`` in the metrics): an amplifying actor is never kept
+    and goes back to its anchor (:mod:`carl_sumo.learn.trust`). Returns its validation
     metrics and the best score so far."""
     val = _validate(cfg, agent, val_env, val_events, baseline_events)
     score = selection_score(val, cfg.select, baseline)
     meta = _metadata(cfg, agent, val, wall_s, baseline, val_events, step)
     if agent.updates > 0:
         save_candidate(cfg, agent, out, step, meta)
+    stable = True
+    if trust is not None and agent.actor_updates > 0:
+        val["worst_hinf"] = trust.judge(agent, candidate_dir(out) / f"step{step:06d}.pt", step,
+                                        score > best)  # the actor as validated, then acts
+        stable = val["worst_hinf"] <= 1.0
+        meta["string_stability_gate"] = {
+            "plant": cfg.gate_string_stable, "worst_hinf": val["worst_hinf"],
+            "candidate": f"step{step:06d}.pt", "checked": "as validated (--trust-string-stable)"}
     # only a trained actor can be the best; the first validation is a fallback
-    if agent.updates > 0 and score > best or not np.isfinite(best):
+    if agent.updates > 0 and stable and score > best or not np.isfinite(best):
         best = score if agent.updates > 0 else -np.inf
-        save_policy(agent, out, meta)
+        save_policy(agent, out, meta)  # (a stable actor: the one validated, not reverted)
     return val, best
 
 
@@ -624,6 +656,17 @@ def _validate(cfg: TrainConfig, agent: Agent, val_env: PlatoonEnv, val_events: S
     val_reward, per_event = validate_events(agent, val_env, val_events, validation_conditions(cfg))
     return {"val_reward": val_reward, **aggregate(per_event),
             **improvement_z(per_event, baseline_events)}
+
+
+def _trust(cfg: TrainConfig, stability_check) -> StableTrust | None:
+    """The trust region of ``--trust-string-stable`` (None without it); InputError when the
+    caller gave no string-stability check to run it with."""
+    if not cfg.trust_string_stable:
+        return None
+    if stability_check is None:
+        raise InputError("--trust-string-stable needs the string-stability check that "
+                         "`carl-sumo train` gives it; run it from the command line")
+    return StableTrust(stability_check)
 
 
 def _teacher(cfg: TrainConfig):

@@ -228,6 +228,12 @@ class TrainConfig:
                                             "OUT.candidates/; the kept one is the best-scoring "
                                             "string stable on this plant", "validation",
                                             choices=("ideal", "real"))
+    trust_string_stable: bool = option(False, "check each validated checkpoint's ‖Γ‖∞ as it "
+                                       "is validated (the gate's plant, frequencies and "
+                                       "amplitudes): an amplifying actor goes back to its "
+                                       "anchor and --bc-alpha halves; a string-stable best "
+                                       "becomes the anchor (learn/trust.py; needs "
+                                       "--gate-string-stable and --bc-alpha)", "validation")
     val_impaired: bool = option(False, "validate also under 30 % loss in bursts, 0.2 s delay and "
                                 "sensor noise (or under the fixed --comm-* options)",
                                 "validation")
@@ -291,6 +297,10 @@ class TrainConfig:
         if self.oversample_times != 4 and self.oversample is None:
             raise InputError("--oversample-times weights the --oversample events; give "
                              "--oversample FILE too, or leave it out")
+        if self.trust_string_stable and (self.gate_string_stable is None or self.bc_alpha <= 0):
+            raise InputError("--trust-string-stable checks each checkpoint on the plant of "
+                             "--gate-string-stable and moves the anchor of --bc-alpha; give "
+                             "both (e.g. --gate-string-stable real --bc-alpha 2.5)")
         if self.gate_string_stable is not None and self.algo == "maddpg":
             raise InputError("--gate-string-stable tests a policy on a 5-vehicle platoon; "
                              "maddpg runs only its trained length: leave the gate out")
