@@ -264,7 +264,7 @@ def run_trial(config: dict[str, Any]) -> None:
     when the trial restarts, each atomic checkpoint handed to Tune as it is written."""
     from ray import tune
 
-    from carl_sumo.cli.policies import check_train_args, train_parser
+    from carl_sumo.cli.policies import check_train_args, stability_check, train_parser
     from carl_sumo.data import load_events
     from carl_sumo.learn.train import train
 
@@ -287,8 +287,8 @@ def run_trial(config: dict[str, Any]) -> None:
 
     cfg, _ = check_train_args(args, "carl-sumo train " + " ".join(config["argv"]))
     result = train(cfg, load_events(cfg.data, cfg.split), resume=resume, progress=False,
-                   log=lambda *_: None, on_checkpoint=report)
-    if cfg.gate_string_stable is not None:
+                   log=lambda *_: None, on_checkpoint=report, stability_check=stability_check(cfg))
+    if cfg.gate_string_stable is not None and not cfg.trust_string_stable:
         from carl_sumo.experiments.string_stability import keep_string_stable
 
         keep_string_stable(out, cfg.select, cfg.gate_string_stable)
