@@ -374,6 +374,12 @@ def _training_line(meta: dict) -> str:
                      "checks)")
     if training.get("bc_alpha"):
         parts.append(f"behaviour-regularised actor, alpha {training['bc_alpha']:g}")
+    trust = training.get("trust_string_stable")
+    if trust is not None:
+        parts.append(f"string-stability trust region: {trust['rejected']} checkpoints sent back "
+                     f"to their anchor, anchors accepted at steps "
+                     f"{', '.join(map(str, trust['accepted_steps'])) or 'none'}, final alpha "
+                     f"{trust['final_bc_alpha']:g}")
     wall = training.get("wall_s")
     if wall:
         parts.append(f"wall time {wall['total']:.0f} s: " + ", ".join(

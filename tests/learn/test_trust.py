@@ -11,7 +11,7 @@ import torch
 from carl_sumo.cli import main
 from carl_sumo.experiments.bench import cruise_event
 from carl_sumo.learn.agents import Agent, AgentConfig
-from carl_sumo.learn.policy import load_policy
+from carl_sumo.learn.policy import load_policy, policy_card
 from carl_sumo.learn.train import TrainConfig, train
 from carl_sumo.learn.trust import StableTrust
 
@@ -93,6 +93,9 @@ def test_a_run_never_keeps_an_amplifying_checkpoint_and_records_its_checks(tmp_p
     assert meta["step"] < min(checked)  # kept from before the actor moved
     curve = pd.read_csv(tmp_path / "t.csv")
     assert curve["worst_hinf"].notna().sum() == len(checked)
+    card = policy_card(tmp_path / "t.pt")
+    assert f"{len(checked)} checkpoints sent back to their anchor" in card
+    assert "anchors accepted at steps none" in card
 
 
 def test_a_resumed_run_keeps_its_anchor_alpha_and_record(tmp_path):
