@@ -49,7 +49,8 @@ def test_the_event_lists_are_package_data_that_recipes_name_from_any_folder(tmp_
     from carl_sumo.resources import EVENT_LISTS, shipped_name
 
     lists = sorted(p.name for p in EVENT_LISTS.glob("*.txt"))
-    assert lists == ["exclude_start_overlap.txt", "train_hard_real.txt", "val_hard_real.txt"]
+    assert lists == ["exclude_start_overlap.txt", "train_hard_real.txt", "val_hard4_real.txt",
+                     "val_hard_real.txt"]
     assert not list((REPO / "policies").glob("*.txt"))
     monkeypatch.chdir(tmp_path)
     recipe = REPO / "recipes" / "ca_td3_real_truck_10.toml"

@@ -102,13 +102,11 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     """Train an agent into ``cfg.policy_path`` (checkpoints and a CSV log beside it); the loop
     (act, step, store, update, validate, keep, checkpoint) reads top to bottom, as in CleanRL.
     ``rollouts``: spawned processes or ``"ray"`` actors; ``on_checkpoint(step)`` after each
-    checkpoint (``sweep``); ``progress``, ``tensorboard``: :class:`Report`;
-    ``stability_check(policy file) -> worst ‖Γ‖∞`` for ``--trust-string-stable``
-    (:mod:`carl_sumo.learn.trust`). Returns the final validation metrics and timing."""
+    checkpoint (``sweep``); ``progress``, ``tensorboard``: :class:`Report`; ``stability_check(
+    policy) -> worst ‖Γ‖∞``: :mod:`carl_sumo.learn.trust`. Returns the final metrics and timing."""
     clock = WallClock()
     train_events, val_events = held_out_split(events, cfg)  # InputError before any file
-    teacher = _teacher(cfg)  # InputError before any file
-    trust = _trust(cfg, stability_check)  # InputError before any file
+    teacher, trust = _teacher(cfg), _trust(cfg, stability_check)  # InputError before any file
     init_actor = initial_actor(cfg)  # InputError before any file
     out = _prepare_out(Path(cfg.policy_path), resume)
     agent, channels, buffer, rng = _build(cfg, init_actor if resume is None else None)
