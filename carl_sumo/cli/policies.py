@@ -138,11 +138,13 @@ def compare_with_base(path: Path) -> str:
 
 
 def _tune_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("tune", help="tune a classical CACC's or ACC's gains, or the multi-"
-                                    "predecessor CACC's weights, on the training events")
-    p.add_argument("controller", choices=("ploeg", "acc", "mpf"),
+    p = sub.add_parser("tune", help="tune a classical CACC's or ACC's gains, the multi-"
+                                    "predecessor CACC's weights or the distributed MPC's "
+                                    "weights, on the training events")
+    p.add_argument("controller", choices=("ploeg", "acc", "mpf", "mpc"),
                    help="ploeg (CACC) or acc (the same law, radar only): their gains kp, kd; "
-                        "mpf: the feed-forward weights of r = 2, 3 vehicles ahead on --base")
+                        "mpf: the feed-forward weights of r = 2, 3 vehicles ahead on --base; "
+                        "mpc: the MPC's weights, judged against --base")
     add_common(p, split_default="train")
     p.add_argument("--gaps", default=None,
                    help="time gaps h to tune (s), commas (default 0.6,0.8,1.0,1.2; acc: "
@@ -152,14 +154,19 @@ def _tune_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--kd", default=None,
                    help="starting grid of kd (1/s; default 0.5,0.7,1.0,1.4,2.1,3.15,4.725)")
     p.add_argument("--base", default=None,
-                   help="mpf: the base law whose weights are tuned (default product-base, "
-                        "without its washout wo)")
+                   help="mpf: the base law whose weights are tuned; mpc: the reference law the "
+                        "objective and safety are relative to (default product-base, without "
+                        "its washout wo)")
     p.add_argument("--heard", default=None,
                    help="mpf: vehicles heard r of the grid, commas (default 2,3)")
     p.add_argument("--w2", default=None,
                    help="mpf: starting grid of w2, the weight two ahead (default 0.1,...,0.5)")
     p.add_argument("--w3", default=None,
                    help="mpf: starting grid of w3, the weight three ahead (default 0.1,0.2)")
+    from carl_sumo.experiments.tune_mpc import GRID_HELP
+
+    for axis, text in GRID_HELP.items():
+        p.add_argument(f"--{axis}", default=None, help=f"mpc: {text}")
     p.add_argument("--reuse", type=Path, default=None,
                    help="an earlier result file on the same events: its gains are not run again")
     p.add_argument("--headway-tolerance", type=float, default=0.05,
@@ -179,8 +186,11 @@ def _tune_parser(sub: argparse._SubParsersAction) -> None:
 
 def _tune_config(args: argparse.Namespace):
     """The checked :class:`carl_sumo.experiments.tune.TuneConfig` of ``tune``'s options, and
-    for ``mpf`` its :class:`carl_sumo.experiments.tune_mpf.MpfGrid` (None otherwise)."""
+    for ``mpf`` its :class:`carl_sumo.experiments.tune_mpf.MpfGrid`, for ``mpc`` its
+    :class:`carl_sumo.experiments.tune_mpc.MpcGrid` (None otherwise)."""
+    from carl_sumo.control.cacc import parse_ploeg
     from carl_sumo.experiments.tune import TuneConfig, parse_values
+    from carl_sumo.experiments.tune_mpc import AXES as MPC_AXES, MpcGrid
     from carl_sumo.experiments.tune_mpf import HEARD, W2, W3, DEFAULT_BASE, MpfGrid
 
     positive(args.vehicles, "--vehicles")
@@ -192,15 +202,16 @@ def _tune_config(args: argparse.Namespace):
     if not (math.isfinite(args.headway_tolerance) and args.headway_tolerance >= 0):
         raise InputError(f"--headway-tolerance must be a non-negative fraction, got "
                          f"{args.headway_tolerance}")
-    mpf = args.controller == "mpf"
-    given = [o for o, v in (("--kp", args.kp), ("--kd", args.kd), ("--reuse", args.reuse))
-             if v is not None] if mpf else \
-        [o for o, v in (("--base", args.base), ("--heard", args.heard), ("--w2", args.w2),
-                        ("--w3", args.w3)) if v is not None]
+    mpf, mpc = args.controller == "mpf", args.controller == "mpc"
+    own = {"mpf": ("--base", "--heard", "--w2", "--w3"),
+           "mpc": ("--base",) + tuple(f"--{a}" for a in MPC_AXES),
+           "gains": ("--kp", "--kd", "--reuse")}
+    mine = own["mpf" if mpf else "mpc" if mpc else "gains"]
+    given = [o for group in own.values() for o in group
+             if o not in mine and getattr(args, o[2:]) is not None]
     if given:
-        raise InputError(f"{', '.join(given)}: not an option of `carl-sumo tune "
-                         f"{args.controller}`" + (" (its base's gains are fixed: --base)"
-                                                  if mpf else " (mpf only)"))
+        raise InputError(f"{', '.join(dict.fromkeys(given))}: not an option of `carl-sumo tune "
+                         f"{args.controller}`")
     grid = None
     if mpf:
         heard = parse_values(args.heard or ",".join(map(str, HEARD)), "--heard")
@@ -210,9 +221,17 @@ def _tune_config(args: argparse.Namespace):
                        parse_values(args.w2 or ",".join(map(str, W2)), "--w2"),
                        parse_values(args.w3 or ",".join(map(str, W3)), "--w3"))
         grid.check(args.vehicles)
+    if mpc:
+        start = MpcGrid()
+        grid = MpcGrid(args.base or DEFAULT_BASE, **{
+            a: parse_values(getattr(args, a), f"--{a}") if getattr(args, a) is not None
+            else getattr(start, a) for a in MPC_AXES})
+        grid.check()
     impairments = impairments_from(args)
     gaps = args.gaps or ("2,2.5,3,3.5" if args.controller == "acc" else
-                         f"{grid.base_params().time_gap_s:g}" if mpf else "0.6,0.8,1.0,1.2")
+                         f"{grid.base_params().time_gap_s:g}" if mpf else
+                         f"{parse_ploeg(grid.reference_law()).time_gap_s:g}" if mpc else
+                         "0.6,0.8,1.0,1.2")
     cfg = TuneConfig(gaps_s=parse_values(gaps, "--gaps"),
                      kp=parse_values(args.kp or "0.1,0.15,0.2,0.3,0.45,0.675,1.0125", "--kp"),
                      kd=parse_values(args.kd or "0.5,0.7,1.0,1.4,2.1,3.15,4.725", "--kd"),
@@ -227,7 +246,7 @@ def _tune_config(args: argparse.Namespace):
 
 def cmd_tune(args: argparse.Namespace) -> None:
     from carl_sumo.control.cacc import tuned_file_for
-    from carl_sumo.experiments import tune, tune_mpf
+    from carl_sumo.experiments import tune, tune_mpc, tune_mpf
 
     cfg, grid = _tune_config(args)
     out = args.out or tuned_file_for(cfg.law, cfg.plant_key)
@@ -237,8 +256,9 @@ def cmd_tune(args: argparse.Namespace) -> None:
     lane_route(args.net)  # a missing or broken network fails before any worker starts
     log = lambda line: print(line, file=sys.stderr, flush=True)  # noqa: E731
     if grid is not None:
-        payload = tune_mpf.tune_mpf(cfg, grid, Path(out), args.events, log=log)
-        print(tune_mpf.format_result(payload))
+        module = tune_mpc if cfg.law == "mpc" else tune_mpf
+        payload = getattr(module, f"tune_{cfg.law}")(cfg, grid, Path(out), args.events, log=log)
+        print(module.format_result(payload))
         print(f"wrote {out}: {len(payload['grid'])} weight sets on {payload['events']} events "
               f"of split {cfg.split}, {payload['wall_time_s']:.0f} s")
         return

@@ -68,7 +68,7 @@ from carl_sumo.config import BOUNDS, DT_S, IDM
 from carl_sumo.control.cacc import CRUISE_GAIN_PER_S, HEAVY_BRAKING_MPS2, REACTION_LAG_S, \
     REACTION_MARGIN_M
 from carl_sumo.control.channel import FALLBACK, LIVE, Channel, Impairments, KeyedChannel
-from carl_sumo.control.ploeg_names import OptionSpec
+from carl_sumo.control.ploeg_names import OptionSpec, tuned_law
 from carl_sumo.errors import InputError
 from carl_sumo.sim.vehicle import VEHICLE_CLASSES
 
@@ -171,16 +171,20 @@ range (inclusive) and meaning."""
 
 
 def is_mpc_name(name: str) -> bool:
-    """Whether ``name`` names the distributed MPC."""
-    return name.split(":")[0] == "mpc"
+    """Whether ``name`` names the distributed MPC (``mpc``, or ``mpc-tuned``: the weights that
+    ``carl-sumo tune mpc`` chose for a plant)."""
+    return name.split(":")[0] in ("mpc", "mpc-tuned")
 
 
-def parse_mpc(name: str) -> MPCParams:
-    """The parameters of an ``mpc`` name (:data:`DEFAULTS` with the options given replaced);
-    InputError, one line, for an unknown option, a value out of its range, an option given twice
-    or a horizon not longer than a truck's dead time."""
+def parse_mpc(name: str, plant: str = "ideal") -> MPCParams:
+    """The parameters of an ``mpc`` name (:data:`DEFAULTS` with the options given replaced), or of
+    ``mpc-tuned[:h=H]`` (the law tuned for ``plant``, :func:`carl_sumo.control.ploeg_names.
+    tuned_law`); InputError, one line, for an unknown option, a value out of its range, an option
+    given twice, a horizon not longer than a truck's dead time, or no law tuned."""
     if not is_mpc_name(name):
         raise InputError(f"{name!r} is not an mpc controller name")
+    if name.split(":")[0] == "mpc-tuned":
+        return parse_mpc(tuned_law(name, plant=plant))
     specs = {s.key: s for s in MPC_OPTIONS}
     given: dict[str, object] = {}
     for part in name.split(":")[1:]:
@@ -638,11 +642,11 @@ class MPCChains:
         return out
 
 
-def mpc_controller(name: str) -> MPCController:
-    """An :class:`MPCController` from an ``mpc`` name."""
-    return MPCController(parse_mpc(name), name=name)
+def mpc_controller(name: str, plant: str = "ideal") -> MPCController:
+    """An :class:`MPCController` from an ``mpc`` name (``mpc-tuned``: tuned for ``plant``)."""
+    return MPCController(parse_mpc(name, plant), name=name)
 
 
-def mpc_chains(name: str) -> MPCChains:
-    """An :class:`MPCChains` from an ``mpc`` name."""
-    return MPCChains(parse_mpc(name), name=name)
+def mpc_chains(name: str, plant: str = "ideal") -> MPCChains:
+    """An :class:`MPCChains` from an ``mpc`` name (``mpc-tuned``: tuned for ``plant``)."""
+    return MPCChains(parse_mpc(name, plant), name=name)

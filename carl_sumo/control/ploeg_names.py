@@ -254,7 +254,7 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
     kind = name.split(":")[0]
     law = "acc" if kind.startswith("acc") else "ploeg"
     if kind == "mpf-tuned":
-        return parse_ploeg(mpf_tuned_law(name, tuned_file, plant))
+        return parse_ploeg(tuned_law(name, tuned_file, plant))
     if kind == "mpf":  # Ploeg's options, and r and the weights (MPF_OPTIONS)
         parts = [part.partition("=") for part in name.split(":")[1:]]
         mpf = {k: v for k, sep, v in parts if sep and (k == "r" or (k[:1] == "w" and
@@ -301,36 +301,45 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
     raise InputError(f"{name!r} is not a Ploeg CACC or ACC controller name")
 
 
-def _mpf_entries(tuned_file: Path | None, plant: str | None) -> dict[str, dict]:
-    """The entries of ``carl-sumo tune mpf`` for ``plant`` (None: every plant), by gap."""
+TUNED_LAWS = {"mpf-tuned": "mpf", "mpc-tuned": "mpc"}
+"""The names that run a law chosen by ``carl-sumo tune`` as a whole name (its weights), and
+that law: ``mpf-tuned`` (:mod:`carl_sumo.experiments.tune_mpf`), ``mpc-tuned``
+(:mod:`carl_sumo.experiments.tune_mpc`)."""
+
+
+def _law_entries(law: str, tuned_file: Path | None, plant: str | None) -> dict[str, dict]:
+    """The entries of ``carl-sumo tune LAW`` for ``plant`` (None: every plant), by gap."""
     return {f"{float(e['h']):g}": e for e in read_tuned_entries(tuned_file)
-            if e.get("law") == "mpf" and (plant is None or e.get("plant", "ideal") == plant)}
+            if e.get("law") == law and (plant is None or e.get("plant", "ideal") == plant)}
 
 
-def _mpf_key(name: str, entries: dict[str, dict]) -> str:
-    """The gap (as written) whose weights ``mpf-tuned[:h=H]`` runs: h, else the only gap tuned,
+def _law_key(name: str, law: str, entries: dict[str, dict]) -> str:
+    """The gap (as written) whose law ``LAW-tuned[:h=H]`` runs: h, else the only gap tuned,
     else the base's own gap; InputError (one line) when there is none."""
     opts = _parse_options(name, ("h",))
     key = f"{opts['h']:g}" if "h" in opts else next(iter(entries)) if len(entries) == 1 else \
         next((k for k, e in entries.items() if e.get("base_h") == float(k)), "")
     if key not in entries:
-        raise InputError(f"controller {name!r}: mpf weights are tuned for h = "
+        raise InputError(f"controller {name!r}: {law} weights are tuned for h = "
                          f"{', '.join(sorted(entries, key=float)) or 'none'} s on this plant; "
-                         "name one (mpf-tuned:h=H)")
+                         f"name one ({law}-tuned:h=H)")
     return key
 
 
-def mpf_tuned_law(name: str, tuned_file: Path | None = None, plant: str = "ideal") -> str:
-    """The law (an ``mpf`` name, or the base's ``ploeg`` name where no weights beat it) that
-    ``mpf-tuned`` or ``mpf-tuned:h=H`` stands for on ``plant``: the weights ``carl-sumo tune mpf``
-    chose for that plant at h (without h: at the only gap tuned, else at the base's). InputError
-    (one line) when none were tuned for the plant or the gap."""
-    entries = _mpf_entries(tuned_file, plant)
+def tuned_law(name: str, tuned_file: Path | None = None, plant: str = "ideal") -> str:
+    """The law that ``mpf-tuned``, ``mpc-tuned`` (:data:`TUNED_LAWS`), with or without ``:h=H``,
+    stands for on ``plant``: the name ``carl-sumo tune LAW`` chose for that plant at h (without
+    h: at the only gap tuned, else at the base's; for mpf the base's ``ploeg`` name where no
+    weights beat it). InputError (one line) when none was tuned for the plant or the gap."""
+    kind = name.split(":")[0]
+    law = TUNED_LAWS[kind]
+    entries = _law_entries(law, tuned_file, plant)
     if not entries:
-        raise InputError(f"controller {name!r}: no mpf weights tuned for the plant {plant!r}; "
-                         "run `carl-sumo tune mpf` with this plant's options, or give the "
-                         "weights (mpf:r=2:w2=0.3)")
-    key = _mpf_key(name, entries)
+        example = "mpf:r=2:w2=0.3" if law == "mpf" else "mpc:wq=0.1:wv=1"
+        raise InputError(f"controller {name!r}: no {law} weights tuned for the plant {plant!r}; "
+                         f"run `carl-sumo tune {law}` with this plant's options, or give the "
+                         f"weights ({example})")
+    key = _law_key(name, law, entries)
     if not entries[key].get("name"):
         raise InputError(f"controller {name!r}: the tuning found no safe weights for h = {key} s "
                          f"(see {tuned_file or TUNED_FILE.parent})")
@@ -339,11 +348,12 @@ def mpf_tuned_law(name: str, tuned_file: Path | None = None, plant: str = "ideal
 
 def tuned_gap(name: str) -> float:
     """The time gap (s) of a ``-tuned`` name whichever plant's gains it reads: its ``h``, or for
-    ``mpf-tuned`` without one the gap of the weights it runs (:func:`mpf_tuned_law`)."""
+    ``mpf-tuned``/``mpc-tuned`` without one the gap of the law it runs (:func:`tuned_law`)."""
     options = dict(part.partition("=")[::2] for part in name.split(":")[1:])
     if "h" in options:
         return float(options["h"])
-    return float(_mpf_key(name, _mpf_entries(None, None)))
+    law = TUNED_LAWS[name.split(":")[0]]
+    return float(_law_key(name, law, _law_entries(law, None, None)))
 
 
 def without_washout(name: str) -> str:
