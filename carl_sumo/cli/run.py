@@ -45,9 +45,9 @@ def _simulate_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--controller", type=controller_option, default="idm",
                    help="product (the shipped real-plant CA-TD3; with --plant real) | idm | "
                         "krauss | sumo-cacc | idm-external | ploeg[:h=H:kp=KP:kd=KD] | "
-                        "ploeg-tuned:h=H | mpf[:r=R:wJ=W:...] | mpc[:h=H:N=N:wq=..:wv=..:wu=..:"
-                        "wj=..] (distributed MPC) | human | POLICY.pt (a shipped one by its file "
-                        "name from any folder); several with commas")
+                        "ploeg-tuned:h=H | mpf[:r=R:wJ=W:...] | mpf-tuned | mpc[:h=H:N=N:wq=..:"
+                        "wv=..:wu=..:wj=..] (distributed MPC) | mpc-tuned | human | POLICY.pt "
+                        "(a shipped one by its file name from any folder); several with commas")
     p.add_argument("--events", type=int, default=None, metavar="K", help="only the first K events")
     p.add_argument("--json", type=Path, default=None, metavar="OUT", help="write metrics as JSON")
     p.add_argument("--workers", type=int, default=None,

@@ -19,7 +19,8 @@ def _string_stability_parser(sub: argparse._SubParsersAction) -> None:
                        help="|a_i / a_(i-1)| against frequency behind a sinusoidal leader")
     p.add_argument("--controller", type=controller_option, required=True,
                    help="one or more controllers with commas: ploeg[:h=..], acc[:h=..], "
-                        "ploeg-tuned:h=H, mpf[:r=R..], mpc[:h=H:N=N..] (measured only), "
+                        "ploeg-tuned:h=H, mpf[:r=R..], mpc[:h=H:N=N..] and mpc-tuned (measured "
+                        "only), "
                         "idm-external, POLICY.pt")
     p.add_argument("--net", type=net_option, default="i80.net.xml", help=NET_HELP)
     p.add_argument("--vehicles", type=int, default=5, help="followers (default 5)")

@@ -219,11 +219,12 @@ def read_tuned_entries(path: Path | None = None) -> list[dict]:
                          f"({type(exc).__name__}); run the tuning again") from None
 
 
-def read_tuned(path: Path | None = TUNED_FILE, law: str = "ploeg", plant: str = "ideal"
+def read_tuned(path: Path | None = TUNED_FILE, law: str = "ploeg", plant: str | None = "ideal"
                ) -> dict[str, dict]:
-    """The tuned entries of one law and plant, keyed by the time gap as written (``"0.8"``)."""
+    """The tuned entries of one law and plant (None: every plant), keyed by the time gap as
+    written (``"0.8"``)."""
     return {f"{float(e['h']):g}": e for e in read_tuned_entries(path)
-            if e.get("law", "ploeg") == law and e.get("plant", "ideal") == plant}
+            if e.get("law", "ploeg") == law and plant in (None, e.get("plant", "ideal"))}
 
 
 def _flag(name: str, opts: dict[str, float], key: str, what: str) -> bool:
@@ -307,12 +308,6 @@ that law: ``mpf-tuned`` (:mod:`carl_sumo.experiments.tune_mpf`), ``mpc-tuned``
 (:mod:`carl_sumo.experiments.tune_mpc`)."""
 
 
-def _law_entries(law: str, tuned_file: Path | None, plant: str | None) -> dict[str, dict]:
-    """The entries of ``carl-sumo tune LAW`` for ``plant`` (None: every plant), by gap."""
-    return {f"{float(e['h']):g}": e for e in read_tuned_entries(tuned_file)
-            if e.get("law") == law and (plant is None or e.get("plant", "ideal") == plant)}
-
-
 def _law_key(name: str, law: str, entries: dict[str, dict]) -> str:
     """The gap (as written) whose law ``LAW-tuned[:h=H]`` runs: h, else the only gap tuned,
     else the base's own gap; InputError (one line) when there is none."""
@@ -333,7 +328,7 @@ def tuned_law(name: str, tuned_file: Path | None = None, plant: str = "ideal") -
     weights beat it). InputError (one line) when none was tuned for the plant or the gap."""
     kind = name.split(":")[0]
     law = TUNED_LAWS[kind]
-    entries = _law_entries(law, tuned_file, plant)
+    entries = read_tuned(tuned_file, law, plant)
     if not entries:
         example = "mpf:r=2:w2=0.3" if law == "mpf" else "mpc:wq=0.1:wv=1"
         raise InputError(f"controller {name!r}: no {law} weights tuned for the plant {plant!r}; "
@@ -353,7 +348,7 @@ def tuned_gap(name: str) -> float:
     if "h" in options:
         return float(options["h"])
     law = TUNED_LAWS[name.split(":")[0]]
-    return float(_law_key(name, law, _law_entries(law, None, None)))
+    return float(_law_key(name, law, read_tuned(None, law, None)))
 
 
 def without_washout(name: str) -> str:

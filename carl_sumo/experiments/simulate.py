@@ -43,7 +43,7 @@ NATIVE_CONTROLLERS = {"idm": "idm", "krauss": "krauss", "sumo-cacc": "sumo-cacc"
 BUILTIN_CONTROLLERS = ("idm", "krauss", "sumo-cacc", "idm-external", "ploeg[:h=H:kp=KP:kd=KD]",
                        "ploeg-tuned:h=H", "acc[:h=H:kp=KP:kd=KD]", "acc-tuned:h=H",
                        "mpf[:r=R:wJ=W:h=H:kp=KP:kd=KD]", "mpf-tuned[:h=H]",
-                       "mpc[:h=H:N=N:wq=WQ:wv=WV:wu=WU:wj=WJ]", "human")
+                       "mpc[:h=H:N=N:wq=WQ:wv=WV:wu=WU:wj=WJ]", "mpc-tuned[:h=H]", "human")
 
 
 def resolve_controller(name: str, plant: str = "ideal"

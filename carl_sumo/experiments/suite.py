@@ -176,7 +176,8 @@ seed files in every row."""
 def classical_models(tuned_file: Path | None = None, plant: str = "ideal") -> dict[str, str]:
     """Key (controller name) -> row name of the classical controllers: SUMO's CACC, the textbook
     Ploeg curve and the tuned Ploeg frontier (every h with safe tuned gains); on a real plant
-    also the textbook ACC curve and the ACC and CACC gains tuned for that plant (when tuned)."""
+    also the textbook ACC curve, the ACC and CACC gains tuned for that plant, and the
+    multi-predecessor law and the MPC tuned for it (each when tuned)."""
     from carl_sumo.control.cacc import TUNED_FILE, read_tuned
 
     models = {"sumo-cacc": BUILTIN_MODELS["sumo-cacc"]}
@@ -197,6 +198,10 @@ def classical_models(tuned_file: Path | None = None, plant: str = "ideal") -> di
     entries = read_tuned(None, "mpf", plant)
     models.update({f"mpf-tuned:h={h}": f"multi-predecessor CACC tuned h={h} s, r = "
                                        f"{e['r']} (the product's base)"
+                   for h, e in sorted(entries.items(), key=lambda kv: float(kv[0]))
+                   if e.get("name")})
+    entries = read_tuned(None, "mpc", plant)
+    models.update({f"mpc-tuned:h={h}": f"distributed MPC tuned h={h} s (ACC gap {e['ha']:g} s)"
                    for h, e in sorted(entries.items(), key=lambda kv: float(kv[0]))
                    if e.get("name")})
     return models
