@@ -41,15 +41,17 @@ from dataclasses import asdict, dataclass, field, replace
 from datetime import date
 from pathlib import Path
 
+from carl_sumo.control.cacc import parse_ploeg
 from carl_sumo.control.mpc import DEFAULTS, MPCParams
 from carl_sumo.control.ploeg_names import without_washout
 from carl_sumo.errors import InputError
 from carl_sumo.experiments.tune import Runner, TuneConfig, judge, write_result
+from carl_sumo.experiments.tune_mpf import class_hinf
 from carl_sumo.files import write_text_atomic
 
 DEFAULT_REFERENCE = "product-base"
 """The law whose metrics the objective and the safety constraints are relative to."""
-WQ = (0.2, 0.4)
+WQ = (0.4, 0.8)
 """Starting grid of wq, the weight of the squared spacing error (1/m²)."""
 WV = (1.0, 2.0)
 """Starting grid of wv, the weight of the squared relative speed (s²/m²)."""
@@ -97,7 +99,7 @@ class MpcGrid:
     def reference_law(self, h: float | None = None) -> str:
         """The reference's name (no washout) at the time gap h (None: its own); InputError when
         it is not a constant-time-gap law."""
-        from carl_sumo.control.cacc import is_ploeg_name, parse_ploeg
+        from carl_sumo.control.cacc import is_ploeg_name
 
         name = without_washout(self.reference)
         if not is_ploeg_name(name) or name.split(":")[0].endswith("-tuned"):
@@ -122,8 +124,6 @@ class MpcGrid:
 
     def base_params(self, h: float) -> MPCParams:
         """The MPC's fixed part at h: :data:`DEFAULTS` with the reference's heavy gap."""
-        from carl_sumo.control.cacc import parse_ploeg
-
         heavy = parse_ploeg(self.reference_law()).heavy_gap_s
         return replace(DEFAULTS, time_gap_s=h,
                        heavy_gap_s=heavy if heavy is not None else DEFAULTS.heavy_gap_s)
@@ -181,6 +181,8 @@ def tune_gap_weights(h: float, cfg: TuneConfig, grid: MpcGrid, runner: Runner, l
     base = grid.base_params(h)
     axes = {a: sorted(set(getattr(grid, a))) for a in AXES}
     reference = MpcPoint(h, (), grid.reference_law(h))
+    if cfg.string_stable:  # a constant-time-gap law: from its exact discrete transfer function
+        reference.hinf = class_hinf(parse_ploeg(reference.name), cfg)
     runner.run([reference], lambda p: p.name)
     points: dict[tuple[float, ...], MpcPoint] = {}
     best, interior = None, False
@@ -229,7 +231,7 @@ def _entry(h: float, best: MpcPoint | None, points: list, interior: bool, refere
             "string_stable_points": sum(1 for p in points if p.hinf <= 1.0 + 1e-9),
             "objective": best.objective if best else None, "hinf": best.hinf if best else None,
             "metrics": best.metrics if best else None,
-            "base": {"name": reference.name, "safe": reference.safe,
+            "base": {"name": reference.name, "safe": reference.safe, "hinf": reference.hinf,
                      "metrics": reference.metrics,
                      "max_ttc15_per_event": reference.max_ttc15_event}}
 
@@ -240,7 +242,6 @@ def tune_mpc(cfg: TuneConfig, grid: MpcGrid, out: Path, events_limit: int | None
     (atomically; after each gap the result so far to ``<out>.partial.json``, removed at the
     end); ``log`` receives a line per point's ‖Γ‖∞ and per gap."""
     from carl_sumo.data import load_events
-    from carl_sumo.control.cacc import parse_ploeg
 
     if cfg.split in ("test", "us101", "all"):
         raise InputError(f"tuning on split {cfg.split!r} is not allowed: the test split and the "

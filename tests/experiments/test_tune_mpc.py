@@ -39,6 +39,7 @@ def test_tune_mpc_runs_only_string_stable_weights_and_mpc_tuned_runs_the_choice(
     assert rows[2.0]["hinf"] <= 1.0 and "jerk_mps3" in rows[2.0]
     entry = payload["entries"][0]
     assert entry["base"]["name"].startswith("ploeg:h=0.6") and entry["base"]["metrics"]
+    assert entry["base"]["hinf"] <= 1.0 and entry["base"]["safe"]  # the product's base
     assert entry["string_stable_points"] == 1 and entry["points"] == 2
     if entry["name"] is not None:  # the one stable point is chosen when it is safe
         assert entry["name"] == rows[2.0]["name"] and entry["ha"] == 2.0
