@@ -133,6 +133,13 @@ class AgentConfig:
             raise InputError("--comm-fallback is for CA models (ca-td3, ca-ddpg), whose vehicles "
                              "exchange messages; the others hear nothing to lose")
 
+    def check_length(self, n: int) -> None:
+        """InputError (one line) when a platoon of n vehicles is one this agent cannot run."""
+        if self.algo == "maddpg" and n != self.n_vehicles:
+            raise InputError(f"this MADDPG policy was trained for {self.n_vehicles} vehicles "
+                             f"and cannot run {n}: MADDPG has one actor per vehicle; use "
+                             f"--vehicles {self.n_vehicles} or a CA/DDPG/TD3 policy")
+
     def message_impairments(self, impairments: Impairments | None) -> Impairments | None:
         """What the CA messages cross: ``impairments`` (None: a perfect channel), or with
         ``comm_off`` a channel that loses every message."""
@@ -245,10 +252,7 @@ class Agent(nn.Module):
         self.start_actor: nn.Module | None = None
 
     def check_length(self, n: int) -> None:
-        if self.cfg.algo == "maddpg" and n != self.cfg.n_vehicles:
-            raise InputError(f"this MADDPG policy was trained for {self.cfg.n_vehicles} vehicles "
-                             f"and cannot run {n}: MADDPG has one actor per vehicle; use "
-                             f"--vehicles {self.cfg.n_vehicles} or a CA/DDPG/TD3 policy")
+        self.cfg.check_length(n)
 
     # ------------------------------------------------------------------------------ acting
     def _act(self, actor: nn.Module, obs: torch.Tensor, mask: torch.Tensor | None,

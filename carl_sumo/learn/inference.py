@@ -163,11 +163,13 @@ class CompiledActor:
     def __init__(self, agent: Agent):
         self.adj_max = float(agent.cfg.adj_max)
         self.fixed_length = agent.cfg.n_vehicles if agent.cfg.algo == "maddpg" else None
-        self._check_length = agent.check_length
+        self._check_length = agent.cfg.check_length  # picklable: a validation helper runs it
         self.fallback_to_base = agent.cfg.comm_fallback == "base"
         actor = agent.actor
+        self._communication_aware = False
         if isinstance(actor, CommunicationAware):
             self._act = _communication_aware_act
+            self._communication_aware = True  # not by the function's identity: a pickled copy
             self._weights = (actor.forward_boundary.detach().double().numpy().copy(),
                              actor.backward_boundary.detach().double().numpy().copy(),
                              *_mlp_weights(actor.forward_net), *_mlp_weights(actor.backward_net))
@@ -183,7 +185,7 @@ class CompiledActor:
     @property
     def message_dim(self) -> int:
         """Width of a V2V message (0: an actor without communication)."""
-        return int(self._weights[0].shape[0]) if self._act is _communication_aware_act else 0
+        return int(self._weights[0].shape[0]) if self._communication_aware else 0
 
     def act_over(self, obs: np.ndarray, links: PlatoonLinks) -> np.ndarray:
         """a_adj (m/s², shape (n,)) of a CA actor when its messages cross impaired ``links``

@@ -27,41 +27,137 @@ VALIDATION_IMPAIRMENTS = replace(BURSTY_CHANNEL, sensor_noise=True)
 
 
 def validate_events(agent: Agent, env: PlatoonEnv, events: Sequence[Event],
-                    conditions: Sequence[Impairments | None] = (None,)
+                    conditions: Sequence[Impairments | None] = (None,),
+                    helpers: Sequence["ValidationHelper"] = ()
                     ) -> tuple[float, list[dict[str, float]]]:
     """Greedy policy on each event under each of ``conditions`` (None: a perfect channel and
     clean sensors): mean per-vehicle reward and each (condition, event)'s metrics, scored on the
-    true state (after an event's warm-up, :meth:`carl_sumo.data.events.Event.with_warmup`)."""
+    true state (after an event's warm-up, :meth:`carl_sumo.data.events.Event.with_warmup`).
+    With ``helpers`` (:class:`ValidationHelper`, each its own SUMO in a spawned process) the
+    (condition, event) runs are dealt out in turn, this process running its share in ``env``;
+    the numbers are those of one process."""
     from carl_sumo.learn.inference import CompiledActor
 
     act = CompiledActor(agent) if isinstance(agent, Agent) else agent.act  # numba, ~40 µs a step
-    rewards, per_event = [], []
-    for impairments in conditions:
-        for event in events:
-            obs = env.reset_array(event=event, impairments=impairments)
-            links = None
-            heard = agent.cfg.message_impairments(impairments) if isinstance(agent, Agent) \
-                else impairments
-            if (heard is not None and not heard.perfect_channel
-                    and isinstance(act, CompiledActor) and act.message_dim):
-                links = PlatoonLinks(len(obs), act.message_dim, heard, event.event_id)
+    jobs = [(impairments, agent.cfg.message_impairments(impairments)
+             if isinstance(agent, Agent) else impairments, event)
+            for impairments in conditions for event in events]
+    k = min(len(helpers) + 1, len(jobs))
+    for i, helper in enumerate(helpers[:k - 1]):
+        helper.submit(act, jobs[i + 1::k])
+    results: list = [None] * len(jobs)
+    results[0::k] = run_jobs(act, env, jobs[0::k])
+    for i, helper in enumerate(helpers[:k - 1]):
+        results[i + 1::k] = helper.result()
+    rewards = [r for step_rewards, _ in results for r in step_rewards]
+    return float(np.mean(rewards)), [metrics for _, metrics in results]
+
+
+def run_jobs(act, env: PlatoonEnv, jobs: Sequence[tuple]) -> list[tuple[list[float], dict]]:
+    """Each validation run (impairments, what the CA messages cross, event) of ``act`` in ``env``:
+    its per-step mean rewards after the warm-up and its metrics."""
+    from carl_sumo.learn.inference import CompiledActor
+
+    out = []
+    for impairments, heard, event in jobs:
+        obs = env.reset_array(event=event, impairments=impairments)
+        links = None
+        if (heard is not None and not heard.perfect_channel
+                and isinstance(act, CompiledActor) and act.message_dim):
+            links = PlatoonLinks(len(obs), act.message_dim, heard, event.event_id)
+        true = env.true_observation
+        speeds, gaps, leader = [true[:, 0]], [true[:, 2]], [env.sim.leader_speed]
+        rewards, collisions, done = [], 0, False
+        while not done:
+            action = act(obs) if links is None else act.act_over(obs, links)
+            obs, reward, terminated, truncated, _ = env.step_array(action)
             true = env.true_observation
-            speeds, gaps, leader = [true[:, 0]], [true[:, 2]], [env.sim.leader_speed]
-            collisions, done = 0, False
-            while not done:
-                action = act(obs) if links is None else act.act_over(obs, links)
-                obs, reward, terminated, truncated, _ = env.step_array(action)
-                true = env.true_observation
-                if env.sim.k > event.scored_from:  # a warm-up is not scored (Event.with_warmup)
-                    rewards.append(reward.mean())
-                speeds.append(true[:, 0]), gaps.append(true[:, 2])
-                leader.append(env.sim.leader_speed)
-                collisions = int((true[:, 2] <= 0).sum()) if terminated else 0
-                done = terminated or truncated
-            per_event.append(score_event(PlatoonTrajectory(
-                event.event_id, np.array(leader), np.array(speeds), np.array(gaps),
-                collisions).scored(event.scored_from)))
-    return float(np.mean(rewards)), per_event
+            if env.sim.k > event.scored_from:  # a warm-up is not scored (Event.with_warmup)
+                rewards.append(reward.mean())
+            speeds.append(true[:, 0]), gaps.append(true[:, 2])
+            leader.append(env.sim.leader_speed)
+            collisions = int((true[:, 2] <= 0).sum()) if terminated else 0
+            done = terminated or truncated
+        out.append((rewards, score_event(PlatoonTrajectory(
+            event.event_id, np.array(leader), np.array(speeds), np.array(gaps),
+            collisions).scored(event.scored_from))))
+    return out
+
+
+def _helper_main(conn, env_kwargs: dict) -> None:
+    from carl_sumo.interrupts import die_with_parent
+
+    die_with_parent()  # no helper outlives a killed training run
+    env = PlatoonEnv(**env_kwargs)
+    while True:
+        try:
+            message = conn.recv()
+        except EOFError:  # the training process has gone
+            return
+        if message is None:
+            conn.close()
+            return
+        try:
+            conn.send(run_jobs(*message[:1], env, message[1]))
+        except Exception as exc:  # noqa: BLE001 - raised again in the training process
+            conn.send(exc)
+
+
+class ValidationHelper:
+    """A second validation environment in a spawned process (libsumo runs one simulation per
+    process): :func:`validate_events` hands it a share of the runs while the training process
+    runs the rest. ``env_kwargs``: :class:`carl_sumo.learn.env.PlatoonEnv`'s arguments."""
+
+    def __init__(self, env_kwargs: dict):
+        import multiprocessing as mp
+
+        ctx = mp.get_context("spawn")
+        self._conn, child = ctx.Pipe()
+        self._proc = ctx.Process(target=_helper_main, args=(child, env_kwargs), daemon=True)
+        self._proc.start()
+        child.close()
+
+    def submit(self, act, jobs: Sequence[tuple]) -> None:
+        self._conn.send((act, list(jobs)))
+
+    def result(self) -> list[tuple[list[float], dict]]:
+        from carl_sumo.scale.workers import WorkerError
+
+        try:
+            out = self._conn.recv()
+        except (EOFError, ConnectionResetError):
+            raise WorkerError(f"a validation helper process died (exit code "
+                              f"{self._proc.exitcode}); the training stops here: continue it "
+                              "from its last checkpoint with --resume") from None
+        if isinstance(out, BaseException):
+            raise out
+        return out
+
+    def close(self) -> None:
+        try:
+            self._conn.send(None)
+        except (BrokenPipeError, OSError):
+            pass
+        self._proc.join(timeout=5)
+        if self._proc.is_alive():
+            self._proc.terminate()
+
+
+class Validation:
+    """Where a training run validates: ``env`` in this process and the ``helpers`` beside it
+    (``--val-workers``)."""
+
+    def __init__(self, env: PlatoonEnv, helpers: Sequence[ValidationHelper] = ()):
+        self.env, self.helpers = env, list(helpers)
+
+    def run(self, agent, events: Sequence[Event], conditions: Sequence[Impairments | None]
+            ) -> tuple[float, list[dict[str, float]]]:
+        """:func:`validate_events` here and in the helpers."""
+        return validate_events(agent, self.env, events, conditions, self.helpers)
+
+    def close(self) -> None:
+        for helper in self.helpers:
+            helper.close()
 
 
 def validate(agent: Agent, env: PlatoonEnv, events: Sequence[Event]) -> dict[str, float]:

@@ -32,8 +32,8 @@ from carl_sumo.errors import InputError
 from carl_sumo.sim.metrics import aggregate
 from carl_sumo.learn.models import CommunicationAware
 from carl_sumo.learn.policy import save_policy
-from carl_sumo.learn.selection import (BaseOnly, improvement_z,
-                                 selection_score, validate_events)
+from carl_sumo.learn.selection import (BaseOnly, Validation, ValidationHelper, improvement_z,
+                                       selection_score)
 from carl_sumo.control.channel import Impairments
 from carl_sumo.learn.randomize import RandomisedChannels
 from carl_sumo.learn.replay_buffer import ReplayBuffer
@@ -169,6 +169,7 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
     finally:
         with clock("simulation"):
             vec.close()
+        val_env.close()
         report.close()
     training = _training_record(cfg, calibration, first_actor, clock, agent, trust)
     _record_training(out, training)
@@ -468,15 +469,17 @@ def _keep_policy(resume: Path, out: Path, start_step: int, cfg: TrainConfig, log
 
 
 def _validation_env(cfg: TrainConfig, train_events: Sequence[Event], val_events: Sequence[Event]
-                    ) -> PlatoonEnv:
-    """The environment validation runs in (in this process); InputError here, not in a worker,
-    when a training event does not fit the network."""
-    val_env = PlatoonEnv(val_events, cfg.n_vehicles, cfg.net, reward=cfg.reward, base=cfg.base,
-                         bounds=adjustment_bounds(cfg.adj_max), observe_ahead=cfg.observe_ahead,
-                         shield_ttc_s=cfg.shield_ttc, command_history=cfg.command_history)
+                    ) -> Validation:
+    """Where validation runs: an environment in this process and ``val_workers`` - 1 helpers;
+    InputError here, not in a worker, when a training event does not fit the network."""
+    kwargs = dict(events=list(val_events), n_followers=cfg.n_vehicles, net_path=cfg.net,
+                  reward=cfg.reward, base=cfg.base, bounds=adjustment_bounds(cfg.adj_max),
+                  observe_ahead=cfg.observe_ahead, shield_ttc_s=cfg.shield_ttc,
+                  command_history=cfg.command_history)
+    val_env = PlatoonEnv(**kwargs)
     for event in train_events:
         check_fits(val_env.sim.route, event, cfg.n_vehicles)
-    return val_env
+    return Validation(val_env, [ValidationHelper(kwargs) for _ in range(cfg.val_workers - 1)])
 
 
 def _store(buffer: ReplayBuffer, channels: RandomisedChannels | None, agent: Agent,
@@ -493,7 +496,7 @@ def _store(buffer: ReplayBuffer, channels: RandomisedChannels | None, agent: Age
     return channels.receive(fallbacks) if (term | trunc).any() else next_links
 
 
-def _validate_and_select(cfg: TrainConfig, agent: Agent, val_env: PlatoonEnv,
+def _validate_and_select(cfg: TrainConfig, agent: Agent, val_env: Validation,
                          val_events: Sequence[Event], baseline: dict[str, float],
                          baseline_events: list[dict], out: Path, wall_s: float, best: float,
                          step: int, trust: StableTrust | None = None
@@ -568,12 +571,12 @@ def _randomised_channels(cfg: TrainConfig, agent: Agent) -> RandomisedChannels |
                               cfg.plant_randomize)
 
 
-def _validate_base(cfg: TrainConfig, val_env: PlatoonEnv, val_events: Sequence[Event], log
+def _validate_base(cfg: TrainConfig, val_env: Validation, val_events: Sequence[Event], log
                    ) -> tuple[dict[str, float], list[dict]]:
     """The base model alone on the validation events: the metrics every candidate is compared
     with, and its per-event results."""
-    base_reward, baseline_events = validate_events(BaseOnly(), val_env, val_events,
-                                                   validation_conditions(cfg))  # same events
+    base_reward, baseline_events = val_env.run(BaseOnly(), val_events,
+                                               validation_conditions(cfg))  # same events
     baseline = {"val_reward": base_reward, **aggregate(baseline_events)}
     log(f"validation baseline ({cfg.base}): "
         + ", ".join(f"{k}={v:.3f}" for k, v in baseline.items()))
@@ -581,7 +584,7 @@ def _validate_base(cfg: TrainConfig, val_env: PlatoonEnv, val_events: Sequence[E
 
 
 def _first_candidate(cfg: TrainConfig, agent: Agent, init_actor: dict | None,
-                     val_env: PlatoonEnv, val_events: Sequence[Event],
+                     val_env: Validation, val_events: Sequence[Event],
                      baseline: dict[str, float], baseline_events: list[dict], out: Path, log,
                      best: float) -> float:
     """Write the policy to beat before any training and return its selection score: the warm
@@ -647,11 +650,11 @@ def _update(cfg: TrainConfig, agent: Agent, buffer: ReplayBuffer, rng: np.random
     return stats
 
 
-def _validate(cfg: TrainConfig, agent: Agent, val_env: PlatoonEnv, val_events: Sequence[Event],
+def _validate(cfg: TrainConfig, agent: Agent, val_env: Validation, val_events: Sequence[Event],
               baseline_events: list[dict]) -> dict[str, float]:
     """The actor without exploration noise on the validation events: reward, metrics and its
     improvement over the base."""
-    val_reward, per_event = validate_events(agent, val_env, val_events, validation_conditions(cfg))
+    val_reward, per_event = val_env.run(agent, val_events, validation_conditions(cfg))
     return {"val_reward": val_reward, **aggregate(per_event),
             **improvement_z(per_event, baseline_events)}
 
@@ -678,7 +681,7 @@ def _teacher(cfg: TrainConfig):
 
 
 def _clone_teacher(cfg: TrainConfig, agent: Agent, teacher, buffer: ReplayBuffer,
-                   rng: np.random.Generator, val_env: PlatoonEnv, val_events: Sequence[Event],
+                   rng: np.random.Generator, val_env: Validation, val_events: Sequence[Event],
                    baseline: dict[str, float], baseline_events: list[dict], out: Path,
                    log) -> float:
     """Fit the actor to the teacher on every stored state, validate it and keep it as the first
@@ -693,7 +696,7 @@ def _clone_teacher(cfg: TrainConfig, agent: Agent, teacher, buffer: ReplayBuffer
     return score
 
 
-def _validate_and_keep(cfg: TrainConfig, agent: Agent, val_env: PlatoonEnv,
+def _validate_and_keep(cfg: TrainConfig, agent: Agent, val_env: Validation,
                        val_events: Sequence[Event], baseline: dict[str, float],
                        baseline_events: list[dict], out: Path) -> tuple[float, dict[str, float]]:
     """Validate the actor as it is, write it as the run's first candidate; its selection score

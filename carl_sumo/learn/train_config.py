@@ -234,6 +234,10 @@ class TrainConfig:
                                        "anchor and --bc-alpha halves; a string-stable best "
                                        "becomes the anchor (learn/trust.py; needs "
                                        "--gate-string-stable and --bc-alpha)", "validation")
+    val_workers: int = option(1, "processes validation runs in: this one and N - 1 spawned "
+                              "ones, each with its own SUMO, sharing the events (the same "
+                              "numbers; on 2 free cores, 2 about halve validation's wall time)",
+                              "validation", low=1, high=64)
     val_impaired: bool = option(False, "validate also under 30 % loss in bursts, 0.2 s delay and "
                                 "sensor noise (or under the fixed --comm-* options)",
                                 "validation")

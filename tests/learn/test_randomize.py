@@ -190,3 +190,33 @@ def test_validation_under_impairments_scores_each_event_twice_on_the_true_state(
     assert both[1]["jerk_mps3"] > clean[0]["jerk_mps3"]  # noisy gaps: a rougher ride
     _, base = validate_events(BaseOnly(), env, [event], (None, VALIDATION_IMPAIRMENTS))
     assert len(base) == 2
+
+
+def test_validation_helpers_give_the_numbers_of_one_process():
+    """--val-workers: the runs dealt out to a helper process (its own SUMO) score exactly as in
+    one process, on a randomised real fleet under impairments, for a CA actor and the base."""
+    import dataclasses
+
+    from carl_sumo.control.channel import plant_impairments
+    from carl_sumo.learn.selection import (VALIDATION_IMPAIRMENTS, BaseOnly, Validation,
+                                           ValidationHelper, validate_events)
+
+    events = [dataclasses.replace(braking_event(n=60 + 10 * i), event_id=f"e{i}")
+              for i in range(3)]
+    base = "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4"
+    agent = Agent(AgentConfig(algo="ca-td3", n_vehicles=3, base=base))
+    torch.manual_seed(0)
+    for p in agent.actor.parameters():  # a moving actor, not the zero residual
+        p.data.normal_(0, 0.3)
+    conditions = (plant_impairments("real"), dataclasses.replace(
+        VALIDATION_IMPAIRMENTS, plant=plant_impairments("real").plant))
+    env = PlatoonEnv(events, 3, NET, base=base)
+    helped = Validation(PlatoonEnv(events, 3, NET, base=base),
+                        [ValidationHelper(dict(events=events, n_followers=3, net_path=str(NET),
+                                               base=base))])
+    try:
+        for who in (agent, BaseOnly()):
+            alone = validate_events(who, env, events, conditions)
+            assert helped.run(who, events, conditions) == alone and len(alone[1]) == 6
+    finally:
+        helped.close()

@@ -350,6 +350,27 @@ def test_training_on_a_classical_base_records_it(tmp_path):
     assert rank_runs([tmp_path / "r.pt"], "comfort")[0]["path"] == str(tmp_path / "r.pt")
 
 
+def test_validation_in_two_processes_scores_as_in_one(tmp_path):
+    """--val-workers 2: a helper process validates every other event; the base's validation
+    (recorded in the run) is that of one process on the same held-out events."""
+    import dataclasses
+
+    from carl_sumo.learn.selection import BaseOnly, validate_events
+    from carl_sumo.sim.metrics import aggregate
+
+    events = [dataclasses.replace(cruise_event(150, 15.0, 30.0 + 2 * i), event_id=f"c{i}")
+              for i in range(4)]
+    cfg = TrainConfig(algo="ca-td3", n_vehicles=2, steps=200, seed=0, num_envs=1,
+                      learning_starts=100, eval_every=200, eval_events=3, checkpoint_every=200,
+                      net=str(NET), base="ploeg:h=0.8", val_workers=2, out=str(tmp_path / "r.pt"))
+    result = train(cfg, events, progress=False)
+    _, val = held_out_split(events, cfg)
+    reward, per_event = validate_events(BaseOnly(), PlatoonEnv(val, 2, NET, base="ploeg:h=0.8"),
+                                        val)
+    np.testing.assert_equal(result["validation_base"],  # NaN (no dampening ratio) equals NaN
+                            {"val_reward": reward, **aggregate(per_event)})
+
+
 def test_comfort_selection_refuses_a_longer_headway_than_the_base():
     base = {"headway_s": 1.30}
     val = {"collisions": 0, "ttc_lt_1_5s_count": 0, "z_jerk": 3.0, "z_dampening": 2.0}
