@@ -101,9 +101,8 @@ def train(cfg: TrainConfig, events: Sequence[Event], resume: Path | None = None,
           stability_check=None) -> dict[str, Any]:
     """Train an agent into ``cfg.policy_path`` (checkpoints and a CSV log beside it); the loop
     (act, step, store, update, validate, keep, checkpoint) reads top to bottom, as in CleanRL.
-    ``rollouts``: spawned processes or ``"ray"`` actors; ``on_checkpoint(step)`` after each
-    checkpoint (``sweep``); ``progress``, ``tensorboard``: :class:`Report`; ``stability_check(
-    policy) -> worst ‖Γ‖∞``: :mod:`carl_sumo.learn.trust`. Returns the final metrics and timing."""
+    ``rollouts``: processes or ``"ray"`` actors; ``on_checkpoint(step)``: after each checkpoint;
+    ``stability_check(policy) -> worst ‖Γ‖∞``: :mod:`carl_sumo.learn.trust`; returns metrics."""
     clock = WallClock()
     train_events, val_events = held_out_split(events, cfg)  # InputError before any file
     teacher, trust = _teacher(cfg), _trust(cfg, stability_check)  # InputError before any file
