@@ -352,6 +352,43 @@ def tune_ploeg(cfg: TuneConfig, out: Path = TUNED_FILE, events_limit: int | None
     return write_result(result(), out, partial)
 
 
+def tune_over_gaps(cfg: TuneConfig, out: Path, events_limit: int | None,
+                   header: Callable[[int], dict],
+                   search: Callable[[float, "Runner"], tuple[list[dict], dict, str]],
+                   log=None) -> dict:
+    """The driver of a law's tuning (``tune mpf``, ``tune mpc``): every time gap of ``cfg`` in
+    turn on the events, ``search(h, runner)`` -> (the gap's grid rows, its entry, a log line);
+    the result (``header(events)`` with the wall time, the entries and the rows) is written to
+    ``<out>.partial.json`` after each gap and to ``out`` at the end (atomically)."""
+    from carl_sumo.data import load_events
+
+    events = load_events(cfg.data, cfg.split, limit=events_limit)
+    if not events:
+        raise InputError(f"{cfg.data} has no {cfg.split} events to tune on")
+    start = time.perf_counter()
+    runner = Runner(cfg, len(events), events_limit, None)
+    entries, rows = [], []
+    partial = Path(out).with_suffix(".partial.json")
+
+    def result() -> dict:
+        return {**header(len(events)), "wall_time_s": round(time.perf_counter() - start, 1),
+                "entries": entries, "grid": rows}
+
+    failed = True
+    try:
+        for h in cfg.gaps_s:
+            gap_rows, entry, line = search(h, runner)
+            rows += gap_rows
+            entries.append(entry)
+            write_text_atomic(partial, json.dumps(result(), indent=1, allow_nan=True) + "\n")
+            if log is not None:
+                log(f"{line}; {time.perf_counter() - start:.0f} s)")
+        failed = False
+    finally:
+        runner.close(failed)
+    return write_result(result(), out, partial)
+
+
 def write_result(payload: dict, out: Path, partial: Path) -> dict:
     """Write a finished tuning's ``payload`` to ``out`` (atomically) and drop the partial file
     that was rewritten after every gap; returns ``payload``."""

@@ -34,9 +34,7 @@ grid point with its measured ‖Γ‖∞.
 from __future__ import annotations
 
 import itertools
-import json
 import math
-import time
 from dataclasses import asdict, dataclass, field, replace
 from datetime import date
 from pathlib import Path
@@ -45,9 +43,8 @@ from carl_sumo.control.cacc import parse_ploeg
 from carl_sumo.control.mpc import DEFAULTS, MPCParams
 from carl_sumo.control.ploeg_names import without_washout
 from carl_sumo.errors import InputError
-from carl_sumo.experiments.tune import Runner, TuneConfig, judge, write_result
+from carl_sumo.experiments.tune import Runner, TuneConfig, judge, tune_over_gaps
 from carl_sumo.experiments.tune_mpf import class_hinf
-from carl_sumo.files import write_text_atomic
 
 DEFAULT_REFERENCE = "product-base"
 """The law whose metrics the objective and the safety constraints are relative to."""
@@ -241,8 +238,6 @@ def tune_mpc(cfg: TuneConfig, grid: MpcGrid, out: Path, events_limit: int | None
     """Tune the weights at every time gap of ``cfg`` and write the result file ``out``
     (atomically; after each gap the result so far to ``<out>.partial.json``, removed at the
     end); ``log`` receives a line per point's ‖Γ‖∞ and per gap."""
-    from carl_sumo.data import load_events
-
     if cfg.split in ("test", "us101", "all"):
         raise InputError(f"tuning on split {cfg.split!r} is not allowed: the test split and the "
                          "cross-site events are for scoring only; use --split train")
@@ -250,19 +245,12 @@ def tune_mpc(cfg: TuneConfig, grid: MpcGrid, out: Path, events_limit: int | None
     base_h = parse_ploeg(grid.reference_law()).time_gap_s
     for h in cfg.gaps_s:
         grid.base_params(h)  # a bad gap or horizon fails before any run
-    events = load_events(cfg.data, cfg.split, limit=events_limit)
-    if not events:
-        raise InputError(f"{cfg.data} has no {cfg.split} events to tune on")
-    start = time.perf_counter()
-    runner = Runner(cfg, len(events), events_limit, None)
-    entries, rows = [], []
-    partial = Path(out).with_suffix(".partial.json")
 
-    def result() -> dict:
+    def header(events: int) -> dict:
         return {"controller": "mpc", "plant": cfg.plant_key, "warmup_s": cfg.warmup_s,
                 "string_stable": cfg.string_stable, "reference": grid.reference,
                 "command": cfg.command, "date": date.today().isoformat(), "data": cfg.data,
-                "split": cfg.split, "events": len(events), "followers": cfg.n_followers,
+                "split": cfg.split, "events": events, "followers": cfg.n_followers,
                 "objective": OBJECTIVE,
                 "constraints": {"collisions": 0, "ttc_lt_1_5s_count": "at most the reference's",
                                 "headway_at_most_reference_times": 1.0 + cfg.headway_tolerance,
@@ -270,26 +258,17 @@ def tune_mpc(cfg: TuneConfig, grid: MpcGrid, out: Path, events_limit: int | None
                                 "hinf": "measured in SUMO: every class at the slow end of its "
                                         "ranges, 0.5 and 2 m/s, 8 frequencies 0.05-3 rad/s"},
                 "config": {**{k: v for k, v in asdict(cfg).items()
-                              if k not in ("impairments", "kp", "kd", "law")}, **asdict(grid)},
-                "wall_time_s": round(time.perf_counter() - start, 1),
-                "entries": entries, "grid": rows}
+                              if k not in ("impairments", "kp", "kd", "law")}, **asdict(grid)}}
 
-    failed = True
-    try:
-        for h in cfg.gaps_s:
-            best, points, interior, reference = tune_gap_weights(h, cfg, grid, runner, log)
-            rows += [_row(p) for p in points]
-            entries.append(_entry(h, best, points, interior, reference, base_h))
-            write_text_atomic(partial, json.dumps(result(), indent=1, allow_nan=True) + "\n")
-            if log is not None:
-                chosen = f"{best.name}, J = {best.objective:.3f}" if best else "no safe weights"
-                log(f"h = {h:g} s: {chosen} ({len(points)} weight sets, "
-                    f"{entries[-1]['string_stable_points']} string stable, interior: "
-                    f"{interior}; {time.perf_counter() - start:.0f} s)")
-        failed = False
-    finally:
-        runner.close(failed)
-    return write_result(result(), out, partial)
+    def search(h: float, runner: Runner) -> tuple[list[dict], dict, str]:
+        best, points, interior, reference = tune_gap_weights(h, cfg, grid, runner, log)
+        entry = _entry(h, best, points, interior, reference, base_h)
+        chosen = f"{best.name}, J = {best.objective:.3f}" if best else "no safe weights"
+        return [_row(p) for p in points], entry, \
+            (f"h = {h:g} s: {chosen} ({len(points)} weight sets, "
+             f"{entry['string_stable_points']} string stable, interior: {interior}")
+
+    return tune_over_gaps(cfg, out, events_limit, header, search, log)
 
 
 def format_result(payload: dict) -> str:

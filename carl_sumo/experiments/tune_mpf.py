@@ -34,9 +34,7 @@ chosen law's name (``mpf-tuned:h=H`` runs it), its metrics and the base's, and e
 
 from __future__ import annotations
 
-import json
 import math
-import time
 from dataclasses import asdict, dataclass, field, replace
 from datetime import date
 from pathlib import Path
@@ -45,8 +43,7 @@ from carl_sumo.control.cacc import HEAVY_BRAKING_MPS2, PloegParams, parse_ploeg
 from carl_sumo.control.ploeg_names import MAX_HEARD, without_washout
 from carl_sumo.control.transfer import robust_hinf
 from carl_sumo.errors import InputError
-from carl_sumo.experiments.tune import Runner, TuneConfig, judge, write_result
-from carl_sumo.files import write_text_atomic
+from carl_sumo.experiments.tune import Runner, TuneConfig, judge, tune_over_gaps
 from carl_sumo.sim.vehicle import VEHICLE_CLASSES
 
 DEFAULT_BASE = "product-base"
@@ -235,52 +232,33 @@ def tune_mpf(cfg: TuneConfig, grid: MpfGrid, out: Path, events_limit: int | None
     """Tune the weights at every time gap of ``cfg`` and write the result file ``out``
     (atomically; after each gap the result so far to ``<out>.partial.json``, removed at the
     end); ``log`` receives one line per gap."""
-    from carl_sumo.data import load_events
-
     if cfg.split in ("test", "us101", "all"):
         raise InputError(f"tuning on split {cfg.split!r} is not allowed: the test split and the "
                          "cross-site events are for scoring only; use --split train")
     grid.check(cfg.n_followers)
     base_h = grid.base_params().time_gap_s
-    events = load_events(cfg.data, cfg.split, limit=events_limit)
-    if not events:
-        raise InputError(f"{cfg.data} has no {cfg.split} events to tune on")
-    start = time.perf_counter()
-    runner = Runner(cfg, len(events), events_limit, None)
-    entries, rows = [], []
-    partial = Path(out).with_suffix(".partial.json")
 
-    def result() -> dict:
+    def header(events: int) -> dict:
         return {"controller": "mpf", "plant": cfg.plant_key, "warmup_s": cfg.warmup_s,
                 "string_stable": cfg.string_stable, "base": grid.base,
                 "command": cfg.command, "date": date.today().isoformat(), "data": cfg.data,
-                "split": cfg.split, "events": len(events), "followers": cfg.n_followers,
+                "split": cfg.split, "events": events, "followers": cfg.n_followers,
                 "objective": OBJECTIVE,
                 "constraints": {"collisions": 0, "ttc_lt_1_5s_count": "at most the base's",
                                 "headway_at_most_base_times": 1.0 + cfg.headway_tolerance,
                                 "hinf_every_class_at_most": 1.0 if cfg.string_stable else None},
                 "config": {**{k: v for k, v in asdict(cfg).items()
-                              if k not in ("impairments", "kp", "kd", "law")}, **asdict(grid)},
-                "wall_time_s": round(time.perf_counter() - start, 1),
-                "entries": entries, "grid": rows}
+                              if k not in ("impairments", "kp", "kd", "law")}, **asdict(grid)}}
 
-    failed = True
-    try:
-        for h in cfg.gaps_s:
-            best, points, interior, reference = tune_gap_weights(h, cfg, grid, runner)
-            base = grid.base_params(h)
-            rows += [_row(p, base) for p in points]
-            entries.append(_entry(h, best, points, interior, reference, base, base_h))
-            write_text_atomic(partial, json.dumps(result(), indent=1, allow_nan=True) + "\n")
-            if log is not None:
-                chosen = f"{entries[-1]['name']}, J = {best.objective:.3f}" if best else \
-                    "no safe weights"
-                log(f"h = {h:g} s: {chosen} ({len(points)} weight sets, interior: {interior}; "
-                    f"{time.perf_counter() - start:.0f} s)")
-        failed = False
-    finally:
-        runner.close(failed)
-    return write_result(result(), out, partial)
+    def search(h: float, runner: Runner) -> tuple[list[dict], dict, str]:
+        best, points, interior, reference = tune_gap_weights(h, cfg, grid, runner)
+        base = grid.base_params(h)
+        entry = _entry(h, best, points, interior, reference, base, base_h)
+        chosen = f"{entry['name']}, J = {best.objective:.3f}" if best else "no safe weights"
+        return [_row(p, base) for p in points], entry, \
+            f"h = {h:g} s: {chosen} ({len(points)} weight sets, interior: {interior}"
+
+    return tune_over_gaps(cfg, out, events_limit, header, search, log)
 
 
 def format_result(payload: dict) -> str:
