@@ -6,7 +6,8 @@ fleet, cars at 0.6 s and trucks at 0.8 s, with its layers).
 
 For each time gap h (default: the reference's), the grid holds every combination of the spacing
 weight ``wq``, the relative-speed weight ``wv``, the command weight ``wu``, the command-rate
-weight ``wj`` and the time gap of a vehicle that hears no plan ``ha`` (the MPC's ACC mode); the
+weight ``wj``, the time gap of a vehicle that hears no plan ``ha`` (the MPC's ACC mode) and the
+speed ``go`` at which a short gap is opened (default 0.5 m/s only); the
 horizon N, the heavy vehicles' gap and the reaction layer are :data:`carl_sumo.control.mpc.
 DEFAULTS`'s (the reference's ``ht`` when it has one). As :mod:`carl_sumo.experiments.tune_mpf`
 does for the feed-forward weights, a point is **safe** when, on every training event, it has no
@@ -58,18 +59,23 @@ WJ = (0.2,)
 """Starting grid of wj, the weight of the squared command rate (s⁶/m²)."""
 HA = (1.4, 2.0)
 """Starting grid of ha, the time gap of a vehicle that hears no plan (s)."""
+GO = (0.5,)
+"""Starting grid of go, the speed at which a short gap is opened (m/s; 0: off). Without it no
+weight set of the first grids was collision-free: a cramped start (the training event
+``zhu2020pool_val_0086``) made every one brake harder down the chain until a truck collided
+(:mod:`carl_sumo.control.mpc`, "Opening a short gap")."""
 GROWTH = 1.5
 """A weight's axis grows by this factor beyond its edge."""
 HA_STEP_S = 0.3
 """The ``ha`` axis grows by this step beyond its edge (s); never below h."""
-AXES = ("wq", "wv", "wu", "wj", "ha")
+AXES = ("wq", "wv", "wu", "wj", "ha", "go")
 
 
 def _grid_help() -> dict[str, str]:
     from carl_sumo.control.mpc import MPC_OPTIONS
 
     specs = {s.key: s for s in MPC_OPTIONS}
-    defaults = {"wq": WQ, "wv": WV, "wu": WU, "wj": WJ, "ha": HA}
+    defaults = {"wq": WQ, "wv": WV, "wu": WU, "wj": WJ, "ha": HA, "go": GO}
     return {a: f"starting grid of {a}, {specs[a].doc} ({specs[a].unit}), commas (default "
                f"{','.join(f'{v:g}' for v in defaults[a])})" for a in AXES}
 
@@ -91,6 +97,7 @@ class MpcGrid:
     wu: tuple[float, ...] = WU
     wj: tuple[float, ...] = WJ
     ha: tuple[float, ...] = HA
+    go: tuple[float, ...] = GO
     omegas: tuple[float, ...] = ()   # frequencies of the ‖Γ‖∞ measurement (rad/s; (): the gate's)
 
     def reference_law(self, h: float | None = None) -> str:
@@ -129,7 +136,7 @@ class MpcGrid:
 @dataclass
 class MpcPoint:
     h: float
-    values: tuple[float, ...]       # (wq, wv, wu, wj, ha); () for the reference
+    values: tuple[float, ...]       # (wq, wv, wu, wj, ha, go); () for the reference
     name: str = ""
     metrics: dict[str, float] = field(default_factory=dict)
     max_ttc15_event: int = 0
@@ -140,9 +147,10 @@ class MpcPoint:
 
 
 def law(base: MPCParams, values: tuple[float, ...]) -> MPCParams:
-    """The MPC of one grid point (wq, wv, wu, wj, ha) on ``base``."""
-    wq, wv, wu, wj, ha = values
-    return replace(base, w_spacing=wq, w_speed=wv, w_command=wu, w_rate=wj, alone_gap_s=ha)
+    """The MPC of one grid point (wq, wv, wu, wj, ha, go) on ``base``."""
+    wq, wv, wu, wj, ha, go = values
+    return replace(base, w_spacing=wq, w_speed=wv, w_command=wu, w_rate=wj, alone_gap_s=ha,
+                   opening_speed=go)
 
 
 def measured_hinf(name: str, cfg: TuneConfig, omegas: tuple[float, ...] = ()) -> float:

@@ -247,3 +247,50 @@ def test_the_reaction_layer_on_every_vehicle_keeps_a_cramped_start_collision_fre
                           impairments=plant_impairments("real")) for ra in (0, 1)}
     assert runs[0].collisions > 0
     assert runs[1].collisions == 0 and runs[1].gap.min() > 0.3
+
+
+def test_the_opening_term_is_the_governed_spacing_errors_cost():
+    """``go``: q + opening_term is the QP of the cost with the error e_j + o_j, o_j =
+    max(-e_0 - R·j·dt, 0) (checked against the cost computed from the simulated plant), and
+    nothing changes when the gap is not short."""
+    rng, n, tau, dead, h, speed = np.random.default_rng(4), 30, 0.3, 1, 0.6, 0.5
+    qp = CondensedQP(tau, dead, h, n, WEIGHTS)
+    z = _data(rng, n)
+    e0 = -6.0
+    offset = np.maximum(-e0 - speed * np.arange(1, n + 1) * DT_S, 0.0)
+    q = qp.linear @ z + qp.opening_term(e0, speed, WEIGHTS[0])
+
+    def governed(u):
+        _, e, r = _simulated(z, u, tau, dead, h, n)
+        return WEIGHTS[0] * np.sum((e + offset) ** 2) + WEIGHTS[1] * r @ r + \
+            WEIGHTS[2] * u @ u + WEIGHTS[3] * np.sum(np.diff(np.r_[z[4], u]) ** 2) / DT_S ** 2
+
+    u1, u2 = rng.normal(0, 1, qp.m), rng.normal(0, 1, qp.m)
+    objective = [0.5 * u @ qp.hessian @ u + q @ u for u in (u1, u2)]
+    assert np.isclose(governed(u1) - governed(u2), 2 * (objective[0] - objective[1]), rtol=1e-8)
+    assert not qp.opening_term(0.5, speed, WEIGHTS[0]).any()
+    free, governed_plan = (np.linalg.solve(qp.hessian, -qq)
+                           for qq in (qp.linear @ z, q))
+    assert governed_plan[0] > free[0]  # it brakes less to open the gap
+    assert parse_mpc("mpc:go=0.5").opening_speed == 0.5
+    assert parse_mpc(parse_mpc("mpc:go=0.5").name()) == parse_mpc("mpc:go=0.5")
+    with pytest.raises(InputError, match="go=-1 must be a number from 0"):
+        parse_mpc("mpc:go=-1")
+
+
+def test_opening_a_short_gap_slowly_keeps_the_cramped_chain_collision_free():
+    """The start of the training event zhu2020pool_val_0086 (every follower 1.27 m behind at 9.6
+    m/s, the leader at 11.8 m/s; its ID draws the fleet): the MPC's braking to open every gap at
+    once grows down the chain and the tail collides; opening them at 0.5 m/s (go=0.5) does not."""
+    from carl_sumo.data.events import Event
+
+    n = 80
+    speed = np.full(n, 11.77)
+    pos = np.concatenate([[0.0], np.cumsum(speed[1:]) * DT_S])
+    event = Event("zhu2020pool_val_0086", "zhu2020_pool_transfollower", "i-80", pos, speed, 5.0,
+                  np.full(n, 9.59), np.full(n, 1.27))
+    runs = {name: run_event(cached_sim(NET, "external"), event, 10, mpc_controller(name),
+                            impairments=plant_impairments("real"))
+            for name in ("mpc", "mpc:go=0.5")}
+    assert runs["mpc"].collisions > 0
+    assert runs["mpc:go=0.5"].collisions == 0 and runs["mpc:go=0.5"].gap.min() > 1.0
