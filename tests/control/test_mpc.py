@@ -12,7 +12,8 @@ from carl_sumo.cli import main
 from carl_sumo.config import DT_S
 from carl_sumo.control.channel import Impairments, plant_impairments
 from carl_sumo.control.classical import classical_controller
-from carl_sumo.control.mpc import (DEFAULTS, MAX_CLASS_DEAD_STEPS, MPCParams, STANDSTILL_GAP_M,
+from carl_sumo.control.mpc import (DEFAULTS, MAX_CLASS_DEAD_STEPS, OPENING_DEADBAND_M, MPCParams,
+                                   STANDSTILL_GAP_M,
                                    CondensedQP, class_model, mpc_controller, parse_mpc,
                                    predecessor_speeds)
 from carl_sumo.errors import InputError
@@ -251,13 +252,13 @@ def test_the_reaction_layer_on_every_vehicle_keeps_a_cramped_start_collision_fre
 
 def test_the_opening_term_is_the_governed_spacing_errors_cost():
     """``go``: q + opening_term is the QP of the cost with the error e_j + o_j, o_j =
-    max(-e_0 - R·j·dt, 0) (checked against the cost computed from the simulated plant), and
-    nothing changes when the gap is not short."""
+    max(-e_0 - deadband - R·j·dt, 0) (checked against the cost computed from the simulated
+    plant), and nothing changes within the deadband."""
     rng, n, tau, dead, h, speed = np.random.default_rng(4), 30, 0.3, 1, 0.6, 0.5
     qp = CondensedQP(tau, dead, h, n, WEIGHTS)
     z = _data(rng, n)
     e0 = -6.0
-    offset = np.maximum(-e0 - speed * np.arange(1, n + 1) * DT_S, 0.0)
+    offset = np.maximum(-e0 - OPENING_DEADBAND_M - speed * np.arange(1, n + 1) * DT_S, 0.0)
     q = qp.linear @ z + qp.opening_term(e0, speed, WEIGHTS[0])
 
     def governed(u):
@@ -269,6 +270,7 @@ def test_the_opening_term_is_the_governed_spacing_errors_cost():
     objective = [0.5 * u @ qp.hessian @ u + q @ u for u in (u1, u2)]
     assert np.isclose(governed(u1) - governed(u2), 2 * (objective[0] - objective[1]), rtol=1e-8)
     assert not qp.opening_term(0.5, speed, WEIGHTS[0]).any()
+    assert not qp.opening_term(-0.99 * OPENING_DEADBAND_M, speed, WEIGHTS[0]).any()
     free, governed_plan = (np.linalg.solve(qp.hessian, -qq)
                            for qq in (qp.linear @ z, q))
     assert governed_plan[0] > free[0]  # it brakes less to open the gap
@@ -293,4 +295,4 @@ def test_opening_a_short_gap_slowly_keeps_the_cramped_chain_collision_free():
                             impairments=plant_impairments("real"))
             for name in ("mpc", "mpc:go=0.5")}
     assert runs["mpc"].collisions > 0
-    assert runs["mpc:go=0.5"].collisions == 0 and runs["mpc:go=0.5"].gap.min() > 1.0
+    assert runs["mpc:go=0.5"].collisions == 0 and runs["mpc:go=0.5"].gap.min() > 0.5
