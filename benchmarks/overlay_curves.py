@@ -1,6 +1,7 @@
 """Learning curves of several recipes overlaid: each seed's validation score relative to its
 start (the score of the policy RL starts from, the curve's first row), and the worst ‖Γ‖∞ of
-each validated checkpoint (``--trust-string-stable``), against the training step.
+each validated checkpoint (``--trust-string-stable``), against the platoon transitions seen (a
+recipe with 8 environments sees 4 times as many per step as one with 2).
 
 Usage: python benchmarks/overlay_curves.py OUT.png STEM [STEM ...]
 (each STEM's curves: ``policies/seeds/STEM_seed*.csv``)
@@ -26,16 +27,16 @@ def main() -> None:
             start = curve["score"].iloc[0]
             gain = (curve["score"] - start) / abs(start) * 100
             label = f"{stem} ({len(paths)} seeds)" if i == 0 else None
-            ax.plot(curve["step"], gain, color=colour, alpha=0.7, label=label)
+            ax.plot(curve["transitions"], gain, color=colour, alpha=0.7, label=label)
             if "worst_hinf" in curve:
-                bx.plot(curve["step"], curve["worst_hinf"], ".-", color=colour, alpha=0.6)
+                bx.plot(curve["transitions"], curve["worst_hinf"], ".-", color=colour, alpha=0.6)
     ax.axhline(0, color="k", lw=0.8)
     ax.axhline(5, color="k", lw=0.8, ls=":")
     ax.set_ylabel("validation score against the start (%)")
     ax.legend(fontsize=8)
     bx.axhline(1, color="k", lw=0.8)
     bx.set_ylabel("worst ‖Γ‖∞ of the checkpoint")
-    bx.set_xlabel("training step (2 environments)")
+    bx.set_xlabel("platoon transitions seen")
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     print(f"wrote {out}")
