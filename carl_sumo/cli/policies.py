@@ -315,12 +315,11 @@ def cmd_policy_info(args: argparse.Namespace) -> None:
     print("\n".join(cards))
 
 
-PRODUCT_GROUP = ("ca_td3_real_10", "ca_td3_real_nocomm_10", "ca_td3_real_mpf_10",
-                 "ca_td3_real_mpf_160k_10", "ca_td3_real_mpf_160k_nocomm_10",
+PRODUCT_GROUP = ("ca_td3_real_10", "ca_td3_real_nocomm_10", "ca_td3_real_mpf_160k_10", "ca_td3_real_mpf_160k_nocomm_10",
                  "ca_td3_real_truck_10", "ca_td3_real_truck_nocomm_10", "td3_real_truck_1")
 """The real-plant models and their ablations (the V2V messages cut; plain TD3 on a recipe):
-RL learning from the base and from the tuned multi-predecessor law (with 16,000 and 160,000
-transitions per seed; issue 55), then the `product` (a copy of the two-ahead law)."""
+RL learning from the base and from the tuned multi-predecessor law (160,000 transitions per
+seed; issue 55), then the `product` (a copy of the two-ahead law)."""
 PAPER_GROUP = ("ca_td3_10", "ca_ddpg_10", "td3_1", "ddpg_1", "maddpg_10", "ca_td3_20",
                "ca_ddpg_20", "maddpg_20", "ca_td3_10_robust", "ca_td3_ploeg_10")
 """The paper's reproduction set on the ideal plant, its robust variant and the ideal-plant
