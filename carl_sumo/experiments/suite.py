@@ -33,6 +33,7 @@ from typing import Sequence
 import numpy as np
 
 from carl_sumo.control.channel import Impairments
+from carl_sumo.control.classical import is_classical_name
 from carl_sumo.data import load_events
 from carl_sumo.data.events import Event
 from carl_sumo.data.synthetic import stop_and_go_event
@@ -88,8 +89,7 @@ TEXTBOOK_GAPS = (0.6, 0.8, 1.0, 1.2, 1.5)
 
 def is_classical(key: str) -> bool:
     """Whether a model key is a built-in (not learned) controller."""
-    return key in BUILTIN_MODELS or key.startswith(("ploeg:", "ploeg-tuned:", "acc:",
-                                                    "acc-tuned:", "mpf:", "mpf-tuned"))
+    return key in BUILTIN_MODELS or is_classical_name(key)
 
 
 ALGO_NAMES = {"ca-td3": "CA-TD3", "ca-ddpg": "CA-DDPG", "td3": "TD3", "ddpg": "DDPG",
