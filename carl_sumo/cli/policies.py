@@ -316,7 +316,7 @@ def cmd_policy_info(args: argparse.Namespace) -> None:
 
 
 PRODUCT_GROUP = ("ca_td3_real_10", "ca_td3_real_nocomm_10", "ca_td3_real_mpf_160k_10", "ca_td3_real_mpf_160k_nocomm_10",
-                 "ca_td3_real_truck_10", "ca_td3_real_truck_nocomm_10", "td3_real_truck_1")
+                 "td3_real_mpf_160k_10", "ca_td3_real_truck_10", "ca_td3_real_truck_nocomm_10", "td3_real_truck_1")
 """The real-plant models and their ablations (the V2V messages cut; plain TD3 on a recipe):
 RL learning from the base and from the tuned multi-predecessor law (160,000 transitions per
 seed; issue 55), then the `product` (a copy of the two-ahead law)."""
