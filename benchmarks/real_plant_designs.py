@@ -1,8 +1,9 @@
-"""Every real-plant recipe of issue 34 in one table, from the test-split files that
+"""Every real-plant design tried (issues 34 and 55) in one table, from the test-split files that
 ``benchmarks/real_plant_seeds.py`` wrote (``docs/results_real/learned_test*.json``; no simulation
-here): per recipe the CA seeds' mean ± std (NGSIM test split, 10 followers, ``--plant real
---warmup 60``), the worst ‖Γ‖∞ over its seeds (every class, 0.5 and 2 m/s), and CA against its
-CA-off ablation paired by seed (relative difference of the means, paired t-test p).
+here): per design the CA seeds' mean ± std (NGSIM test split, 10 followers, ``--plant real
+--warmup 60``), the worst ‖Γ‖∞ over its seeds (every class, 0.5 and 2 m/s), CA against its
+CA-off ablation paired by seed (relative difference of the means, paired t-test p), and the
+commit whose tree holds its recipe, seed files and policy (the shipped product's: this one).
 
 Usage: python benchmarks/real_plant_designs.py   (prints a markdown table)
 """
@@ -14,42 +15,51 @@ import numpy as np
 from scipy import stats
 
 OUT = Path("docs/results_real")
-DESIGNS = (  # (label, CA file stem, CA-off file stem or None)
-    ("`REAL`: the robust CACC h = 0.8 s", "learned_test", "learned_test_nocomm"),
+DESIGNS = (  # (label, CA file stem, CA-off file stem or None, commit holding its files)
+    ("`REAL`: the robust CACC h = 0.8 s", "learned_test", "learned_test_nocomm", "4ac338e"),
     ("`REAL_AW`: + anti-windup `aw=1`", "learned_test_ca_td3_real_aw_10",
-     "learned_test_ca_td3_real_aw_nocomm_10"),
-    ("`REAL_SPACING`: + a spacing term at 0.7 s", "learned_test_ca_td3_real_spacing_10", None),
+     "learned_test_ca_td3_real_aw_nocomm_10", "4ac338e"),
+    ("`REAL_SPACING`: + a spacing term at 0.7 s", "learned_test_ca_td3_real_spacing_10", None, "4ac338e"),
     ("`REAL_SPACING_HA`: + the degraded head `ha=1.4`", "learned_test_ca_td3_real_ha_10",
-     "learned_test_ca_td3_real_ha_nocomm_10"),
+     "learned_test_ca_td3_real_ha_nocomm_10", "4ac338e"),
     ("`REAL_REACT`: + the reaction layer `ttc=2`, validated on every source",
-     "learned_test_ca_td3_real_react_10", "learned_test_ca_td3_real_react_nocomm_10"),
+     "learned_test_ca_td3_real_react_10", "learned_test_ca_td3_real_react_nocomm_10", "4ac338e"),
     ("`REAL_CRIT`: + a critical-TTC reward term", "learned_test_ca_td3_real_crit_10",
-     "learned_test_ca_td3_real_crit_nocomm_10"),
-    ("`REAL_RB`: + braking ahead in the reaction `rb=1`", "learned_test_ca_td3_real_rb_10", None),
+     "learned_test_ca_td3_real_crit_nocomm_10", "4ac338e"),
+    ("`REAL_RB`: + braking ahead in the reaction `rb=1`", "learned_test_ca_td3_real_rb_10", None, "4ac338e"),
     ("`REAL_GAP`: base at h = 0.7 s, + validation on the 32 hardest training events",
-     "learned_test_ca_td3_real_gap_10", "learned_test_ca_td3_real_gap_nocomm_10"),
+     "learned_test_ca_td3_real_gap_10", "learned_test_ca_td3_real_gap_nocomm_10", "4ac338e"),
     ("`REAL_GAP06`: base at h = 0.6 s", "learned_test_ca_td3_real_gap06_10",
-     "learned_test_ca_td3_real_gap06_nocomm_10"),
+     "learned_test_ca_td3_real_gap06_nocomm_10", "4ac338e"),
     ("`REAL_HARD`: + washout `wo=5`, the 64 hardest training events 4x in training",
-     "learned_test_ca_td3_real_hard_10", "learned_test_ca_td3_real_hard_nocomm_10"),
+     "learned_test_ca_td3_real_hard_10", "learned_test_ca_td3_real_hard_nocomm_10", "4ac338e"),
     ("`REAL_RCPO`: + close calls as a Lagrangian constraint (`--lagrange-lr 1`)",
-     "learned_test_ca_td3_real_rcpo_10", "learned_test_ca_td3_real_rcpo_nocomm_10"),
+     "learned_test_ca_td3_real_rcpo_10", "learned_test_ca_td3_real_rcpo_nocomm_10", "4ac338e"),
     ("`REAL_SETTLED`: + trained and validated from the 60 s settled start",
-     "learned_test_ca_td3_real_settled_10", "learned_test_ca_td3_real_settled_nocomm_10"),
+     "learned_test_ca_td3_real_settled_10", "learned_test_ca_td3_real_settled_nocomm_10", "4ac338e"),
     ("`REAL_GATED`: + each run keeps its best string-stable checkpoint (`--gate-string-stable`)",
-     "learned_test_ca_td3_real_gated_10", "learned_test_ca_td3_real_gated_nocomm_10"),
+     "learned_test_ca_td3_real_gated_10", "learned_test_ca_td3_real_gated_nocomm_10", "4ac338e"),
     ("`REAL_AMP`: `REAL_SETTLED` + an amplification term in the reward (`--w-amplify 1`)",
-     "learned_test_ca_td3_real_amp_10", "learned_test_ca_td3_real_amp_nocomm_10"),
+     "learned_test_ca_td3_real_amp_10", "learned_test_ca_td3_real_amp_nocomm_10", "4ac338e"),
     ("`REAL_HP`: `REAL_SETTLED` with the washout at 1 s (`wo=1`)",
-     "learned_test_ca_td3_real_hp_10", "learned_test_ca_td3_real_hp_nocomm_10"),
+     "learned_test_ca_td3_real_hp_10", "learned_test_ca_td3_real_hp_nocomm_10", "4ac338e"),
     ("`REAL_TWO`: `REAL_GATED`, CA first copies the two-ahead feed-forward (`--imitate two-ahead:c=0.3`)",
-     "learned_test_ca_td3_real_two_10", "learned_test_ca_td3_real_two_nocomm_10"),
-    ("`REAL_TRUCK`: `REAL_TWO` with `gn=6`, `op=2` and trucks at 0.8 s `ht=0.8` (the product)",
-     "learned_test_ca_td3_real_truck_10", "learned_test_ca_td3_real_truck_nocomm_10"),
+     "learned_test_ca_td3_real_two_10", "learned_test_ca_td3_real_two_nocomm_10", "4ac338e"),
+    ("`REAL_TRUCK`: `REAL_TWO` with `gn=6`, `op=2` and trucks at 0.8 s `ht=0.8` (the former "
+     "product: its kept checkpoints are the copy made before any RL update)",
+     "learned_test_ca_td3_real_truck_10", "learned_test_ca_td3_real_truck_nocomm_10", "ecbde40"),
     ("`REAL_ACC_SPACING`: radar-only ACC base, CA copies the CACC",
-     "learned_test_ca_td3_real_accsp_10", "learned_test_ca_td3_real_accsp_nocomm_10"),
+     "learned_test_ca_td3_real_accsp_10", "learned_test_ca_td3_real_accsp_nocomm_10", "4ac338e"),
     ("`REAL_ACC_CMD`: the same, copying the predecessor's command",
-     "learned_test_ca_td3_real_acccmd_10", "learned_test_ca_td3_real_acccmd_nocomm_10"),
+     "learned_test_ca_td3_real_acccmd_10", "learned_test_ca_td3_real_acccmd_nocomm_10", "4ac338e"),
+    ("`REAL_BASE`: RL from `product-base` itself, no imitation, critic calibrated first, "
+     "TD3+BC anchored at the last string-stable checkpoint (`--trust-string-stable`), 16,000 "
+     "transitions", "learned_test_ca_td3_real_base_10", "learned_test_ca_td3_real_base_nocomm_10",
+     "ecbde40"),
+    ("`REAL_MPF`: the same regime on `mpf-tuned`, 16,000 transitions",
+     "learned_test_ca_td3_real_mpf_10", None, "a9f8386"),
+    ("`REAL_MPF_160K`: `REAL_MPF` with 160,000 transitions (the product, `ca_td3_real_10`)",
+     "learned_test_ca_td3_real_10", "learned_test_ca_td3_real_nocomm_10", "this"),
 )
 
 
@@ -85,9 +95,9 @@ def paired(ca: list[dict], off: list[dict], key: str) -> str:
 
 def main() -> None:
     print("| recipe | headway (s) | jerk (m/s³) | dampening | TTC < 1.5 s | collisions | worst ‖Γ‖∞ "
-          "| CA vs CA-off: jerk | dampening |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for label, ca_stem, off_stem in DESIGNS:
+          "| CA vs CA-off: jerk | dampening | files in git |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for label, ca_stem, off_stem, commit in DESIGNS:
         ca = seeds(ca_stem)
         if not ca:
             continue
@@ -95,7 +105,8 @@ def main() -> None:
         cells = [mean_std(ca, "headway_s", ".3f"), mean_std(ca, "jerk_mps3", ".3f"),
                  mean_std(ca, "dampening_ratio", ".3f"), mean_std(ca, "ttc_lt_1_5s_count", ".1f"),
                  mean_std(ca, "collisions", ".1f"), worst_hinf(ca),
-                 paired(ca, off, "jerk_mps3"), paired(ca, off, "dampening_ratio")]
+                 paired(ca, off, "jerk_mps3"), paired(ca, off, "dampening_ratio"),
+                 "main" if commit == "this" else f"`{commit}`"]
         print(f"| {label} | " + " | ".join(cells) + " |")
 
 

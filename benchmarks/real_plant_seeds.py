@@ -1,6 +1,6 @@
 """The judged numbers of a real-plant recipe (docs/results.md, "The real-plant product"): every
-seed of the product ``ca_td3_real_truck_10`` and of its communication ablation
-``ca_td3_real_truck_nocomm_10`` (or of the stems given) on the NGSIM test split, 10 followers,
+seed of the product ``ca_td3_real_10`` and of its communication ablation
+``ca_td3_real_nocomm_10`` (or of the stems given) on the NGSIM test split, 10 followers,
 ``--plant real --warmup 60`` (the default fleet and V2V delay, settled start); ‖Γ‖∞ of the CA
 seeds per class at 0.5 and 2 m/s (5 followers, 8 frequencies 0.05-3 rad/s); CA against CA-off
 paired by seed (t-test).
@@ -14,7 +14,7 @@ Usage: python benchmarks/real_plant_seeds.py [DATA] [CA_STEM CA_OFF_STEM [TD3_ST
 ``--reuse``: a model whose JSON is already written (with a row for each of its seed files) is
 read from it, not run again (e.g. to add TD3 when its seeds finish later).
 
-With TD3_STEM (plain TD3 on the same recipe, e.g. ``td3_real_truck_1``) also
+With TD3_STEM (plain TD3 on the same recipe, e.g. ``td3_real_10``) also
 ``learned_test_<TD3_STEM>.json`` and CA against it, paired by seed. The earlier recipes' files
 (``learned_test.json``, ``learned_test_nocomm.json`` and the other stems) were written by this
 script from seed files that git history keeps.
@@ -78,8 +78,8 @@ def main() -> None:
     args = [a for a in sys.argv[1:] if a not in ("--no-hinf", "--reuse")]
     reuse = "--reuse" in sys.argv
     data = args[0] if args else "../shared/data/ngsim/ngsim_cf_events.csv.gz"
-    ca_stem, off_stem = args[1:3] if len(args) >= 3 else ("ca_td3_real_truck_10",
-                                                          "ca_td3_real_truck_nocomm_10")
+    ca_stem, off_stem = args[1:3] if len(args) >= 3 else ("ca_td3_real_10",
+                                                          "ca_td3_real_nocomm_10")
     events = [e.with_warmup(60.0) for e in load_events(data, "test")]
     OUT.mkdir(parents=True, exist_ok=True)
     ca_out = OUT / f"learned_test_{ca_stem}.json"

@@ -1,11 +1,11 @@
 """Issue 35's criterion on the full NGSIM test split: the product CA-RL against its own tuned
 CACC through every manoeuvre, 10 followers, scenario seed 0; manoeuvre columns paired over the
 events in which both did the manoeuvre (as ``evaluate --suite scenarios``). Real plant
-(``--plant real --warmup 60``): ``policies/ca_td3_real_truck_10.pt`` against the tuned CACC with
-the same layers at h = 0.8 s, ``ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1`` (what the
-product's shorter gap costs; issue 35 is judged at the product's own gaps, ``--base
-ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1:ht=0.8``, docs/scenarios.md); ideal plant
-(the recorded start): ``policies/ca_td3_ploeg_10.pt`` against ``ploeg-tuned:h=0.8``.
+(``--plant real --warmup 60``): the product ``policies/ca_td3_real_10.pt`` against the law it
+learned on, ``mpf-tuned`` (what RL added in manoeuvres; the former product's tables, against the
+tuned CACC at h = 0.8 s and at the product's own gaps, were made with ``--base`` and
+``--product``, docs/scenarios.md); ideal plant (the recorded start):
+``policies/ca_td3_ploeg_10.pt`` against ``ploeg-tuned:h=0.8``.
 
 Beside each table, the bar event by event (:mod:`carl_sumo.manoeuvres.criterion`): the
 product's collisions and TTC < 1.5 s events where the base has none, and its peak deceleration
@@ -38,12 +38,12 @@ from carl_sumo.errors import InputError
 from carl_sumo.manoeuvres.spec import KINDS, parse_scenario
 from carl_sumo.sim.sumo import DEFAULT_NET
 from carl_sumo.experiments.suite import REAL_WARMUP_S
-from carl_sumo.manoeuvres.tables import (ROBUST_TTC, markdown_scenario_table, paired,
+from carl_sumo.manoeuvres.tables import (markdown_scenario_table, paired,
                                              result_of, run_jobs)
 from carl_sumo.manoeuvres.criterion import criterion_lines, manoeuvre_criterion
 
 OUT = Path("docs/results_scenarios")
-CONTROLLERS = {"real": (ROBUST_TTC + ":rb=1", "policies/ca_td3_real_truck_10.pt"),
+CONTROLLERS = {"real": ("mpf-tuned", "policies/ca_td3_real_10.pt"),
                "ideal": ("ploeg-tuned:h=0.8", "policies/ca_td3_ploeg_10.pt")}
 N_FOLLOWERS = 10
 

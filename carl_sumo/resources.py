@@ -23,9 +23,11 @@ EVENT_LISTS = PACKAGE / "data" / "event_lists"
 """Lists of event IDs (one a line, ``#`` comments) that recipes name by file name, e.g.
 ``val_hard_real.txt`` (benchmarks/hard_events.py writes them)."""
 
-PRODUCT = "ca_td3_real_truck_10.pt"
-"""The file of the real-plant product (``--controller product``): CA-TD3 on the tuned CACC at the
-product's time gaps (cars 0.6 s, trucks 0.8 s) with its safety layers (policies/README.md)."""
+PRODUCT = "ca_td3_real_10.pt"
+"""The file of the real-plant product (``--controller product``): CA-TD3 learning on the
+multi-predecessor CACC tuned for the fleet (``mpf-tuned``: ``product-base`` plus the commands of 3
+vehicles ahead) at the product's time gaps (cars 0.6 s, trucks 0.8 s), with its safety layers
+(policies/README.md)."""
 
 PRESET_POLICIES = {"product": PRODUCT}
 """Controller names that stand for a shipped policy file."""

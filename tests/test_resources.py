@@ -53,13 +53,13 @@ def test_the_event_lists_are_package_data_that_recipes_name_from_any_folder(tmp_
                      "val_hard_real.txt"]
     assert not list((REPO / "policies").glob("*.txt"))
     monkeypatch.chdir(tmp_path)
-    recipe = REPO / "recipes" / "ca_td3_real_truck_10.toml"
+    recipe = REPO / "recipes" / "ca_td3_real_10.toml"
     args = train_parser().parse_args(["train", "--config", str(recipe), "--data", "default"])
     cfg = config_from_args(args, check=False)
-    assert cfg.val_events == str(EVENT_LISTS / "val_hard_real.txt")
-    assert len(read_event_ids(cfg.val_events)) == 32
+    assert cfg.val_events == str(EVENT_LISTS / "val_hard4_real.txt")
+    assert len(read_event_ids(cfg.val_events)) == 4
     text = recipe_toml(cfg)
-    assert 'val_events = "val_hard_real.txt"' in text and 'net = "i80.net.xml"' in text
+    assert 'val_events = "val_hard4_real.txt"' in text and 'net = "i80.net.xml"' in text
     assert shipped_name("policies/val_hard_real.txt", EVENT_LISTS) == "val_hard_real.txt"
     own = tmp_path / "val_hard_real.txt"
     own.write_text("x\n")
@@ -70,7 +70,7 @@ def test_the_event_lists_are_package_data_that_recipes_name_from_any_folder(tmp_
 def test_the_product_runs_by_name_from_another_folder(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     assert main(["simulate", "--controller", "product", "--plant", "real", "--events", "1",
-                 "--vehicles", "2", "--workers", "1"]) == 0
+                 "--vehicles", "4", "--workers", "1"]) == 0  # its start hears 3 vehicles ahead
     out = capsys.readouterr().out
     assert PRODUCT in out and "nan" not in out.split(PRODUCT)[1].splitlines()[0]
 

@@ -315,11 +315,10 @@ def cmd_policy_info(args: argparse.Namespace) -> None:
     print("\n".join(cards))
 
 
-PRODUCT_GROUP = ("ca_td3_real_10", "ca_td3_real_nocomm_10", "ca_td3_real_mpf_160k_10", "ca_td3_real_mpf_160k_nocomm_10",
-                 "td3_real_mpf_160k_10", "ca_td3_real_truck_10", "ca_td3_real_truck_nocomm_10", "td3_real_truck_1")
-"""The real-plant models and their ablations (the V2V messages cut; plain TD3 on a recipe):
-RL learning from the base and from the tuned multi-predecessor law (160,000 transitions per
-seed; issue 55), then the `product` (a copy of the two-ahead law)."""
+PRODUCT_GROUP = ("ca_td3_real_10", "ca_td3_real_nocomm_10", "td3_real_10")
+"""The real-plant product (CA-TD3 learning on the tuned multi-predecessor law, 160,000
+transitions per seed) and its ablations with the same start, inputs and budget: the V2V messages
+cut, and plain TD3."""
 PAPER_GROUP = ("ca_td3_10", "ca_ddpg_10", "td3_1", "ddpg_1", "maddpg_10", "ca_td3_20",
                "ca_ddpg_20", "maddpg_20", "ca_td3_10_robust", "ca_td3_ploeg_10")
 """The paper's reproduction set on the ideal plant, its robust variant and the ideal-plant

@@ -149,7 +149,7 @@ class JobResult:
 
 
 PRODUCT_STEM = Path(PRODUCT).stem
-"""The real-plant product's row in the real suite (``policies/ca_td3_real_truck_10.pt``)."""
+"""The real-plant product's row in the real suite (``policies/ca_td3_real_10.pt``)."""
 PRODUCT_MPF = f"mpf-tuned:h={parse_ploeg(PRESETS['product-base']).time_gap_s:g}"
 """The multi-predecessor CACC tuned on the product's base, at the product's gap: the classical
 law the product is paired with in the real suite."""

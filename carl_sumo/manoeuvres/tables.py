@@ -24,6 +24,7 @@ from carl_sumo.data.events import Event
 # default test events, on the ideal plant none.
 from carl_sumo.experiments.suite import PRODUCT_BASE_LABEL, PRODUCT_MPF, REAL_WARMUP_S
 from carl_sumo.files import write_text_atomic
+from carl_sumo.resources import PRODUCT
 from carl_sumo.scale.workers import run_parallel
 from carl_sumo.manoeuvres.metrics import aggregate_manoeuvres
 from carl_sumo.sim.metrics import aggregate
@@ -41,14 +42,15 @@ ROBUST_TTC = ROBUST_HA + ":ttc=2"
 """:data:`ROBUST_HA` with its reaction layer: a vehicle that hears no message brakes at once when
 its time to collision drops below 2 s (:mod:`carl_sumo.control.cacc`)."""
 PRODUCT_BASE = PRESETS["product-base"]
-"""The real-plant product's base (``policies/ca_td3_real_truck_10.pt`` without its learned term):
-the tuned CACC at the product's gaps, h = 0.6 s and trucks at 0.8 s, with its layers."""
+"""The one-predecessor CACC at the real-plant product's gaps, h = 0.6 s and trucks at 0.8 s, with
+its layers: the law the product's start (:data:`carl_sumo.experiments.suite.PRODUCT_MPF`) adds
+the feed-forward of the vehicles ahead to."""
 PLANT_CONTROLLERS = {
     "ideal": ("idm", "sumo-cacc", "acc:h=2.5:kp=0.45:kd=1.5", "ploeg-tuned:h=0.8",
               "ca_td3_10.pt", "ca_td3_ploeg_10.pt", "maddpg_10.pt"),
     "real": ("idm-external", "acc-tuned:h=2.5", "ploeg-tuned:h=0.8", ROBUST_AW, ROBUST_HA,
-             ROBUST_TTC, "ca_td3_10.pt", "ca_td3_ploeg_10.pt", PRODUCT_MPF, PRODUCT_BASE,
-             "ca_td3_real_truck_10.pt", "maddpg_10.pt"),
+             ROBUST_TTC, "ca_td3_10.pt", "ca_td3_ploeg_10.pt", PRODUCT_BASE, PRODUCT_MPF,
+             PRODUCT, "maddpg_10.pt"),
 }
 """The controllers of each plant's tables (policy files in the policies folder): SUMO's IDM (run
 by carl-sumo on the real plant, whose vehicles SUMO's models cannot drive) and SUMO's CACC (the
@@ -56,11 +58,11 @@ ideal plant only), the ACC at h = 2.5 s with the gains tuned for the fleet, the 
 at h = 0.8 s (the gains tuned for each plant; on the real plant also with anti-windup,
 :data:`ROBUST_AW`, that as a degraded CACC, :data:`ROBUST_HA`, and that with its reaction
 layer, :data:`ROBUST_TTC`), the paper's CA-TD3 on IDM, CA-TD3 on the tuned CACC of the ideal
-plant, the real-plant product (its two-ahead feed-forward on the CACC at h = 0.6 s with its
-layers, ``gn=6``, ``op=2`` and trucks at 0.8 s, ``ht=0.8``) beside that CACC without it,
-:data:`PRODUCT_BASE`, and with the feed-forward of the vehicles ahead tuned for the fleet
-(:data:`carl_sumo.experiments.suite.PRODUCT_MPF`, ``carl-sumo tune mpf``), and MADDPG (n/a:
-fixed size)."""
+plant, the CACC at h = 0.6 s with its layers (``gn=6``, ``op=2``, trucks at 0.8 s, ``ht=0.8``),
+:data:`PRODUCT_BASE`, that law with the feed-forward of the vehicles ahead tuned for the fleet
+(:data:`carl_sumo.experiments.suite.PRODUCT_MPF`, ``carl-sumo tune mpf``), the real-plant
+product that learned on it (:data:`carl_sumo.resources.PRODUCT`), and MADDPG (n/a: fixed
+size)."""
 LABELS = {"idm": "IDM (SUMO)", "idm-external": "IDM (carl-sumo, on the plant)",
           "sumo-cacc": "CACC (SUMO)", "acc:h=2.5:kp=0.45:kd=1.5": "ACC h=2.5 s (fleet gains)",
           "acc-tuned:h=2.5": "ACC tuned h=2.5 s", "ploeg-tuned:h=0.8": "Ploeg tuned h=0.8 s",
@@ -70,7 +72,7 @@ LABELS = {"idm": "IDM (SUMO)", "idm-external": "IDM (carl-sumo, on the plant)",
           ROBUST_TTC: "the same with its reaction layer ttc=2 s",
           PRODUCT_BASE: PRODUCT_BASE_LABEL,
           PRODUCT_MPF: "multi-predecessor CACC tuned for the fleet on the product's base",
-          "ca_td3_real_truck_10.pt": "CA-TD3 product (real, h=0.6 s, trucks 0.8 s, two-ahead)",
+          PRODUCT: "CA-TD3 product (real, learned on mpf-tuned, h=0.6 s, trucks 0.8 s)",
           "maddpg_10.pt": "MADDPG"}
 TABLE_COLUMNS = (
     ("done", "done", "{}"), ("min gap (m)", "min_gap_m", "{:.2f}"),

@@ -88,7 +88,7 @@ def test_replay_cut_in_writes_the_lane_change_to_fcd(capsys, tmp_path):
 def test_replay_cut_out_on_the_real_plant(capsys, tmp_path):
     fcd = tmp_path / "cut_out.xml"
     code, out, _ = run(capsys, "replay", "--scenario", "cut-out:k=2:t=6", "--event", EVENT_ID,
-                       "--vehicles", "5", "--controller", "policies/ca_td3_real_truck_10.pt",
+                       "--vehicles", "5", "--controller", "policies/ca_td3_real_10.pt",
                        "--plant", "real", "--fcd", str(fcd))
     assert code == 0 and "done=1" in out
     rows = _fcd(fcd)

@@ -163,7 +163,7 @@ def test_each_shipped_recipe_is_the_configuration_of_its_seed_files(recipe, monk
 def test_policy_info_prints_a_recipe_that_retrains_the_shipped_product(tmp_path, capsys,
                                                                        monkeypatch):
     monkeypatch.chdir(REPO)
-    assert main(["policy-info", "--recipe", "policies/ca_td3_real_truck_10.pt"]) == 0
+    assert main(["policy-info", "--recipe", "policies/ca_td3_real_10.pt"]) == 0
     printed = _write(tmp_path / "product.toml", capsys.readouterr().out)
     assert main(["train", "--config", str(printed), "--print-config"]) == 0
     again = capsys.readouterr().out

@@ -78,10 +78,19 @@ def test_collisions_and_close_calls_count_only_where_the_reference_has_none():
     assert c["settle_s"]["events"] == 0 and math.isnan(c["settle_s"]["difference"])
 
 
-def test_the_suites_product_base_is_the_shipped_products_base():
-    """The scenario suite's row for the product's base is the law the shipped product runs its
-    learned term on, so the two rows differ by that term alone."""
-    payload = read_policy_payload(Path("policies/ca_td3_real_truck_10.pt"))
-    assert payload["agent_config"]["base"] == PRODUCT_BASE
+def test_the_suites_product_start_is_the_shipped_products_base():
+    """The scenario suite's row for the product's start (``mpf-tuned`` at its gap) is the law the
+    shipped product runs its learned term on (its washout ``wo`` acts on that term alone), so the
+    two rows differ by that term alone; the one-predecessor law it extends comes before it."""
+    from carl_sumo.control.channel import plant_impairments
+    from carl_sumo.control.ploeg_names import tuned_law
+    from carl_sumo.experiments.suite import PRODUCT_MPF
+    from carl_sumo.resources import PRODUCT
+
+    payload = read_policy_payload(Path("policies") / PRODUCT)
+    base = payload["agent_config"]["base"].split(":")
+    start = tuned_law(PRODUCT_MPF, plant=plant_impairments("real").plant_key).split(":")
+    assert [p for p in base if p != "wo=5"] == start
+    assert set(PRODUCT_BASE.split(":")[1:]) < set(base)  # the one-predecessor law's keys
     real = PLANT_CONTROLLERS["real"]
-    assert real.index(PRODUCT_BASE) + 1 == real.index("ca_td3_real_truck_10.pt")
+    assert real.index(PRODUCT_BASE) + 1 == real.index(PRODUCT_MPF) == real.index(PRODUCT) - 1
