@@ -32,6 +32,7 @@ for seed in ${SEEDS:-0}; do
   done
   for p in 0.25 1; do study $seed mpf_r2/p$p "$MPF" $p; done
   for p in 0.5 0.75; do study $seed mpc/p$p mpc $p; done  # the distributed MPC, its defaults
+  for p in 0.25 0.5 0.75 1; do study $seed mpc_tuned/p$p mpc-tuned $p; done  # tuned for the fleet
 done
 # diagnostic: the same law at p = 0.5 with a fleet of cars only (no trucks), seed 0
 $PY -m carl_sumo study $common --seeds 1 --fleet car:1 --penetration 0.5 --controller product-base --out $out/s0/product_base_cars/p0.5

@@ -19,7 +19,8 @@ HUMANS = "product_base"  # the folder whose p = 0 runs are the human-only road
 FOLDERS = {  # folder: the controller as it is named in docs/study.md
     "product_base": "one-predecessor CACC, `product-base` (ha = 1.4 s)",
     "mpf_r2": "multi-predecessor `mpf` r = 2 (ha = 1.4 s)",
-    "mpc": "`mpc`",
+    "mpc": "`mpc` (hand-picked weights)",
+    "mpc_tuned": "distributed MPC tuned for the fleet, `mpc-tuned` (ha = 2 s)",
     "product_base_ha1.0": "`product-base` with ha = 1.0 s",
     "product_base_ha0.8": "`product-base` with ha = 0.8 s",
     "product_base_cars": "`product-base`, a fleet of cars only (`--fleet car:1`)",
