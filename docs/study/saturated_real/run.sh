@@ -7,7 +7,7 @@ set -euo pipefail
 cd "$(dirname "$0")/../../.."
 common="--net networks/i80.net.xml --demand-scale 1.5 --duration 600 --warmup 300 --seeds 2 --plant real --penetration 1"
 out=results/study_saturated_real
-carl-sumo study $common --controller policies/ca_td3_real_10.pt --out $out/ca_td3_real_10
+carl-sumo study $common --controller policies/ca_td3_real_10.pt --out $out/ca_td3_real_10   # the product
 carl-sumo study $common --controller ploeg:h=0.8:kp=0.0445:kd=1 --out $out/ploeg_robust_h08
 carl-sumo study $common --controller acc:h=2.5:kp=0.45:kd=1.5 --out $out/acc_robust_h25
 carl-sumo study $common --controller ploeg:h=0.8:kp=0.0445:kd=1:aw=1 --out $out/ploeg_robust_h08_aw
@@ -18,7 +18,8 @@ carl-sumo study $common --controller ploeg:h=0.8:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=
 carl-sumo study $common --controller policies/ca_td3_real_react_10.pt --out $out/ca_td3_real_react_10
 carl-sumo study $common --controller policies/ca_td3_real_gap06_10.pt --out $out/ca_td3_real_gap06_10
 carl-sumo study $common --controller policies/ca_td3_real_two_10.pt --out $out/ca_td3_real_two_10
-carl-sumo study $common --controller policies/ca_td3_real_truck_10.pt --out $out/ca_td3_real_truck_10
+# the former product (git show ecbde40:policies/ca_td3_real_truck_10.pt > policies/ca_td3_real_truck_10.pt):
+# carl-sumo study $common --controller policies/ca_td3_real_truck_10.pt --out $out/ca_td3_real_truck_10
 carl-sumo study $common --controller ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1:wo=5:gn=6:op=2:ht=0.8 --out $out/ploeg_product_base
 carl-sumo study $common --controller policies/ca_td3_real_two_open_10.pt --out $out/ca_td3_real_two_open_10
 carl-sumo study $common --controller mpf-tuned --out $out/mpf_tuned
