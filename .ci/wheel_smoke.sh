@@ -21,8 +21,8 @@ mkdir "$tmp/work" && cd "$tmp/work"
 run() { echo "+ carl-sumo $*" >&2; "$tmp/venv/bin/carl-sumo" "$@"; }
 where=$("$tmp/venv/bin/python" -c "import carl_sumo, sys; print(carl_sumo.__file__)")
 case "$where" in "$tmp"/venv/*) ;; *) echo "carl_sumo imported from $where, not the wheel"; exit 1;; esac
-run simulate --data default --controller idm-external,product --events 1 --vehicles 3 --plant real
-run replay --data default --controller product --vehicles 3 --plant real \
+run simulate --data default --controller idm-external,product --events 1 --vehicles 4 --plant real
+run replay --data default --controller product --vehicles 4 --plant real \
     --event "$("$tmp/venv/bin/python" -c "from carl_sumo.data import load_events; print(load_events('default', 'test')[0].event_id)")" \
     --fcd fcd.xml
 test -s fcd.xml
