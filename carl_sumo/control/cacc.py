@@ -83,11 +83,7 @@ kp is small on the real plant (0.0445 1/s²), a bias of -0.07 m/s² in a_adj ope
 1.6 m. With ``wo=T`` in the base's name (washout, e.g. ``ploeg:h=0.6:kp=0.0445:kd=1:wo=5``) the
 term enters the law less its own running mean m_i (m_i(k+1) = m_i(k) + (dt/T)·(a_adj,i - m_i(k)),
 T in s): a_adj,i - m_i(k) has no steady part, so the base alone holds the time gap and the learned
-term only shapes transients (its effect on a constant input decays with time constant T). With
-``wn=2`` two such washouts run in cascade (the second on what the first lets through), so the
-term's gain falls as (ωT)² below 1/T rad/s instead of ωT: at the platoon's slowest waves (0.05-0.16
-rad/s, where a learned term tips the string-stability margin of a constant-time-gap law, which is
-about 0 at ω → 0) it passes a quarter to a half of what one washout passes.
+term only shapes transients (its effect on a constant input decays with time constant T).
 
 Names (accepted wherever a controller name is): ``ploeg`` (h = 1.0 s, textbook gains),
 ``ploeg:h=0.8``, ``ploeg:h=0.8:kp=0.1:kd=1.5``, and ``ploeg-tuned:h=0.8`` (the gains
@@ -243,13 +239,13 @@ class PloegController:
         self._dv: np.ndarray | None = None  # each follower's Δv of the last step (m/s)
         self.channel: Channel | None = None
         self._k = 0
-        self.adj_mean = np.zeros((0, 1))  # each follower's running means of a_adj (m/s², ``wo``)
+        self.adj_mean = np.zeros(0)  # each follower's running mean of a_adj (m/s², ``wo=T``)
         self._numbers: tuple = (None, None)  # (params, bounds, law, layers) of the kernel
 
     def reset(self, n_followers: int) -> None:
         check_heard(self.params, n_followers, self.name)
         self.u, self.brake = np.zeros(n_followers), np.full(n_followers, np.inf)
-        self.adj_mean = np.zeros((n_followers, self.params.washout_order))
+        self.adj_mean = np.zeros(n_followers)
         self.u_min, self.u_max = np.full(n_followers, -np.inf), np.full(n_followers, np.inf)
         self._leader_speed, self._dv = None, None
         self.channel, self._k = None, 0
@@ -386,7 +382,7 @@ class PloegChains:
         self.merge_m: dict[str, float] = {}  # ID: its distance to a zipper merge's point (m)
         self._dv: dict[str, tuple[str | None, float]] = {}
         self._k = 0
-        self.adj_mean: dict[str, list[float]] = {}  # ID: its running means of a_adj (m/s², wo)
+        self.adj_mean: dict[str, float] = {}  # ID: its running mean of a_adj (m/s², ``wo=T``)
 
     def reset(self) -> None:
         """Forget every state, limit and link: a new run starts (every vehicle's u at 0)."""
@@ -452,9 +448,7 @@ class PloegChains:
         out = np.empty(obs.shape[0])
         washout_s = self.controller.params.washout_s
         if washout_s is not None:
-            order = self.controller.params.washout_order
-            mean = np.array([self.adj_mean.get(v, [0.0] * order) for v in ids],
-                            dtype=np.float64).reshape(len(ids), order)
+            mean = np.array([self.adj_mean.get(v, 0.0) for v in ids])
             adjustment, mean = washed_adjustment(adjustment, mean, washout_s)
             if commit:
                 self.adj_mean = dict(zip(ids, mean.tolist()))

@@ -1,6 +1,6 @@
 """The feed-forward terms of the constant-time-gap law (:mod:`carl_sumo.control.cacc`) besides
-its predecessor's message: a learned term's washout (``wo=T``, of order ``wn=1`` or 2,
-:func:`washed_adjustment`, the law's docstring) and the multi-predecessor CACC ``mpf``'s relayed commands (:func:`mpf_relay`), run by
+its predecessor's message: a learned term's washout (``wo=T``, :func:`washed_adjustment`, the law's
+docstring) and the multi-predecessor CACC ``mpf``'s relayed commands (:func:`mpf_relay`), run by
 :class:`carl_sumo.control.cacc.PloegController` and :class:`carl_sumo.control.cacc.PloegChains`.
 
 Multi-predecessor feed-forward (``mpf:r=R:w1=W1:...:wR=WR`` with any of Ploeg's gains and
@@ -137,15 +137,8 @@ def with_relays(params: PloegParams, sent: np.ndarray, adjustment: np.ndarray | 
 
 def washed_adjustment(adjustment: np.ndarray | None, mean: np.ndarray, washout_s: float
                       ) -> tuple[np.ndarray, np.ndarray]:
-    """(the washed a_adj, the means updated) for the washout ``wo=T`` of order ``wn=K`` (module
-    docstring): ``mean`` (m/s², shape (n, K)) holds each follower's running means of the K
-    washouts in cascade, m_1 of the learned term (m/s², shape (n,); None: 0) and m_j of what the
-    washout j - 1 lets through: y_0 = a_adj, y_j = y_{j-1} - m_j, m_j ← m_j + (dt/T)·(y_{j-1} -
-    m_j); y_K enters the law."""
-    y = np.zeros(mean.shape[0]) if adjustment is None else \
+    """(a_adj - m, m updated with a_adj) for the washout ``wo=T`` (module docstring): the learned
+    term (m/s², shape (n,); None: 0) less its running mean ``mean`` (m/s²), and the new mean."""
+    adj = np.zeros_like(mean) if adjustment is None else \
         np.asarray(adjustment, dtype=np.float64)
-    new = np.empty_like(mean)
-    for j in range(mean.shape[1]):
-        new[:, j] = mean[:, j] + (DT_S / washout_s) * (y - mean[:, j])
-        y = y - mean[:, j]
-    return y, new
+    return adj - mean, mean + (DT_S / washout_s) * (adj - mean)

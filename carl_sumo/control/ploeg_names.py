@@ -1,6 +1,6 @@
 """The names of the constant-time-gap laws and their parameters: what ``ploeg:h=0.8:kp=0.1:kd=1``,
 ``ploeg-tuned:h=0.8``, ``acc:h=2.5``, the multi-predecessor ``mpf:r=2:w2=0.3`` and their options
-(``aw``, ``ha``, ``ttc``, ``rb``, ``wo``, ``wn``, ``gs``, ``gn``, ``op``, ``ht``) stand for
+(``aw``, ``ha``, ``ttc``, ``rb``, ``wo``, ``gs``, ``gn``, ``op``, ``ht``) stand for
 (:class:`PloegParams`), and the tuned-gains files of ``carl-sumo tune``. The law itself, and what
 each option does, is :mod:`carl_sumo.control.cacc`.
 """
@@ -40,8 +40,6 @@ class PloegParams:
     washout_s: float | None = None  # wo: a learned term enters the law less its own running mean
                                 # over this time constant (s), so it cannot move the steady gap
                                 # (None: it enters as it is)
-    washout_order: int = 1      # wn: how many such washouts in cascade (1 or 2; 2: the term's
-                                # gain falls as (ωT)² below 1/T, not as ωT; needs wo)
     safe_braking_mps2: float | None = None  # gs: a vehicle without a message keeps Gipps' safe
                                 # speed for the vehicle ahead braking at this (m/s²; None: off)
     safe_new_only: bool = False  # gn (in place of gs): only a vehicle whose vehicle ahead is new
@@ -74,7 +72,6 @@ class PloegParams:
             (f":ttc={self.reaction_ttc_s:g}" if self.reaction_ttc_s is not None else "") + \
             (":rb=1" if self.reaction_braking_ahead else "") + \
             (f":wo={self.washout_s:g}" if self.washout_s is not None else "") + \
-            (f":wn={self.washout_order}" if self.washout_order != 1 else "") + \
             (f":{'gn' if self.safe_new_only else 'gs'}={self.safe_braking_mps2:g}"
              if self.safe_braking_mps2 is not None else "") + \
             (f":op={self.opening_braking_mps2:g}" if self.opening_braking_mps2 is not None else "") + \
@@ -242,18 +239,11 @@ def _switches(name: str, opts: dict[str, float]) -> dict:
     if "gs" in opts and "gn" in opts:
         raise InputError(f"controller {name!r}: give gs (every vehicle without a message) or gn "
                          "(only one with a new vehicle ahead), not both")
-    order = opts.get("wn", 1.0)
-    if order not in (1.0, 2.0):
-        raise InputError(f"controller {name!r}: wn={order:g} must be 1 or 2 (the washout's order)")
-    if "wn" in opts and "wo" not in opts:
-        raise InputError(f"controller {name!r}: wn (the washout's order) needs the washout's time "
-                         "constant wo=T")
     return {"anti_windup": _flag(name, opts, "aw", "each vehicle's state within its own limits"),
             "alone_gap_s": opts.get("ha"), "reaction_ttc_s": opts.get("ttc"),
             "reaction_braking_ahead": _flag(name, opts, "rb", "the reaction counts the braking "
                                                               "of the vehicle ahead"),
-            "washout_s": opts.get("wo"), "washout_order": int(order),
-            "safe_braking_mps2": opts.get("gs", opts.get("gn")),
+            "washout_s": opts.get("wo"), "safe_braking_mps2": opts.get("gs", opts.get("gn")),
             "safe_new_only": "gn" in opts, "opening_braking_mps2": opts.get("op"),
             "heavy_gap_s": opts.get("ht")}
 
@@ -281,14 +271,14 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
                 "write ploeg:", "write mpf:r=R:wJ=W:")) from None
         return replace(p, feed_forward=bool(weights), weights=weights or (1.0,))
     if kind in ("ploeg", "acc"):
-        opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "ttc", "rb", "wo", "wn", "gs",
-                                      "gn", "op", "ht"))
+        opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "ttc", "rb", "wo", "gs", "gn",
+                                      "op", "ht"))
         return PloegParams(opts.get("h", TEXTBOOK.time_gap_s), opts.get("kp", TEXTBOOK.kp),
                            opts.get("kd", TEXTBOOK.kd), feed_forward=law == "ploeg",
                            **_switches(name, opts))
     if kind in ("ploeg-tuned", "acc-tuned"):
-        opts = _parse_options(name, ("h", "aw", "ha", "ttc", "rb", "wo", "wn", "gs", "gn",
-                                      "op", "ht"))
+        opts = _parse_options(name, ("h", "aw", "ha", "ttc", "rb", "wo", "gs", "gn", "op",
+                                      "ht"))
         if "h" not in opts:
             raise InputError(f"controller {name!r}: name the time gap, e.g. {kind}:h=1")
         entries = [e for e in read_tuned_entries(tuned_file) if e.get("law", "ploeg") == law]
@@ -364,7 +354,7 @@ def tuned_gap(name: str) -> float:
 def without_washout(name: str) -> str:
     """A law's name (a preset expanded) without its washout ``wo``, which only acts on a learned
     term: the classical law itself (``carl-sumo tune mpf``'s base)."""
-    return ":".join(part for part in expand_preset(name).split(":") if not part.startswith(("wo=", "wn=")))
+    return ":".join(part for part in expand_preset(name).split(":") if not part.startswith("wo="))
 
 
 PRESETS = {
