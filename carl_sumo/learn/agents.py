@@ -107,12 +107,6 @@ class AgentConfig:
                                   "et al. 2019; the observation ends with them, the latest "
                                   "first; controllers.CommandHistory)", "base", unit="steps",
                                   low=0, high=50, metavar="K")
-    steady_inputs: bool = option(False, "classical base: the actor does not see the speed v "
-                                 "or the gap d (their weights held at 0), only inputs that "
-                                 "vanish in steady following at any speed (a, Δv, a_base, the "
-                                 "commands, the messages), so its learned term cannot follow "
-                                 "the speed through a slow wave; the critics see everything",
-                                 "base")
     shield_ttc_s: float = option(0.0, "safety shield: a follower closing in below this time "
                                  "to collision gets no positive adjustment (0: off); part of "
                                  "the policy", "base", unit="s", low=0.0, high=60.0,
@@ -133,9 +127,6 @@ class AgentConfig:
         if self.command_history and self.base == "idm":
             raise InputError("--command-history is for a classical base (--base), whose law "
                              "sends the command the vehicle remembers")
-        if self.steady_inputs and self.base == "idm":
-            raise InputError("--steady-inputs is for a classical base (--base): on IDM the "
-                             "adjustment is all the vehicle does and needs its speed and gap")
         if self.comm_off and not self.communication_aware:
             raise InputError("--comm-off cuts the CA messages: it is for ca-td3 and ca-ddpg")
         if self.comm_fallback != "boundary" and not self.communication_aware:
@@ -259,22 +250,6 @@ class Agent(nn.Module):
         self.actor_updates = 0
         self.bc_alpha = 0.0  # > 0: the behaviour-regularised actor loss (:meth:`anchor`)
         self.start_actor: nn.Module | None = None
-        self.blind_actor_inputs()
-
-    STEADY_BLIND = (0, 2)
-    """The observation columns an actor with ``steady_inputs`` does not see: v and d."""
-
-    @torch.no_grad()
-    def blind_actor_inputs(self) -> None:
-        """With ``steady_inputs``: the first layer's weights on v and d set to 0 in the actor (and
-        its target), after every optimiser step too, so the actor's output does not depend on
-        them, in torch and in the compiled actor alike."""
-        if not self.cfg.steady_inputs:
-            return
-        for actor in (self.actor, self.actor_target):
-            for net in getattr(actor, "nets", [actor]):
-                first = next(m for m in net.modules() if isinstance(m, nn.Linear))
-                first.weight[:, list(self.STEADY_BLIND)] = 0.0
 
     def check_length(self, n: int) -> None:
         self.cfg.check_length(n)
@@ -406,7 +381,6 @@ class Agent(nn.Module):
             loss.backward()
             nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.max_grad_norm)
             opt.step()
-            self.blind_actor_inputs()
             mse = float(error.detach())
         self.actor_target.load_state_dict(self.actor.state_dict())
         return mse
@@ -493,7 +467,6 @@ class Agent(nn.Module):
         actor_loss.backward()
         nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.max_grad_norm)
         self.actor_opt.step()
-        self.blind_actor_inputs()
         return float(actor_loss.detach())
 
     def _smoothness(self, obs: torch.Tensor, next_obs: torch.Tensor, action_now: torch.Tensor,

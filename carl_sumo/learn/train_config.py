@@ -112,7 +112,6 @@ class TrainConfig:
     shield_ttc: float = shared(AgentConfig, "shield_ttc_s")
     observe_ahead: bool = shared(AgentConfig, "observe_ahead")
     command_history: int = shared(AgentConfig, "command_history")
-    steady_inputs: bool = shared(AgentConfig, "steady_inputs")
     # reward
     w_gap: float = shared(RewardConfig, "w_gap")
     w_safe: float = shared(RewardConfig, "w_safe")

@@ -152,35 +152,3 @@ def test_the_regime_is_off_by_default():
     with pytest.raises(InputError, match="--critic-holdout"):
         TrainConfig(critic_holdout=0.2, learning_starts=200, steps=1_000).check()
 
-
-@pytest.mark.parametrize("algo", ["ca-td3", "td3"])
-def test_an_actor_with_steady_inputs_never_sees_speed_or_gap(algo, tmp_path):
-    """``steady_inputs``: after actor updates (and in the saved, compiled policy) the learned term
-    is the same whatever the speed v and the gap d, and differs with the other inputs; without
-    it the actor moves with v and d. On IDM the option is refused (one line)."""
-    from carl_sumo.learn.inference import CompiledActor
-    from carl_sumo.learn.policy import save_policy
-
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    outputs = {}
-    for steady in (False, True):
-        torch.manual_seed(0)
-        agent = Agent(AgentConfig(algo=algo, n_vehicles=3, base="ploeg:h=0.8", hidden=16,
-                                  message_dim=4, actor_lr=1e-2, steady_inputs=steady))
-        for i in range(20):
-            agent.update(_batch(seed=i))
-        save_policy(agent, tmp_path / "s.pt", {})
-        compiled = CompiledActor(load_policy(tmp_path / "s.pt")[0])
-        obs = np.array([[20.0, 0.3, 25.0, -0.4, 0.2], [15.0, -0.2, 18.0, 0.5, -0.1],
-                        [18.0, 0.1, 21.0, 0.0, 0.4]])
-        moved = obs + np.array([6.0, 0.0, 9.0, 0.0, 0.0])  # faster, further back
-        other = obs + np.array([0.0, 0.5, 0.0, 0.3, -0.2])
-        outputs[steady] = [compiled(x) for x in (obs, moved, other)]
-    torch.set_num_threads(threads)
-    plain, steady = outputs[False], outputs[True]
-    assert np.abs(plain[0] - plain[1]).max() > 1e-3
-    np.testing.assert_allclose(steady[0], steady[1], atol=1e-12)
-    assert np.abs(steady[0] - steady[2]).max() > 1e-4
-    with pytest.raises(InputError, match="--steady-inputs is for a classical base"):
-        AgentConfig(algo=algo, steady_inputs=True)
