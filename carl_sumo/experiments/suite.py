@@ -153,6 +153,9 @@ PRODUCT_STEM = Path(PRODUCT).stem
 PRODUCT_MPF = f"mpf-tuned:h={parse_ploeg(PRESETS['product-base']).time_gap_s:g}"
 """The multi-predecessor CACC tuned on the product's base, at the product's gap: the classical
 law the product is paired with in the real suite."""
+PRODUCT_MPC = PRODUCT_MPF.replace("mpf-", "mpc-", 1)
+"""The distributed MPC tuned for the fleet at the product's gap (``mpc-tuned:h=0.6``): the other
+classical reference the product is judged against (docs/baselines.md)."""
 PAIRED_COMPARISONS = (("ca_td3_10", "idm"), ("ca_ddpg_10", "idm"), ("ca_td3_10", "td3_1"),
                       ("ca_ddpg_10", "ddpg_1"), ("td3_1", "idm"), ("ddpg_1", "idm"),
                       ("maddpg_10", "idm"), ("ca_td3_10", "ploeg:h=1.5"),

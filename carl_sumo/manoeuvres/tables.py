@@ -22,7 +22,8 @@ from carl_sumo.data.events import Event
 # The real plant's tables start settled, as ``evaluate --suite real``: from the recorded gap,
 # plain runs (no manoeuvre) of the tuned CACC on the real fleet have 16 collisions in the 53
 # default test events, on the ideal plant none.
-from carl_sumo.experiments.suite import PRODUCT_BASE_LABEL, PRODUCT_MPF, REAL_WARMUP_S
+from carl_sumo.experiments.suite import (PRODUCT_BASE_LABEL, PRODUCT_MPC, PRODUCT_MPF,
+                                        REAL_WARMUP_S)
 from carl_sumo.files import write_text_atomic
 from carl_sumo.resources import PRODUCT
 from carl_sumo.scale.workers import run_parallel
@@ -50,7 +51,7 @@ PLANT_CONTROLLERS = {
               "ca_td3_10.pt", "ca_td3_ploeg_10.pt", "maddpg_10.pt"),
     "real": ("idm-external", "acc-tuned:h=2.5", "ploeg-tuned:h=0.8", ROBUST_AW, ROBUST_HA,
              ROBUST_TTC, "ca_td3_10.pt", "ca_td3_ploeg_10.pt", PRODUCT_BASE, PRODUCT_MPF,
-             PRODUCT, "maddpg_10.pt"),
+             PRODUCT, PRODUCT_MPC, "maddpg_10.pt"),
 }
 """The controllers of each plant's tables (policy files in the policies folder): SUMO's IDM (run
 by carl-sumo on the real plant, whose vehicles SUMO's models cannot drive) and SUMO's CACC (the
@@ -61,8 +62,9 @@ layer, :data:`ROBUST_TTC`), the paper's CA-TD3 on IDM, CA-TD3 on the tuned CACC 
 plant, the CACC at h = 0.6 s with its layers (``gn=6``, ``op=2``, trucks at 0.8 s, ``ht=0.8``),
 :data:`PRODUCT_BASE`, that law with the feed-forward of the vehicles ahead tuned for the fleet
 (:data:`carl_sumo.experiments.suite.PRODUCT_MPF`, ``carl-sumo tune mpf``), the real-plant
-product that learned on it (:data:`carl_sumo.resources.PRODUCT`), and MADDPG (n/a: fixed
-size)."""
+product that learned on it (:data:`carl_sumo.resources.PRODUCT`), the distributed MPC tuned for
+the fleet at the same gap (:data:`carl_sumo.experiments.suite.PRODUCT_MPC`, ``carl-sumo tune
+mpc``), and MADDPG (n/a: fixed size)."""
 LABELS = {"idm": "IDM (SUMO)", "idm-external": "IDM (carl-sumo, on the plant)",
           "sumo-cacc": "CACC (SUMO)", "acc:h=2.5:kp=0.45:kd=1.5": "ACC h=2.5 s (fleet gains)",
           "acc-tuned:h=2.5": "ACC tuned h=2.5 s", "ploeg-tuned:h=0.8": "Ploeg tuned h=0.8 s",
@@ -73,6 +75,7 @@ LABELS = {"idm": "IDM (SUMO)", "idm-external": "IDM (carl-sumo, on the plant)",
           PRODUCT_BASE: PRODUCT_BASE_LABEL,
           PRODUCT_MPF: "multi-predecessor CACC tuned for the fleet on the product's base",
           PRODUCT: "CA-TD3 product (real, learned on mpf-tuned, h=0.6 s, trucks 0.8 s)",
+          PRODUCT_MPC: "distributed MPC tuned for the fleet, h=0.6 s, trucks 0.8 s",
           "maddpg_10.pt": "MADDPG"}
 TABLE_COLUMNS = (
     ("done", "done", "{}"), ("min gap (m)", "min_gap_m", "{:.2f}"),

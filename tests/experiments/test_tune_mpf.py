@@ -141,6 +141,7 @@ def test_the_tables_list_mpf_tuned_beside_the_product_and_its_base():
     assert PRODUCT_MPF not in plan_suite(quick=True, events=1, net=NET).tables[0].models
     real = PLANT_CONTROLLERS["real"]
     assert real.index(PRODUCT_BASE) + 1 == real.index(PRODUCT_MPF)  # the product's start after its base
+    assert real.index("mpc-tuned:h=0.6") > real.index(PRODUCT_MPF)  # the MPC at the same gap
     _, chains = resolve_study_controller("mpf-tuned", REAL.plant_key)  # the study's plant
     assert chains.controller.params == parse_ploeg("mpf-tuned", None, REAL.plant_key)
     with pytest.raises(InputError, match="no mpf weights tuned for the plant 'ideal'"):
