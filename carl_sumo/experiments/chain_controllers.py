@@ -102,7 +102,8 @@ class ChainController:
         joiner joining, the member behind a human who cut in or a joiner,
         :attr:`carl_sumo.manoeuvres.simulation.ScenarioSim.armed`) is in a state the policy was
         neither trained nor validated in (car-following), so it drives on its base law alone, with
-        the base's guards for that state, until it has room."""
+        the base's guards for that state, until it has room; so does every vehicle behind it in
+        its chain, which answers that vehicle's braking."""
         if self.base is not None:
             self.base.arm(vehicle_ids)
             self.armed = set(vehicle_ids)
@@ -146,12 +147,23 @@ class ChainController:
         else:
             adj = self.adjustment(np.column_stack([seen, self.history.columns(ids)]), chains, ids)
         if self.armed:
-            adj = np.where([v in self.armed for v in ids], 0.0, adj)
+            adj = adj * self._learning(chains, ids)
         if self.history is None:
             return self.base.acceleration(obs, chains, ids, ahead, last_acc, adj)
         accel = self.base.acceleration(obs, chains, ids, ahead, last_acc, adj)
         self.history.push(accel, ids)
         return accel
+
+    def _learning(self, chains: list[list[int]], ids: list[str]) -> np.ndarray:
+        """1 for a vehicle whose learned term acts, 0 for an armed one and every vehicle behind
+        it in its chain (:meth:`arm`)."""
+        on = np.ones(len(ids))
+        for chain in chains:
+            for j, row in enumerate(chain):
+                if ids[row] in self.armed:
+                    on[chain[j:]] = 0.0
+                    break
+        return on
 
     def adjustment(self, obs: np.ndarray, chains: list[list[int]],
                    ids: list[str] | None = None) -> np.ndarray:

@@ -9,7 +9,8 @@ in (:func:`manoeuvre_criterion`):
   does not (their IDs: ``collision_events_where_reference_none``; the converse count:
   ``reference_collisions_where_none``);
 - ``ttc_where_reference_none``: events with a TTC below 1.5 s after the manoeuvre for the
-  controller and none for the reference (and the converse);
+  controller and none for the reference (their IDs: ``ttc_events_where_reference_none``; and the
+  converse count);
 - per metric of :data:`PAIRED_MANOEUVRE_KEYS`, the mean per-event difference controller minus
   reference with a 95 % percentile-bootstrap interval over events (settle time over the events
   that settle for both), and how many events it is worse on.
@@ -61,8 +62,9 @@ def manoeuvre_criterion(result: dict, reference: dict, n_boot: int = 2000,
     out["collision_events_where_reference_none"] = worse
     out["reference_collisions_where_none"] = sum(
         ref[e]["collisions"] > 0 and mine[e]["collisions"] == 0 for e in common)
-    out["ttc_where_reference_none"] = sum(
-        _critical(mine[e]) and not _critical(ref[e]) for e in common)
+    close = [e for e in common if _critical(mine[e]) and not _critical(ref[e])]
+    out["ttc_where_reference_none"] = len(close)
+    out["ttc_events_where_reference_none"] = close
     out["reference_ttc_where_none"] = sum(
         _critical(ref[e]) and not _critical(mine[e]) for e in common)
     for key in PAIRED_MANOEUVRE_KEYS:
@@ -86,6 +88,9 @@ def criterion_lines(c: dict) -> list[str]:
     if c["collision_events_where_reference_none"]:
         lines.append("- its collisions where the reference has none: " +
                      ", ".join(f"`{e}`" for e in c["collision_events_where_reference_none"]))
+    if c.get("ttc_events_where_reference_none"):
+        lines.append("- its TTC < 1.5 s events where the reference has none: " +
+                     ", ".join(f"`{e}`" for e in c["ttc_events_where_reference_none"]))
     for key in PAIRED_MANOEUVRE_KEYS:
         d = c[key]
         lines.append(f"- {key}, controller minus reference over {d['events']} events: "

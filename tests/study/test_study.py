@@ -270,9 +270,9 @@ def test_residual_policy_on_chains_starts_as_its_classical_base(tmp_path):
 
 
 def test_an_armed_vehicle_drives_on_its_policys_base_alone(tmp_path):
-    """A vehicle armed in a manoeuvre (a new vehicle ahead, no room yet) gets no learned term:
-    its acceleration is the base law's with a_adj = 0 while the others keep the policy's term;
-    once disarmed it has its term again."""
+    """A vehicle armed in a manoeuvre (a new vehicle ahead, no room yet) and every vehicle behind
+    it in its chain get no learned term: their accelerations are the base law's with a_adj = 0
+    while the vehicles ahead keep the policy's term; once disarmed they have it again."""
     import torch
 
     from carl_sumo.control.cacc import PloegChains, parse_ploeg
@@ -292,7 +292,7 @@ def test_an_armed_vehicle_drives_on_its_policys_base_alone(tmp_path):
     armed.arm({"b"})
     out = armed.acceleration(obs, chains, ids, ahead, last)
     reference = PloegChains(parse_ploeg("ploeg:h=0.8"))
-    expected = reference.acceleration(obs, chains, ids, ahead, last, term * [1.0, 0.0, 1.0])
+    expected = reference.acceleration(obs, chains, ids, ahead, last, term * [1.0, 0.0, 0.0])
     assert np.allclose(out, expected)
     assert not np.allclose(out, free.acceleration(obs, chains, ids, ahead, last))
     armed.arm(set())
