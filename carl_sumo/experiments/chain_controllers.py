@@ -68,7 +68,6 @@ class ChainController:
         self.base: PloegChains | None = None
         self.links: tuple[KeyedChannel, KeyedChannel] | None = None
         self.history: CommandHistory | None = None  # the vehicles' last commands, by ID
-        self.armed: set[str] = set()  # IDs driving on the base alone (arm)
         self._k = 0
         if name != "idm-external":
             from carl_sumo.learn.policy import load_policy
@@ -89,24 +88,17 @@ class ChainController:
                     self.history = CommandHistory(agent.cfg.command_history)
 
     def reset(self) -> None:
-        """Forget the links, the armed vehicles and the base's states: a new run starts."""
-        self.links, self._k, self.armed = None, 0, set()
+        """Forget the links and the base's states: a new run starts."""
+        self.links, self._k = None, 0
         if self.base is not None:
             self.base.reset()
         if self.history is not None:
             self.history.reset()
 
     def arm(self, vehicle_ids: set[str]) -> None:
-        """Arm a classical base's reaction layer of these vehicles (PloegChains.arm), and hold
-        their learned term at 0 meanwhile: a vehicle with a new vehicle ahead and no room yet (a
-        joiner joining, the member behind a human who cut in or a joiner,
-        :attr:`carl_sumo.manoeuvres.simulation.ScenarioSim.armed`) is in a state the policy was
-        neither trained nor validated in (car-following), so it drives on its base law alone, with
-        the base's guards for that state, until it has room; so does every vehicle behind it in
-        its chain, which answers that vehicle's braking."""
+        """Arm a classical base's reaction layer of these vehicles (PloegChains.arm)."""
         if self.base is not None:
             self.base.arm(vehicle_ids)
-            self.armed = set(vehicle_ids)
 
     def merge_behind(self, merge_m: dict[str, float]) -> None:
         """Tell a classical base each vehicle's distance to a zipper merge's point while its
@@ -143,27 +135,12 @@ class ChainController:
         seen = np.column_stack([obs, self.base.acceleration(obs, chains, ids, ahead, last_acc,
                                                             commit=False)])
         if self.history is None:
-            adj = self.adjustment(seen, chains, ids)
-        else:
-            adj = self.adjustment(np.column_stack([seen, self.history.columns(ids)]), chains, ids)
-        if self.armed:
-            adj = adj * self._learning(chains, ids)
-        if self.history is None:
-            return self.base.acceleration(obs, chains, ids, ahead, last_acc, adj)
+            return self.base.acceleration(obs, chains, ids, ahead, last_acc,
+                                          self.adjustment(seen, chains, ids))
+        adj = self.adjustment(np.column_stack([seen, self.history.columns(ids)]), chains, ids)
         accel = self.base.acceleration(obs, chains, ids, ahead, last_acc, adj)
         self.history.push(accel, ids)
         return accel
-
-    def _learning(self, chains: list[list[int]], ids: list[str]) -> np.ndarray:
-        """1 for a vehicle whose learned term acts, 0 for an armed one and every vehicle behind
-        it in its chain (:meth:`arm`)."""
-        on = np.ones(len(ids))
-        for chain in chains:
-            for j, row in enumerate(chain):
-                if ids[row] in self.armed:
-                    on[chain[j:]] = 0.0
-                    break
-        return on
 
     def adjustment(self, obs: np.ndarray, chains: list[list[int]],
                    ids: list[str] | None = None) -> np.ndarray:

@@ -269,40 +269,6 @@ def test_residual_policy_on_chains_starts_as_its_classical_base(tmp_path):
     assert controller.base.u == pytest.approx(reference.u)
 
 
-def test_an_armed_vehicle_drives_on_its_policys_base_alone(tmp_path):
-    """A vehicle armed in a manoeuvre (a new vehicle ahead, no room yet) and every vehicle behind
-    it in its chain get no learned term: their accelerations are the base law's with a_adj = 0
-    while the vehicles ahead keep the policy's term; once disarmed they have it again."""
-    import torch
-
-    from carl_sumo.control.cacc import PloegChains, parse_ploeg
-
-    agent = Agent(AgentConfig(algo="td3", base="ploeg:h=0.8"))
-    last_layer = [m for m in agent.actor.modules() if isinstance(m, torch.nn.Linear)][-1]
-    with torch.no_grad():  # a constant learned term, whatever the state
-        last_layer.weight.zero_()
-        last_layer.bias.fill_(0.5)
-    save_policy(agent, tmp_path / "c.pt", {})
-    armed, free = ChainController(str(tmp_path / "c.pt")), ChainController(str(tmp_path / "c.pt"))
-    obs = np.array([[20.0, 0.0, 25.0, 0.0], [20.0, 0.0, 18.0, -0.5], [20.0, 0.0, 20.0, 0.0]])
-    ids, chains, ahead, last = ["a", "b", "c"], [[0, 1, 2]], [("x", 25.0), ("a", 18.0),
-                                                              ("b", 20.0)], {"x": 0.0}
-    term = free.adjustment(np.column_stack([obs, np.zeros(3)]), chains, ids)
-    assert np.all(np.abs(term) > 0.1)
-    armed.arm({"b"})
-    out = armed.acceleration(obs, chains, ids, ahead, last)
-    reference = PloegChains(parse_ploeg("ploeg:h=0.8"))
-    expected = reference.acceleration(obs, chains, ids, ahead, last, term * [1.0, 0.0, 0.0])
-    assert np.allclose(out, expected)
-    assert not np.allclose(out, free.acceleration(obs, chains, ids, ahead, last))
-    armed.arm(set())
-    assert np.allclose(armed.acceleration(obs, chains, ids, ahead, last),
-                       reference.acceleration(obs, chains, ids, ahead, last, term))
-    armed.arm({"b"})
-    armed.reset()
-    assert armed.armed == set()
-
-
 def test_merge_point_bound_reaches_a_policys_base_on_chains(tmp_path):
     """ChainController.merge_behind hands each vehicle's distance to a zipper merge's point to its
     classical base: a fresh policy on a ``gn`` law brakes as that law does (PloegChains), harder
