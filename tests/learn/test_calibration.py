@@ -151,4 +151,3 @@ def test_the_regime_is_off_by_default():
     assert steps_needed(0.2, 0.98) == 3 * 50 + 100
     with pytest.raises(InputError, match="--critic-holdout"):
         TrainConfig(critic_holdout=0.2, learning_starts=200, steps=1_000).check()
-
