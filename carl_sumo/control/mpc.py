@@ -48,8 +48,11 @@ braking is below 7 m/s² keeps max(h, ht) in its chain), the reaction layer ``tt
 reaction layer guards only a vehicle that hears no message (the feed-forward passes a braking
 on); the MPC's quadratic cost has no notion of a collision (it trades a spacing error against
 its command), so with ``ra=1`` the layer guards every vehicle. Not kept: the washout and learned
-term (``wo``: the MPC is no policy's base), Gipps' safe speed (``gs``, ``gn``), the gap opening
-(``op``) and the merge-point layer.
+term (``wo``: the MPC is no policy's base), Gipps' safe speed for every vehicle without a plan
+(``gs``) and the gap opening (``op``). With ``gn=B`` (0: off) the chains (the study, the
+scenarios) keep Ploeg's ``gn`` layers on the MPC's command: Gipps' safe speed for braking B
+towards a vehicle that entered ahead (an armed vehicle at the front of its chain) and the bound
+to reach a zipper merge's point behind the vehicle ahead (:mod:`carl_sumo.control.layers`).
 
 **Opening a short gap** (``go=R``, m/s; 0: off). A vehicle far inside its spacing (a cramped
 start, a cut-in) has a large negative spacing error e, and the quadratic cost removes it as fast
@@ -81,6 +84,7 @@ from carl_sumo.config import BOUNDS, DT_S, IDM
 from carl_sumo.control.cacc import CRUISE_GAIN_PER_S, HEAVY_BRAKING_MPS2, REACTION_LAG_S, \
     REACTION_MARGIN_M
 from carl_sumo.control.channel import FALLBACK, LIVE, Channel, Impairments, KeyedChannel
+from carl_sumo.control.layers import layer_params, merge_point, safe_speed
 from carl_sumo.control.ploeg_names import OptionSpec, tuned_law
 from carl_sumo.errors import InputError
 from carl_sumo.sim.vehicle import VEHICLE_CLASSES
@@ -118,6 +122,8 @@ class MPCParams:
                                       # that hears no plan, as Ploeg's law)
     opening_speed: float = 0.0        # go (m/s): a gap short of s0 + h·v opens at most this fast
                                       # (0: off)
+    safe_braking: float = 0.0         # gn (m/s²): Gipps' safe speed towards a new vehicle ahead
+                                      # and the zipper merge's bound, as Ploeg's ``gn`` (0: off)
 
     def __post_init__(self) -> None:
         if self.horizon <= MAX_CLASS_DEAD_STEPS:
@@ -143,13 +149,14 @@ class MPCParams:
             (f":ttc={self.reaction_ttc_s:g}" if self.reaction_ttc_s is not None else "") + \
             (":rb=1" if self.reaction_braking_ahead else "") + \
             (":ra=1" if self.reaction_all else "") + \
-            (f":go={self.opening_speed:g}" if self.opening_speed > 0.0 else "")
+            (f":go={self.opening_speed:g}" if self.opening_speed > 0.0 else "") + \
+            (f":gn={self.safe_braking:g}" if self.safe_braking > 0.0 else "")
 
 
 _FIELD = {"h": "time_gap_s", "N": "horizon", "wq": "w_spacing", "wv": "w_speed",
           "wu": "w_command", "wj": "w_rate", "ha": "alone_gap_s", "ht": "heavy_gap_s",
           "ttc": "reaction_ttc_s", "rb": "reaction_braking_ahead", "ra": "reaction_all",
-          "go": "opening_speed"}
+          "go": "opening_speed", "gn": "safe_braking"}
 assert set(_FIELD.values()) == {f.name for f in fields(MPCParams)}
 
 DEFAULTS = MPCParams(alone_gap_s=1.4, heavy_gap_s=0.8, reaction_ttc_s=2.0,
@@ -190,6 +197,10 @@ MPC_OPTIONS = (
     OptionSpec("go", float, "m/s", _default("go"), 0.0, 10.0,
                "a gap short of s0 + h·v is opened at most this fast (the spacing error's "
                "reference governor; 0: off)"),
+    OptionSpec("gn", float, "m/s²", _default("gn"), 0.0, 20.0,
+               "Gipps' safe speed for this braking towards a vehicle that entered ahead and, in "
+               "traffic, the bound to reach a zipper merge's point behind the vehicle ahead "
+               "(the layers of Ploeg's gn; 0: off)"),
 )
 """The options of an ``mpc`` name: key, type, unit, default (that of ``mpc``, :data:`DEFAULTS`),
 range (inclusive) and meaning."""
@@ -576,8 +587,8 @@ class MPCChains:
     ID; inside a chain each vehicle hears its predecessor's plan of the last step (over
     vehicle-keyed impaired links when connected); a chain's head hears none and plans as an ACC
     at ``ha`` with the vehicle ahead holding its acceleration of the last step. ``arm``: those
-    vehicles' reaction layer acts although they hear a plan; the merge-point layer of
-    :meth:`carl_sumo.control.cacc.PloegChains.merge_behind` is not kept (accepted, unused)."""
+    vehicles' reaction layer acts although they hear a plan; with ``gn`` the safe-speed and
+    merge-point layers of :class:`carl_sumo.control.cacc.PloegChains` bound the commands."""
 
     FORGET_EVERY = 100
     """Steps between two clean-ups of the OSQP problems of vehicles that left."""
@@ -593,6 +604,7 @@ class MPCChains:
         self.limits: dict[str, tuple[float, float]] = {}  # ID: (a_max, b_max) (m/s²)
         self.links: KeyedChannel | None = None
         self.armed: set[str] = set()
+        self.merge_m: dict[str, float] = {}
         self._k = 0
 
     def arm(self, vehicle_ids: set[str]) -> None:
@@ -600,7 +612,10 @@ class MPCChains:
         self.armed = set(vehicle_ids)
 
     def merge_behind(self, merge_m: dict[str, float]) -> None:
-        """Accepted for the chains' interface; the MPC has no merge-point layer."""
+        """ID: distance to a zipper merge's point (m) of the vehicles whose vehicle ahead is
+        still on the other feeding lane; with ``gn`` the MPC's command is bounded to reach that
+        point behind it (:func:`carl_sumo.control.layers.merge_point`), else unused."""
+        self.merge_m = dict(merge_m)
 
     def know_vehicle(self, vehicle_id: str, a_max_mps2: float, b_max_mps2: float) -> None:
         """What one vehicle's powertrain can do (m/s², positive): its limits and model."""
@@ -673,6 +688,8 @@ class MPCChains:
             self.params.reaction_all
         out[rows], plans = self.law.step(row_ids, np.ascontiguousarray(obs[rows]), state,
                                          messages, a_hold, react, self._k)
+        if self.params.safe_braking > 0.0:
+            self._guard(obs, out, chains, ids, state, rows)
         if commit:
             pipe = np.column_stack([state["pipe"][:, 1:], out[rows]])
             self.vehicles = {vid: {"model": state["model"][j], "low": state["low"][j],
@@ -683,6 +700,27 @@ class MPCChains:
             if self._k % self.FORGET_EVERY == 0:
                 self.law.forget(set(row_ids))
         return out
+
+
+    def _guard(self, obs: np.ndarray, out: np.ndarray, chains: list[list[int]], ids: list[str],
+               state: dict, rows: list[int]) -> None:
+        """``gn``: Ploeg's safe-speed layer (an armed vehicle at the front of its chain) and
+        merge-point layer on each chain's commands ``out`` (in place), within each vehicle's
+        braking (:mod:`carl_sumo.control.layers`)."""
+        low = dict(zip(rows, state["low"]))
+        layers = layer_params(0.0, REACTION_MARGIN_M, REACTION_LAG_S, self.params.safe_braking,
+                              True, 0.0, STANDSTILL_GAP_M, BOUNDS.acc_min_mps2)
+        for chain in chains:
+            chain_obs = np.ascontiguousarray(obs[chain, :4])
+            a = out[chain].copy()
+            brake = np.full(len(chain), np.inf)
+            armed = np.array([ids[i] in self.armed for i in chain], dtype=np.bool_)
+            merge = np.array([self.merge_m.get(ids[i], np.inf) for i in chain])
+            u_min = np.array([low[i] for i in chain], dtype=np.float64)
+            safe_speed(chain_obs, a, brake, np.zeros(len(chain), dtype=np.int64), armed, u_min,
+                       layers)
+            merge_point(chain_obs, a, brake, merge, u_min, layers)
+            out[chain] = a
 
 
 def mpc_controller(name: str, plant: str = "ideal") -> MPCController:

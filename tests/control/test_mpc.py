@@ -296,3 +296,32 @@ def test_opening_a_short_gap_slowly_keeps_the_cramped_chain_collision_free():
             for name in ("mpc", "mpc:go=0.5")}
     assert runs["mpc"].collisions > 0
     assert runs["mpc:go=0.5"].collisions == 0 and runs["mpc:go=0.5"].gap.min() > 0.5
+
+
+def test_gn_bounds_the_mpc_at_a_merge_point_and_behind_a_new_vehicle_as_ploegs_layers():
+    """``gn=6`` on the MPC's chains: a car beside a faster truck, 57 m from the zipper merge's
+    point, brakes at most as Ploeg's merge-point layer allows (much harder than without it), the
+    truck ahead is untouched, and an armed front vehicle keeps Gipps' safe speed; without
+    ``gn`` (or without a merge) the commands are the MPC's own. The name parses back."""
+    from carl_sumo.control.layers import layer_params, merge_point
+    from carl_sumo.control.mpc import MPCChains, parse_mpc
+
+    name = "mpc:h=0.6:N=30:wq=0.8:wv=0.666667:wu=2:wj=0.2:ha=2:ht=0.8:ttc=2:rb=1:ra=1:go=0.5"
+    assert parse_mpc(name + ":gn=6").name() == name + ":gn=6" and parse_mpc(name).safe_braking == 0
+    obs = np.array([[32.2, 0.0, 30.0, 0.0], [31.1, 0.0, -4.2, 1.1]])  # truck, car beside it
+    ids, chains, ahead, last = ["truck", "car"], [[0, 1]], [("x", 28.0), ("truck", -6.2)], {}
+    plain, guarded = MPCChains(parse_mpc(name)), MPCChains(parse_mpc(name + ":gn=6"))
+    for law in (plain, guarded):
+        law.merge_behind({"car": 57.0})
+    a_plain = plain.acceleration(obs, chains, ids, ahead, last)
+    a = guarded.acceleration(obs, chains, ids, ahead, last)
+    assert a[0] == a_plain[0]
+    bound = a_plain[1:].copy()
+    merge_point(obs[1:], bound, np.full(1, np.inf), np.array([57.0]), np.full(1, -9.0),
+                layer_params(0.0, 1.0, 0.5, 6.0, True, 0.0, 2.0, -9.0))
+    assert a[1] == pytest.approx(bound[0]) and a[1] < a_plain[1] - 1.0
+    close = np.array([[30.0, 0.0, 6.0, -3.0]])  # a new vehicle 6 m ahead, 3 m/s slower
+    free, armed = MPCChains(parse_mpc(name + ":gn=6")), MPCChains(parse_mpc(name + ":gn=6"))
+    armed.arm({"v"})
+    assert armed.acceleration(close, [[0]], ["v"], [("h", 6.0)], {})[0] < \
+        free.acceleration(close, [[0]], ["v"], [("h", 6.0)], {})[0] - 0.5
