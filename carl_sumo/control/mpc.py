@@ -596,6 +596,10 @@ class MPCChains:
     def __init__(self, params: MPCParams = DEFAULTS, name: str | None = None):
         self.params, self.name = params, name or params.name()
         self.law = MPCLaw(params)
+        # gn: Ploeg's safe-speed and merge-point layers only (the MPC has its own reaction)
+        self._gn_layers = layer_params(0.0, REACTION_MARGIN_M, REACTION_LAG_S,
+                                       params.safe_braking, True, 0.0, STANDSTILL_GAP_M,
+                                       BOUNDS.acc_min_mps2)
         self.reset()
 
     def reset(self) -> None:
@@ -701,15 +705,12 @@ class MPCChains:
                 self.law.forget(set(row_ids))
         return out
 
-
     def _guard(self, obs: np.ndarray, out: np.ndarray, chains: list[list[int]], ids: list[str],
                state: dict, rows: list[int]) -> None:
         """``gn``: Ploeg's safe-speed layer (an armed vehicle at the front of its chain) and
         merge-point layer on each chain's commands ``out`` (in place), within each vehicle's
         braking (:mod:`carl_sumo.control.layers`)."""
-        low = dict(zip(rows, state["low"]))
-        layers = layer_params(0.0, REACTION_MARGIN_M, REACTION_LAG_S, self.params.safe_braking,
-                              True, 0.0, STANDSTILL_GAP_M, BOUNDS.acc_min_mps2)
+        low, layers = dict(zip(rows, state["low"])), self._gn_layers
         for chain in chains:
             chain_obs = np.ascontiguousarray(obs[chain, :4])
             a = out[chain].copy()
