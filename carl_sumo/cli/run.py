@@ -219,6 +219,10 @@ def _evaluate_parser(sub: argparse._SubParsersAction) -> None:
                    help="only the first K events of each table (default: all; --quick: 2)")
     p.add_argument("--policies", type=Path, default=None,
                    help="directory of the policy files (default: policies/)")
+    p.add_argument("--tables", default=None, metavar="NAME[,...]",
+                   help="only these parts of --suite paper or real: table1 (the test split), "
+                        "table2 (other platoon lengths), table3 (stop-and-go), cross_site, "
+                        "string_stability (real only); default: all")
     p.add_argument("--net", type=net_option, default="i80.net.xml", help=NET_HELP)
     p.add_argument("--workers", type=int, default=None,
                    help="parallel SUMO processes (default: the number of cores; with --ray: the "
@@ -261,6 +265,8 @@ def extra_controllers(args: argparse.Namespace) -> tuple[str, ...]:
 def cmd_evaluate(args: argparse.Namespace) -> None:
     if args.workers is not None:
         positive(args.workers, "--workers")
+    if args.tables is not None and args.suite not in ("paper", "real"):
+        raise InputError(f"--tables chooses tables of --suite paper or real, not {args.suite}")
     if args.suite == "scenarios":  # carl_sumo.cli.scenario
         check_output_names(args.out, "--out")
         return evaluate_scenarios(args, args.workers or min(2, os.cpu_count() or 1))
@@ -308,7 +314,9 @@ def _run_evaluate(args: argparse.Namespace, workers: int, impairments: Impairmen
                       args.net, workers, progress=progress_mode(),
                       command="carl-sumo " + " ".join(sys.argv[1:]), all_seeds=args.all_seeds,
                       seeds=args.seeds, impairments=impairments, warmup_s=args.warmup,
-                      extra=args.controller)
+                      extra=args.controller,
+                      only=None if args.tables is None else
+                      tuple(t.strip() for t in args.tables.split(",") if t.strip()))
     for key, rows in result["rows"].items():
         print(f"wrote {args.out / (key + '.md')} and .csv ({len(rows)} rows)")
     print(f"wrote {args.out / 'README.md'}, per_event.csv, timing.csv and "

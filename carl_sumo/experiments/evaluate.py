@@ -185,7 +185,7 @@ def run_suite(suite: Suite, out_dir: Path, workers: int = 2, net: str | Path =
     out_dir.mkdir(parents=True, exist_ok=True)
     jobs = figures.figure_jobs(suite, results, out_dir)
     all_rows, sections = write_tables(suite, results, out_dir)
-    if suite.name == "real":
+    if suite.name == "real" and suite.string_stability:
         from carl_sumo.experiments.string_stability import suite_table
 
         sections.append(suite_table(suite, out_dir, str(net), workers))
@@ -210,14 +210,16 @@ def evaluate(suite: str = "paper", out: Path = Path("results"), data: str | None
              net: str | Path = "networks/i80.net.xml", workers: int = 2,
              progress: bool = False, command: str = "", all_seeds: bool = False,
              seeds: bool = False, impairments: Impairments | None = None,
-             warmup_s: float = 0.0, extra: tuple[str, ...] = ()) -> dict:
+             warmup_s: float = 0.0, extra: tuple[str, ...] = (),
+             only: tuple[str, ...] | None = None) -> dict:
     """Plan and run a suite (see the module docstring); the table rows and timings. With
     ``impairments`` every controller that runs in carl-sumo (Ploeg, idm-external, the policies)
     has them; SUMO's native models and the recorded human run as they are. ``warmup_s``: every
     event runs that long first, unscored. ``extra``: controllers of the user's own
-    (``module:attribute``, ``file.py:attribute``), one more row in every table."""
+    (``module:attribute``, ``file.py:attribute``), one more row in every table. ``only``: the
+    parts of the suite to run (:data:`carl_sumo.experiments.suite.TABLES`; None: all)."""
     plant = impairments.plant_key if impairments is not None else "ideal"
     planned = plan_suite(suite, data, quick, events, policies, net, all_seeds, seeds, warmup_s,
-                         plant, extra)
+                         plant, extra, only)
     planned = replace(planned, impairments=impairments)
     return run_suite(planned, Path(out), workers, net, progress, command)

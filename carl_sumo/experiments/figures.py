@@ -376,8 +376,8 @@ def figure_jobs(suite: "Suite", results: dict[tuple, "JobResult"],
     jobs: list[dict[str, Any]] = []
     by_key = {spec.key: spec for spec in suite.tables}
     tag = data_tag(suite.data)  # the leader data the file names say
-    t1, t2, t3 = (by_key[f"table1_{tag}_test"], by_key["table2_generalization"],
-                  by_key["table3_stop_and_go"])
+    t1, t2, t3 = (by_key.get(f"table1_{tag}_test"), by_key.get("table2_generalization"),
+                  by_key.get("table3_stop_and_go"))  # None: not run (evaluate --tables)
     label = {key: model_label(m) for key, m in suite.models.items()}
     shown = [label[key] for key in suite.models if _shown(key)]
     colors = dict(zip(shown, _colors(len(shown))))
@@ -390,17 +390,20 @@ def figure_jobs(suite: "Suite", results: dict[tuple, "JobResult"],
         jobs.append({"kind": kind, "path": Path(out_dir) / name, "caption": caption,
                      "args": args})
 
-    curves = {}
-    for key in filter(_shown, t1.models):
-        res = first_run(t1, key, t1.followers[0])
-        curves[label[key]] = ecdf_curves({k: np.concatenate(v) if v else np.empty(0)
-                                          for k, v in res.samples.items()})
-    add("ecdf", f"fig_ecdf_{tag}_test.png",
-        "ECDFs of time headway, speed and |jerk| per model (Table 1 runs)", curves,
-        f"Empirical distributions, {t1.title} ({len(suite.events[t1.events.key])} events)",
-        colors)
+    if t1 is not None:
+        curves = {}
+        for key in filter(_shown, t1.models):
+            res = first_run(t1, key, t1.followers[0])
+            curves[label[key]] = ecdf_curves({k: np.concatenate(v) if v else np.empty(0)
+                                              for k, v in res.samples.items()})
+        add("ecdf", f"fig_ecdf_{tag}_test.png",
+            "ECDFs of time headway, speed and |jerk| per model (Table 1 runs)", curves,
+            f"Empirical distributions, {t1.title} ({len(suite.events[t1.events.key])} events)",
+            colors)
 
     for spec, where_tag in ((t1, tag), (t3, "stop_and_go")):
+        if spec is None:
+            continue
         event_id = suite.figure_events[spec.events.key]
         series = {}
         for key in filter(_shown, spec.models):
@@ -417,16 +420,20 @@ def figure_jobs(suite: "Suite", results: dict[tuple, "JobResult"],
             f"Time-space diagram of the platoon, {where}")
 
     panels = []
-    for n in t2.followers:
+    for n in t2.followers if t2 is not None else ():
         profiles = {label[key]: mean_profile(first_run(t2, key, n).norms)
                     for key in filter(_shown, t2.models) if suite.models[key].runs_on(n)}
         panels.append((f"{'NGSIM' if tag == 'ngsim' else tag} test, {n} followers", profiles))
-    panels.append((f"stop-and-go, {t3.followers[0]} followers",
-                   {label[key]: mean_profile(first_run(t3, key, t3.followers[0]).norms)
-                    for key in filter(_shown, t3.models)}))
-    add("norm_profile", "fig_accel_norm_profile.png",
-        "Acceleration norm along the platoon, ‖a_i‖₂/‖a_0‖₂, mean over events (string stability "
-        "at a glance; model (length trained on))", panels, colors)
+    if t3 is not None:
+        panels.append((f"stop-and-go, {t3.followers[0]} followers",
+                       {label[key]: mean_profile(first_run(t3, key, t3.followers[0]).norms)
+                        for key in filter(_shown, t3.models)}))
+    if panels:
+        add("norm_profile", "fig_accel_norm_profile.png",
+            "Acceleration norm along the platoon, ‖a_i‖₂/‖a_0‖₂, mean over events (string "
+            "stability at a glance; model (length trained on))", panels, colors)
+    if t1 is None:
+        return jobs
 
     points = []
     for key in (k for k in t1.models if k != "human"):  # one recorded vehicle, not a platoon

@@ -54,6 +54,11 @@ ACC and the gains tuned for that plant, and a string-stability table."""
 ACC_GAPS = (2.0, 2.5, 3.0, 3.5)
 """Time gaps h (s) of the textbook ACC curve (kp = 0.2, kd = 0.7) in the real suite."""
 
+TABLES = ("table1", "table2", "table3", "cross_site", "string_stability")
+"""The parts of a suite ``evaluate --tables`` can choose: Table 1 (the test split), Table 2 (other
+platoon lengths), Table 3 (stop-and-go), the cross-site table and, in the real suite, the
+string-stability table."""
+
 REAL_WARMUP_S = 60.0
 """The settled start of the real suite (s): every event first runs this long, unscored."""
 
@@ -134,6 +139,7 @@ class Suite:
     impairments: Impairments | None = None  # V2V and sensors of the carl-sumo controllers
     warmup_s: float = 0.0  # seconds every event runs before it is scored (Event.with_warmup)
     name: str = "paper"    # which suite (SUITES)
+    string_stability: bool = True  # the real suite's string-stability table (TABLES)
 
 
 @dataclass
@@ -327,7 +333,7 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
                events: int | None = None, policies: Path | None = None,
                net: str | Path = DEFAULT_NET, all_seeds: bool = False,
                seeds: bool = False, warmup_s: float = 0.0, plant: str = "ideal",
-               extra: tuple[str, ...] = ()) -> Suite:
+               extra: tuple[str, ...] = (), only: tuple[str, ...] | None = None) -> Suite:
     """Resolve data, events, policies and tables; InputError on anything missing or wrong.
 
     ``seeds``: the seed files of :data:`SEED_MODELS` run in Table 1 and in Table 2 at 10 followers
@@ -335,7 +341,15 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
     seed files in every row (slower); with neither, no seed file runs (the shipped policies
     alone). ``warmup_s``: every event runs that long first, unscored (``Event.with_warmup``).
     ``plant``: the plant key of the real suite's tuned gains (:attr:`Impairments.plant_key`).
-    ``extra``: controllers of the user's own (``module:attribute``), a row in every table."""
+    ``extra``: controllers of the user's own (``module:attribute``), a row in every table.
+    ``only``: the parts of :data:`TABLES` to run (None: all of them)."""
+    if only is not None:
+        unknown = [t for t in only if t not in TABLES]
+        if unknown or not only:
+            raise InputError(f"--tables {','.join(only)!r}: choose one or more of "
+                             f"{', '.join(TABLES)}, separated by commas")
+        if suite != "real" and set(only) == {"string_stability"}:
+            raise InputError("--tables string_stability is a table of --suite real only")
     if all_seeds and seeds:
         raise InputError("--all-seeds and --seeds exclude each other; give one")
     if suite not in SUITES:
@@ -385,10 +399,12 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
                   table1_models,
                   seed_lengths=None if all_seeds else ()),
     ]
+    if only is not None:
+        tables = [spec for spec in tables if spec.key.startswith(only)]
     models = _models(tables, classical, directory)
     event_sets = {spec.events.key: spec.events for spec in tables}
     loaded = {key: _events(es, quick, warmup_s) for key, es in event_sets.items()}
-    if not loaded["cross_site"]:
+    if "cross_site" in loaded and not loaded["cross_site"]:
         raise InputError(f"{data} has no {cross.split} events for the cross-site table")
     route = lane_route(net)
     for spec in tables:  # a network too short fails here, before any worker starts
@@ -396,7 +412,8 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
             check_fits(route, e, max(spec.followers))
     figures = {spec.events.key: figure_event(loaded[spec.events.key]) for spec in tables
                if spec.figures}
-    return Suite(tables, models, loaded, figures, data, quick, warmup_s=warmup_s, name=suite)
+    return Suite(tables, models, loaded, figures, data, quick, warmup_s=warmup_s, name=suite,
+                 string_stability=only is None or "string_stability" in only)
 
 
 def external_label(name: str) -> str:

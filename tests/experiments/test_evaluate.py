@@ -301,6 +301,11 @@ def test_evaluate_bad_input_is_one_line_exit_2(capsys, tmp_path, monkeypatch):
         (["evaluate", "--quick", "--comm-loss", "2"], "--comm-loss is a probability"),
         (["evaluate", "--suite", "robustness", "--quick", "--comm-loss", "0.3"],
          "its own grid of impairments"),
+        (["evaluate", "--quick", "--tables", "table9"], "choose one or more of table1"),
+        (["evaluate", "--quick", "--tables", ","], "choose one or more of table1"),
+        (["evaluate", "--quick", "--tables", "string_stability"], "--suite real only"),
+        (["evaluate", "--suite", "robustness", "--quick", "--tables", "table1"],
+         "--suite paper or real"),
     ]
     for argv, message in cases:
         code, out, err = run(capsys, *argv, "--out", tmp_path / "out")
@@ -393,3 +398,29 @@ def test_a_warmed_suite_runs_every_table_warmed_and_says_so():
         assert [e.scored_from for e in events] == [50] * len(events)
         assert [e.n_samples for e in events] == [e.n_samples + 50 for e in cold.events[key]]
     assert warm.figure_events == cold.figure_events  # chosen on the recorded part
+
+
+def test_tables_runs_only_the_chosen_tables_and_their_figures(capsys, tmp_path):
+    """``--tables table3``: the stop-and-go table, its figures and the README, nothing else (no
+    string-stability table in the real suite unless named)."""
+    from carl_sumo.experiments.suite import plan_suite
+
+    suite = plan_suite("real", quick=True, events=1, net=NET, plant="real",
+                       only=("table1", "cross_site"))
+    assert [t.key for t in suite.tables] == ["table1_default_test", "cross_site_default_train"]
+    assert not suite.string_stability
+    assert plan_suite("real", quick=True, events=1, net=NET, plant="real",
+                      only=("table3", "string_stability")).string_stability
+    out = tmp_path / "out"
+    code, stdout, err = run(capsys, "evaluate", "--suite", "real", "--quick", "--tables", "table3",
+                            "--out", out, "--net", NET, "--workers", "2")
+    assert code == 0, err
+    files = sorted(p.name for p in out.iterdir())
+    assert [f for f in files if f.startswith(("table", "cross", "string"))] == [
+        "table3_stop_and_go.csv", "table3_stop_and_go.md"]
+    assert {"fig_timeseries_stop_and_go.png", "fig_accel_norm_profile.png"} <= set(files)
+    assert not any(f.startswith(("fig_ecdf", "fig_frontier")) for f in files)
+    rows = pd.read_csv(out / "table3_stop_and_go.csv")
+    assert {"mpf-tuned:h=0.6", "mpc-tuned:h=0.6", "ca_td3_real_10"} <= set(rows["policy"])
+    readme = (out / "README.md").read_text()
+    assert "### Table 3" in readme and "### Table 1" not in readme
