@@ -93,8 +93,8 @@ STANDSTILL_GAP_M = 2.0
 """s0 of the spacing error (m), as Ploeg's law."""
 
 OPENING_DEADBAND_M = 2.0
-"""``go``: the part of a short gap's shortfall the MPC removes as its weights say (m); only the
-rest is opened at the bounded speed, so a platoon tracking its gaps (and the sine test of
+"""``go`` and ``gc``: the part of a short gap's shortfall (of a long gap's excess) the MPC removes
+as its weights say (m); only the rest is opened (closed) at the bounded speed, so a platoon tracking its gaps (and the sine test of
 string stability) is not affected."""
 
 MAX_HORIZON = 100
@@ -124,6 +124,8 @@ class MPCParams:
                                       # (0: off)
     safe_braking: float = 0.0         # gn (m/s²): Gipps' safe speed towards a new vehicle ahead
                                       # and the zipper merge's bound, as Ploeg's ``gn`` (0: off)
+    closing_speed: float = 0.0        # gc (m/s): a gap longer than s0 + h·v closes at most this
+                                      # fast (0: off)
 
     def __post_init__(self) -> None:
         if self.horizon <= MAX_CLASS_DEAD_STEPS:
@@ -150,13 +152,14 @@ class MPCParams:
             (":rb=1" if self.reaction_braking_ahead else "") + \
             (":ra=1" if self.reaction_all else "") + \
             (f":go={self.opening_speed:g}" if self.opening_speed > 0.0 else "") + \
-            (f":gn={self.safe_braking:g}" if self.safe_braking > 0.0 else "")
+            (f":gn={self.safe_braking:g}" if self.safe_braking > 0.0 else "") + \
+            (f":gc={self.closing_speed:g}" if self.closing_speed > 0.0 else "")
 
 
 _FIELD = {"h": "time_gap_s", "N": "horizon", "wq": "w_spacing", "wv": "w_speed",
           "wu": "w_command", "wj": "w_rate", "ha": "alone_gap_s", "ht": "heavy_gap_s",
           "ttc": "reaction_ttc_s", "rb": "reaction_braking_ahead", "ra": "reaction_all",
-          "go": "opening_speed", "gn": "safe_braking"}
+          "go": "opening_speed", "gn": "safe_braking", "gc": "closing_speed"}
 assert set(_FIELD.values()) == {f.name for f in fields(MPCParams)}
 
 DEFAULTS = MPCParams(alone_gap_s=1.4, heavy_gap_s=0.8, reaction_ttc_s=2.0,
@@ -201,6 +204,9 @@ MPC_OPTIONS = (
                "Gipps' safe speed for this braking towards a vehicle that entered ahead and, in "
                "traffic, the bound to reach a zipper merge's point behind the vehicle ahead "
                "(the layers of Ploeg's gn; 0: off)"),
+    OptionSpec("gc", float, "m/s", _default("gc"), 0.0, 10.0,
+               "a gap longer than s0 + h·v is closed at most this fast (the spacing error's "
+               "reference governor, as a CACC's gap-closing mode; 0: off)"),
 )
 """The options of an ``mpc`` name: key, type, unit, default (that of ``mpc``, :data:`DEFAULTS`),
 range (inclusive) and meaning."""
@@ -305,18 +311,22 @@ class CondensedQP:
         rate[0, 4] = -1.0                      # u_prev
         return acc, spacing, rel, command, rate / DT_S
 
-    def opening_term(self, error_m: float, speed_mps: float, w_spacing: float) -> np.ndarray:
+    def opening_term(self, error_m: float, speed_mps: float, w_spacing: float,
+                     closing_mps: float = 0.0) -> np.ndarray:
         """The change of q that opens a short gap at most ``speed_mps`` (``go``): with the
         spacing error now ``error_m`` < -b (b = :data:`OPENING_DEADBAND_M`), the cost's error at
         predicted step j is e_j + o_j, o_j = max(-error_m - b - speed_mps·j·dt, 0), so the plan
         is asked to remove the shortfall beyond b at that speed rather than at once (the cost's
         o_j·e_j term, halved as OSQP's q is: wq·Sᵀo with S the spacing map's command columns);
-        zeros when the gap is short by b or less."""
-        shortfall = -error_m - OPENING_DEADBAND_M
-        if shortfall <= 0.0:
-            return np.zeros(self.m)
+        zeros when the gap is short by b or less (or ``speed_mps`` is 0). With ``closing_mps`` >
+        0 (``gc``) a gap too long by more than b is closed the same way: o_j = -max(error_m - b
+        - closing_mps·j·dt, 0)."""
         steps = np.arange(1, self.n + 1) * DT_S
-        offset = np.maximum(shortfall - speed_mps * steps, 0.0)
+        excess = abs(error_m) - OPENING_DEADBAND_M
+        rate = speed_mps if error_m < 0.0 else closing_mps
+        if excess <= 0.0 or rate <= 0.0:
+            return np.zeros(self.m)
+        offset = np.maximum(excess - rate * steps, 0.0) * (1.0 if error_m < 0.0 else -1.0)
         return w_spacing * self.spacing[:, self.nz:].T @ offset
 
     def solver(self, low: float, high: float) -> QPSolver:
@@ -473,8 +483,9 @@ class MPCLaw:
         if solver is None:
             solver = self.solvers[(key, qp)] = qp.solver(low, high)
         q = qp.linear @ z
-        if p.opening_speed > 0.0:
-            q = q + qp.opening_term(gap - STANDSTILL_GAP_M - h * v, p.opening_speed, p.w_spacing)
+        if p.opening_speed > 0.0 or p.closing_speed > 0.0:
+            q = q + qp.opening_term(gap - STANDSTILL_GAP_M - h * v, p.opening_speed, p.w_spacing,
+                                    p.closing_speed)
         u, seconds = solver.solve(q, low, high)
         if self.timed:
             self.solve_s.append(seconds)

@@ -280,6 +280,53 @@ def test_the_opening_term_is_the_governed_spacing_errors_cost():
         parse_mpc("mpc:go=-1")
 
 
+def test_the_closing_term_is_the_governed_spacing_errors_cost():
+    """``gc``: q + opening_term(..., closing) is the QP of the cost with the error e_j + o_j,
+    o_j = -max(e_0 - deadband - R·j·dt, 0) for a gap too long by e_0 (checked against the cost
+    computed from the simulated plant); nothing within the deadband, nothing with gc off."""
+    rng, n, tau, dead, h, rate = np.random.default_rng(5), 30, 0.5, 2, 0.8, 1.5
+    qp = CondensedQP(tau, dead, h, n, WEIGHTS)
+    z = _data(rng, n)
+    e0 = 25.0
+    offset = -np.maximum(e0 - OPENING_DEADBAND_M - rate * np.arange(1, n + 1) * DT_S, 0.0)
+    q = qp.linear @ z + qp.opening_term(e0, 0.0, WEIGHTS[0], rate)
+
+    def governed(u):
+        _, e, r = _simulated(z, u, tau, dead, h, n)
+        return WEIGHTS[0] * np.sum((e + offset) ** 2) + WEIGHTS[1] * r @ r + \
+            WEIGHTS[2] * u @ u + WEIGHTS[3] * np.sum(np.diff(np.r_[z[4], u]) ** 2) / DT_S ** 2
+
+    u1, u2 = rng.normal(0, 1, qp.m), rng.normal(0, 1, qp.m)
+    objective = [0.5 * u @ qp.hessian @ u + q @ u for u in (u1, u2)]
+    assert np.isclose(governed(u1) - governed(u2), 2 * (objective[0] - objective[1]), rtol=1e-8)
+    assert not qp.opening_term(0.99 * OPENING_DEADBAND_M, 0.0, WEIGHTS[0], rate).any()
+    assert not qp.opening_term(e0, 0.5, WEIGHTS[0]).any()  # go alone leaves a long gap be
+    free, governed_plan = (np.linalg.solve(qp.hessian, -qq) for qq in (qp.linear @ z, q))
+    assert governed_plan[0] < free[0]  # it speeds up less to close the gap
+    assert parse_mpc("mpc:gc=2").closing_speed == 2.0
+    assert parse_mpc(parse_mpc("mpc:go=0.5:gc=2").name()) == parse_mpc("mpc:go=0.5:gc=2")
+    with pytest.raises(InputError, match="gc=11 must be a number from 0"):
+        parse_mpc("mpc:gc=11")
+
+
+def test_closing_a_long_gap_slowly_keeps_the_tuned_mpc_out_of_the_queue():
+    """The shipped default event sumo42_f2321_l2303_fr7763 (a follower at 15 m/s, 72 m behind a
+    leader at 2.2 m/s), real plant, 60 s settled start: the tuned MPC closes every long gap as its
+    weights say, its cars reach the road's 33 m/s and the tail meets the queue too fast to stop;
+    closing at 1 m/s beyond the deadband (gc=1) does not collide."""
+    from carl_sumo.control.ploeg_names import tuned_law
+    from carl_sumo.data import load_events
+
+    event = next(e for e in load_events("default", "test")
+                 if e.event_id == "sumo42_f2321_l2303_fr7763").with_warmup(60.0)
+    tuned = tuned_law("mpc-tuned:h=0.6", plant=plant_impairments("real").plant_key)
+    runs = {name: run_event(cached_sim(NET, "external"), event, 10, mpc_controller(name, "real"),
+                            impairments=plant_impairments("real"))
+            for name in (tuned, tuned + ":gc=1")}
+    assert runs[tuned].collisions > 0
+    assert runs[tuned + ":gc=1"].collisions == 0
+
+
 def test_opening_a_short_gap_slowly_keeps_the_cramped_chain_collision_free():
     """The start of the training event zhu2020pool_val_0086 (every follower 1.27 m behind at 9.6
     m/s, the leader at 11.8 m/s; its ID draws the fleet): the MPC's braking to open every gap at
