@@ -67,6 +67,13 @@ governor: it changes the QP's q only, :meth:`CondensedQP.opening_term`). The fir
 while a platoon tracks its gaps: without that band it acted in the sine test and raised ‖Γ‖∞
 (wq=0.4:ha=2: 1.0246 against 1.0003 without ``go``; with the band, 1.0003).
 
+**Closing a long gap** (``gc=R``, m/s; 0: off). The same governor the other way round: a gap
+longer than s0 + h·v by e_0 > b is closed at most R m/s faster than the spacing policy asks (the
+cost's error is e_j - max(e_0 - b - R·j·dt, 0)), as a CACC's gap-closing mode. Without it a chain
+far behind a slow vehicle removes its +50 m errors at full acceleration up to the road's speed,
+and with a 3 s horizon it sees the queue too late (measured on the default event
+``sumo42_f2321_l2303_fr7763``: a car hits a truck ahead at 32 m/s; docs/baselines.md).
+
 Names: ``mpc`` (:data:`DEFAULTS`: ``mpc:h=0.6:N=30:wq=0.1:wv=1:wu=2:wj=0.2:ha=1.4:ht=0.8:ttc=2:
 rb=1:ra=1``), or ``mpc`` with any of the options of :data:`MPC_OPTIONS`, e.g. ``mpc:h=0.8:N=40``.
 """
