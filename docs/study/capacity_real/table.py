@@ -22,6 +22,7 @@ FOLDERS = {  # folder: the controller as it is named in docs/study.md
     "mpc": "`mpc` (hand-picked weights)",
     "mpc_tuned": "distributed MPC tuned for the fleet, `mpc-tuned` (ha = 2 s)",
     "mpc_tuned_gn": "the same MPC with Ploeg's `gn=6` layers (the merge-point bound)",
+    "mpc_tuned_gc": "the same MPC closing a long gap at most 1 m/s (`gc=1`)",
     "product_base_ha1.0": "`product-base` with ha = 1.0 s",
     "product_base_ha0.8": "`product-base` with ha = 0.8 s",
     "product_base_cars": "`product-base`, a fleet of cars only (`--fleet car:1`)",
