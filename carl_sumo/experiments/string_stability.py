@@ -226,6 +226,18 @@ def plant_cases(plant: Plant | None) -> list[tuple[str, Plant | None]]:
     return [(name, plant.worst_case(name)) for name in plant.classes]
 
 
+def _tuned_name(name: str, plant_key: str) -> str:
+    """The law a ``-tuned`` name runs on the plant ``plant_key`` (``mpc-tuned``: the MPC's tuned
+    name; the other tuned laws: their gains as a Ploeg name); any other name as it is."""
+    if not name.split(":")[0].endswith("-tuned"):
+        return name
+    if is_mpc_name(name):
+        from carl_sumo.control.ploeg_names import tuned_law
+
+        return tuned_law(name, plant=plant_key)
+    return parse_ploeg(name, plant=plant_key).name()
+
+
 def string_stability(controllers: Sequence[str], plant: Plant | None,
                      impairments: Impairments | None, n: int, omegas: Sequence[float] | None = None,
                      test: SineTest = SineTest(), net: str = str(DEFAULT_NET),
@@ -238,8 +250,7 @@ def string_stability(controllers: Sequence[str], plant: Plant | None,
     comm_delay = impairments.delay_s if impairments is not None else 0.0
     # a -tuned law runs the gains tuned for this plant (the fleet), on every class of it
     fleet_key = impairments.plant_key if impairments is not None else "ideal"
-    gains = {name: parse_ploeg(name, plant=fleet_key).name()
-             if name.split(":")[0].endswith("-tuned") else name for name in controllers}
+    gains = {name: _tuned_name(name, fleet_key) for name in controllers}
     runs = []
     for cls, case in plant_cases(plant):
         imp = replace(impairments or Impairments(), plant=case)

@@ -4,6 +4,7 @@ input (one line, exit 2, before any simulation), and short SUMO runs of a platoo
 
 from __future__ import annotations
 
+import json
 import numpy as np
 import pytest
 from scipy.optimize import minimize
@@ -192,6 +193,13 @@ def test_the_commands_run_mpc_by_name_and_refuse_bad_input_before_any_run(
         err = capsys.readouterr().err
         assert words in err and err.count("\n") == 1, err
     assert not (tmp_path / "s.json").exists()
+    # the tuned MPC by name in string-stability runs the weights tuned for the plant
+    code = main(["string-stability", "--controller", "mpc-tuned:h=0.6", "--plant", "real",
+                 "--frequencies", "1", "--vehicles", "2", "--net", str(NET), "--json",
+                 str(tmp_path / "s.json")])
+    assert code == 0, capsys.readouterr().err
+    runs = json.loads((tmp_path / "s.json").read_text())["runs"]
+    assert {r["class"] for r in runs} == {"car", "truck"} and all(r["hinf"] < 1.1 for r in runs)
 
 
 def test_on_one_chain_the_chains_controller_is_the_platoons():
