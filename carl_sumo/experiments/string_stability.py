@@ -402,7 +402,7 @@ def suite_table(suite, out_dir: Path, net: str, workers: int) -> str:
     imp = suite.impairments
     plant = imp.plant if imp is not None else None
     names = [k for k, m in suite.models.items()
-             if k.startswith(("ploeg", "acc", "mpf", "idm-external"))]
+             if k.startswith(("ploeg", "acc", "mpf", "mpc", "idm-external"))]
     names += [m.files[0] for m in suite.models.values() if m.files and m.runs_on(n)]
     rows = []
     for name in names:
