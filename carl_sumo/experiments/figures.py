@@ -296,8 +296,9 @@ def _frontier_panel(ax, points: list[dict[str, Any]], key: str) -> list:
                                   textcoords="offset points", xytext=xy, ha=ha, fontsize=7)
                       for p in pts]
     singles = [p for p in points if p["curve"] is None]
-    styles = {p["label"]: (c, m) for p, c, m in zip(singles, _colors(len(singles)),
-                                                     "DovP^<>sXh*dp")}
+    markers = "DovP^<>sXh*dp"  # cycled: the real suite has more single points than markers
+    styles = {p["label"]: (c, markers[i % len(markers)])
+              for i, (p, c) in enumerate(zip(singles, _colors(len(singles))))}
     for p in singles:
         color, marker = styles[p["label"]]
         ax.plot(p["headway_s"], p[key], marker, color=color, ms=7, label=p["label"])

@@ -94,6 +94,22 @@ def test_a_point_far_along_the_headway_axis_sits_on_its_right_edge():
         plt.close(fig)
 
 
+def test_the_frontier_draws_more_single_points_than_it_has_markers():
+    """The real suite has about 20 models that are points, not curves (its frontier figure
+    failed with a KeyError on the 14th before the markers were cycled)."""
+    plt = pyplot()
+    fig, ax = plt.subplots()
+    try:
+        points = _frontier_points() + [{"label": f"law {k}", "curve": None,
+                                        "headway_s": 1.0 + 0.05 * k, "jerk_mps3": 0.1 + 0.002 * k}
+                                       for k in range(20)]
+        _frontier_panel(ax, points, "jerk_mps3")
+        labels = ax.get_legend_handles_labels()[1]
+        assert {f"law {k}" for k in range(20)} <= set(labels)
+    finally:
+        plt.close(fig)
+
+
 def test_tables_say_which_data_they_ran_on():
     assert data_titles("../shared/data/ngsim/ngsim_cf_events.csv.gz", None, False) == (
         "NGSIM test split", "US-101 (no model was trained on it)")
