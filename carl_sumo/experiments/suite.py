@@ -329,6 +329,18 @@ def figure_event(events: Sequence[Event]) -> str:
     return max(long, key=lambda e: float(np.ptp(e.leader_speed_mps))).event_id
 
 
+def check_tables(only: tuple[str, ...] | None, suite: str) -> None:
+    """InputError (one line) for ``--tables`` names that are not parts of ``suite``
+    (:data:`TABLES`; None: every part)."""
+    if only is None:
+        return
+    if not only or any(t not in TABLES for t in only):
+        raise InputError(f"--tables {','.join(only)!r}: choose one or more of "
+                         f"{', '.join(TABLES)}, separated by commas")
+    if suite != "real" and set(only) == {"string_stability"}:
+        raise InputError("--tables string_stability is a table of --suite real only")
+
+
 def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = False,
                events: int | None = None, policies: Path | None = None,
                net: str | Path = DEFAULT_NET, all_seeds: bool = False,
@@ -343,13 +355,7 @@ def plan_suite(suite: str = "paper", data: str | None = None, quick: bool = Fals
     ``plant``: the plant key of the real suite's tuned gains (:attr:`Impairments.plant_key`).
     ``extra``: controllers of the user's own (``module:attribute``), a row in every table.
     ``only``: the parts of :data:`TABLES` to run (None: all of them)."""
-    if only is not None:
-        unknown = [t for t in only if t not in TABLES]
-        if unknown or not only:
-            raise InputError(f"--tables {','.join(only)!r}: choose one or more of "
-                             f"{', '.join(TABLES)}, separated by commas")
-        if suite != "real" and set(only) == {"string_stability"}:
-            raise InputError("--tables string_stability is a table of --suite real only")
+    check_tables(only, suite)
     if all_seeds and seeds:
         raise InputError("--all-seeds and --seeds exclude each other; give one")
     if suite not in SUITES:
