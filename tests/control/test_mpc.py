@@ -258,6 +258,19 @@ def test_the_reaction_layer_on_every_vehicle_keeps_a_cramped_start_collision_fre
     assert runs[1].collisions == 0 and runs[1].gap.min() > 0.3
 
 
+def _assert_governed_cost(rng, qp, z, q, offset, tau, dead, h, n):
+    """q is the QP of the cost with the spacing error e_j + offset_j: the objective's differences
+    between two random plans are half the cost's, computed from the simulated plant."""
+    def governed(u):
+        _, e, r = _simulated(z, u, tau, dead, h, n)
+        return WEIGHTS[0] * np.sum((e + offset) ** 2) + WEIGHTS[1] * r @ r + \
+            WEIGHTS[2] * u @ u + WEIGHTS[3] * np.sum(np.diff(np.r_[z[4], u]) ** 2) / DT_S ** 2
+
+    u1, u2 = rng.normal(0, 1, qp.m), rng.normal(0, 1, qp.m)
+    objective = [0.5 * u @ qp.hessian @ u + q @ u for u in (u1, u2)]
+    assert np.isclose(governed(u1) - governed(u2), 2 * (objective[0] - objective[1]), rtol=1e-8)
+
+
 def test_the_opening_term_is_the_governed_spacing_errors_cost():
     """``go``: q + opening_term is the QP of the cost with the error e_j + o_j, o_j =
     max(-e_0 - deadband - R·j·dt, 0) (checked against the cost computed from the simulated
@@ -269,14 +282,7 @@ def test_the_opening_term_is_the_governed_spacing_errors_cost():
     offset = np.maximum(-e0 - OPENING_DEADBAND_M - speed * np.arange(1, n + 1) * DT_S, 0.0)
     q = qp.linear @ z + qp.opening_term(e0, speed, WEIGHTS[0])
 
-    def governed(u):
-        _, e, r = _simulated(z, u, tau, dead, h, n)
-        return WEIGHTS[0] * np.sum((e + offset) ** 2) + WEIGHTS[1] * r @ r + \
-            WEIGHTS[2] * u @ u + WEIGHTS[3] * np.sum(np.diff(np.r_[z[4], u]) ** 2) / DT_S ** 2
-
-    u1, u2 = rng.normal(0, 1, qp.m), rng.normal(0, 1, qp.m)
-    objective = [0.5 * u @ qp.hessian @ u + q @ u for u in (u1, u2)]
-    assert np.isclose(governed(u1) - governed(u2), 2 * (objective[0] - objective[1]), rtol=1e-8)
+    _assert_governed_cost(rng, qp, z, q, offset, tau, dead, h, n)
     assert not qp.opening_term(0.5, speed, WEIGHTS[0]).any()
     assert not qp.opening_term(-0.99 * OPENING_DEADBAND_M, speed, WEIGHTS[0]).any()
     free, governed_plan = (np.linalg.solve(qp.hessian, -qq)
@@ -299,14 +305,7 @@ def test_the_closing_term_is_the_governed_spacing_errors_cost():
     offset = -np.maximum(e0 - OPENING_DEADBAND_M - rate * np.arange(1, n + 1) * DT_S, 0.0)
     q = qp.linear @ z + qp.opening_term(e0, 0.0, WEIGHTS[0], rate)
 
-    def governed(u):
-        _, e, r = _simulated(z, u, tau, dead, h, n)
-        return WEIGHTS[0] * np.sum((e + offset) ** 2) + WEIGHTS[1] * r @ r + \
-            WEIGHTS[2] * u @ u + WEIGHTS[3] * np.sum(np.diff(np.r_[z[4], u]) ** 2) / DT_S ** 2
-
-    u1, u2 = rng.normal(0, 1, qp.m), rng.normal(0, 1, qp.m)
-    objective = [0.5 * u @ qp.hessian @ u + q @ u for u in (u1, u2)]
-    assert np.isclose(governed(u1) - governed(u2), 2 * (objective[0] - objective[1]), rtol=1e-8)
+    _assert_governed_cost(rng, qp, z, q, offset, tau, dead, h, n)
     assert not qp.opening_term(0.99 * OPENING_DEADBAND_M, 0.0, WEIGHTS[0], rate).any()
     assert not qp.opening_term(e0, 0.5, WEIGHTS[0]).any()  # go alone leaves a long gap be
     free, governed_plan = (np.linalg.solve(qp.hessian, -qq) for qq in (qp.linear @ z, q))
