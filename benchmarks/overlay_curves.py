@@ -4,7 +4,9 @@ each validated checkpoint (``--trust-string-stable``), against the platoon trans
 recipe with 8 environments sees 4 times as many per step as one with 2).
 
 Usage: python benchmarks/overlay_curves.py OUT.png STEM [STEM ...]
-(each STEM's curves: ``policies/seeds/STEM_seed*.csv``)
+(each STEM's curves: ``policies/seeds/STEM_seed*.csv``). A row that ``--trust-backtrack`` moved
+to a string-stable point also shows the amplifying actor's score before it (``raw_score``, a
+cross joined to the point kept).
 """
 import glob
 import sys
@@ -28,6 +30,12 @@ def main() -> None:
             gain = (curve["score"] - start) / abs(start) * 100
             label = f"{stem} ({len(paths)} seeds)" if i == 0 else None
             ax.plot(curve["transitions"], gain, color=colour, alpha=0.7, label=label)
+            if "raw_score" in curve and curve["raw_score"].notna().any():
+                moved = curve[curve["raw_score"].notna()]
+                raw = (moved["raw_score"] - start) / abs(start) * 100
+                ax.plot(moved["transitions"], raw, "x", color=colour, alpha=0.7)
+                ax.vlines(moved["transitions"], raw, gain[moved.index], color=colour, lw=0.6,
+                          alpha=0.5)
             if "worst_hinf" in curve:
                 bx.plot(curve["transitions"], curve["worst_hinf"], ".-", color=colour, alpha=0.6)
     ax.axhline(0, color="k", lw=0.8)

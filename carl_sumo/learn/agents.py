@@ -350,6 +350,18 @@ class Agent(nn.Module):
         self.actor_target.load_state_dict(state)
         self.actor_opt.state.clear()
 
+    def blend_toward_anchor(self, kappa: float) -> None:
+        """The actor and its target moved back along the straight line in weight space to the
+        anchor of :meth:`anchor`: w ← w_anchor + κ·(w - w_anchor) (κ = 0: :meth:`revert_to_anchor`,
+        1: unchanged); the actor optimiser's moments cleared, as there."""
+        if self.start_actor is None:
+            raise ValueError("blend_toward_anchor needs an anchored actor (bc_alpha > 0)")
+        anchor = self.start_actor.state_dict()
+        state = {k: anchor[k] + kappa * (v - anchor[k]) for k, v in self.actor.state_dict().items()}
+        self.actor.load_state_dict(state)
+        self.actor_target.load_state_dict(state)
+        self.actor_opt.state.clear()
+
     def _q_objective(self, q: torch.Tensor, action_now: torch.Tensor, x: torch.Tensor,
                      mask: torch.Tensor | None, links: Links | None) -> torch.Tensor:
         """The per-vehicle actor loss's Q term: -Q, or with :meth:`anchor` the behaviour-

@@ -16,12 +16,14 @@ from carl_sumo.learn.selection import MARGIN_KEYS
 LOG_COLUMNS = ["step", "transitions", "wall_s", "train_reward", "val_reward", "headway_s",
                "jerk_mps3", "speed_mps", "dampening_ratio", "collisions",
                *(name for name, _ in MARGIN_KEYS.values()), "ttc_lt_1_5s_count", "lagrange",
-               "score", "critic_td", "critic_rank", "worst_hinf"]
+               "score", "critic_td", "critic_rank", "worst_hinf", "kappa", "raw_score"]
 """Columns of the learning-curve CSV written beside the policy: ``score`` is the validation's
 selection score (``--select``; the run keeps the best-scoring checkpoint), ``critic_td`` and
 ``critic_rank`` the critic's criterion on the held-out transitions (``--critic-holdout``;
 :mod:`carl_sumo.learn.calibration`; empty without), ``worst_hinf`` the checkpoint's ‖Γ‖∞ as
-``--trust-string-stable`` measured it (empty without)."""
+``--trust-string-stable`` measured it (empty without); ``kappa`` and ``raw_score``: a
+``--trust-backtrack`` step, the fraction of the actor's step kept at the string-stable point
+the row validates, and the score of the amplifying actor before it (empty otherwise)."""
 
 
 def _csv_text(rows: Sequence[Sequence]) -> str:

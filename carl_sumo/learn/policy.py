@@ -380,6 +380,9 @@ def _training_line(meta: dict) -> str:
                      f"to their anchor, anchors accepted at steps "
                      f"{', '.join(map(str, trust['accepted_steps'])) or 'none'}, final alpha "
                      f"{trust['final_bc_alpha']:g}")
+        if trust.get("shortened_steps"):
+            parts.append("actors moved back to a string-stable point by --trust-backtrack at "
+                         f"steps {', '.join(map(str, trust['shortened_steps']))}")
     wall = training.get("wall_s")
     if wall:
         parts.append(f"wall time {wall['total']:.0f} s: " + ", ".join(

@@ -157,7 +157,8 @@ class Report:
                            val.get("ttc_lt_1_5s_count", ""),
                            f"{val['lagrange']:.4f}" if "lagrange" in val else "",
                            *(f"{val[k]:.4f}" if k in val else ""
-                             for k in ("score", "critic_td", "critic_rank", "worst_hinf"))])
+                             for k in ("score", "critic_td", "critic_rank", "worst_hinf",
+                                       "kappa", "raw_score"))])
         plot_curve(self.curve.rows, self.png, self.title)
         if self.board is not None:
             for key, value in val.items():

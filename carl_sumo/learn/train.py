@@ -342,6 +342,7 @@ def _start_state(agent: Agent, calibration: Calibration, first_actor: int | None
         state["start_actor"] = agent.start_actor.state_dict()
     if trust is not None:
         state["trust"] = torch.tensor(trust.state(), dtype=torch.int64)
+        state["trust_shortened"] = torch.tensor(trust.shortened, dtype=torch.int64)
     return state
 
 
@@ -356,7 +357,8 @@ def _restore_start(cfg: TrainConfig, agent: Agent, buffer: ReplayBuffer,
         alpha = saved.get("bc_alpha_now")
         agent.anchor(cfg.bc_alpha if alpha is None else float(alpha), saved.get("start_actor"))
     if trust is not None and saved.get("trust") is not None:
-        trust.restore(saved["trust"].tolist())
+        shortened = saved.get("trust_shortened")
+        trust.restore(saved["trust"].tolist(), None if shortened is None else shortened.tolist())
     first = int(saved["first_actor"]) if saved.get("first_actor") is not None else -1
     return None if first < 0 else first
 
@@ -375,6 +377,7 @@ def _training_record(cfg: TrainConfig, calibration: Calibration, first_actor: in
     if trust is not None:
         record["trust_string_stable"] = {"rejected": trust.rejected,
                                          "accepted_steps": trust.accepted,
+                                         "shortened_steps": trust.shortened,
                                          "final_bc_alpha": agent.bc_alpha}
     return record
 
@@ -502,9 +505,11 @@ def _validate_and_select(cfg: TrainConfig, agent: Agent, val_env: Validation,
                          ) -> tuple[dict[str, float], float]:
     """Validate the actor; write it to ``out`` when it scores better than ``best`` (and, with
     ``--gate-string-stable``, every trained one to the candidates). With ``trust`` the actor's
-    ‖Γ‖∞ is checked first (``worst_hinf`` in the metrics): an amplifying actor is never kept
-    and goes back to its anchor (:mod:`carl_sumo.learn.trust`). Returns its validation
-    metrics and the best score so far."""
+    ‖Γ‖∞ is checked next (``worst_hinf`` in the metrics): an amplifying actor is never kept
+    and goes back to its anchor, or with ``--trust-backtrack`` to the first string-stable point
+    on the way there, which is validated in its place (its metrics returned, with ``kappa``,
+    ``raw_score`` and ``raw_worst_hinf``: :mod:`carl_sumo.learn.trust`). Returns the
+    validation metrics and the best score so far."""
     val = _validate(cfg, agent, val_env, val_events, baseline_events)
     score = selection_score(val, cfg.select, baseline)
     meta = _metadata(cfg, agent, val, wall_s, baseline, val_events, step)
@@ -512,12 +517,31 @@ def _validate_and_select(cfg: TrainConfig, agent: Agent, val_env: Validation,
         save_candidate(cfg, agent, out, step, meta)
     stable = True
     if trust is not None and agent.actor_updates > 0:
-        val["worst_hinf"] = trust.judge(agent, candidate_dir(out) / f"step{step:06d}.pt", step,
-                                        score > best)  # the actor as validated, then acts
-        stable = val["worst_hinf"] <= 1.0
+        candidate = candidate_dir(out) / f"step{step:06d}.pt"
+        point = candidate_dir(out) / "backtrack.pt"  # (not a step*.pt: no candidate)
+
+        def rewrite() -> Path:  # a backtracked point
+            save_policy(agent, point, meta)
+            return point
+
+        hinf, kappa, there = trust.judge(agent, candidate, step, score > best, rewrite)
+        point.unlink(missing_ok=True)
+        val["worst_hinf"] = hinf
+        if 0.0 < kappa < 1.0:  # backtracked to a string-stable point: validate it there
+            raw = {"raw_score": score, "raw_worst_hinf": hinf}
+            val = _validate(cfg, agent, val_env, val_events, baseline_events)
+            score = selection_score(val, cfg.select, baseline)
+            val |= raw | {"kappa": kappa, "worst_hinf": there}
+            meta = _metadata(cfg, agent, val, wall_s, baseline, val_events, step)
+            if score > best:
+                trust.accept(agent, step)
+        stable = bool(there <= 1.0)  # (nan: sent back to the anchor)
         meta["string_stability_gate"] = {
-            "plant": cfg.gate_string_stable, "worst_hinf": val["worst_hinf"],
+            "plant": cfg.gate_string_stable, "worst_hinf": val["worst_hinf"], "kappa": kappa,
             "candidate": f"step{step:06d}.pt", "checked": "as validated (--trust-string-stable)"}
+        if 0.0 < kappa < 1.0:  # the point kept is the candidate; the amplifying actor a record
+            candidate.replace(candidate.with_name(f"amplifying_{candidate.name}"))
+            save_candidate(cfg, agent, out, step, meta)
     # only a trained actor can be the best; the first validation is a fallback
     if agent.updates > 0 and stable and score > best or not np.isfinite(best):
         best = score if agent.updates > 0 else -np.inf
@@ -666,7 +690,7 @@ def _trust(cfg: TrainConfig, stability_check) -> StableTrust | None:
     if stability_check is None:
         raise InputError("--trust-string-stable needs the string-stability check that "
                          "`carl-sumo train` gives it; run it from the command line")
-    return StableTrust(stability_check)
+    return StableTrust(stability_check, backtrack=cfg.trust_backtrack)
 
 
 def _teacher(cfg: TrainConfig):

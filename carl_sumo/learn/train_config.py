@@ -234,6 +234,13 @@ class TrainConfig:
                                        "anchor and --bc-alpha halves; a string-stable best "
                                        "becomes the anchor (learn/trust.py; needs "
                                        "--gate-string-stable and --bc-alpha)", "validation")
+    trust_backtrack: int = option(0, "with --trust-string-stable, an amplifying actor first "
+                                  "moves back towards its anchor in weight space, halving its "
+                                  "step up to N times, and stays at the first string-stable "
+                                  "point, validated there (a backtracking line search with "
+                                  "‖Γ‖∞ ≤ 1 as its test; learn/trust.py); only if none is "
+                                  "does it go back to the anchor (0: straight back)",
+                                  "validation", low=0, high=8)
     val_workers: int = option(1, "processes validation runs in: this one and N - 1 spawned "
                               "ones, each with its own SUMO, sharing the events (the same "
                               "numbers; on 2 free cores, 2 about halve validation's wall time)",
@@ -301,6 +308,9 @@ class TrainConfig:
         if self.oversample_times != 4 and self.oversample is None:
             raise InputError("--oversample-times weights the --oversample events; give "
                              "--oversample FILE too, or leave it out")
+        if self.trust_backtrack and not self.trust_string_stable:
+            raise InputError("--trust-backtrack shortens the steps --trust-string-stable "
+                             "refuses; give --trust-string-stable too, or leave it out")
         if self.trust_string_stable and (self.gate_string_stable is None or self.bc_alpha <= 0):
             raise InputError("--trust-string-stable checks each checkpoint on the plant of "
                              "--gate-string-stable and moves the anchor of --bc-alpha; give "

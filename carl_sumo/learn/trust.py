@@ -16,13 +16,21 @@ checkpoint as it is validated, and its outcome acts on the actor:
 
 So the actor explores a neighbourhood of the last string-stable improvement, and the
 neighbourhood shrinks each time it leaves the string-stable set (an adaptive trust region with
-an acceptance test, as a line search accepts a step). ``check`` (a policy file's worst ‖Γ‖∞) is
+an acceptance test, as a line search accepts a step).
+
+``--trust-backtrack K`` (issue 55): an amplifying actor is not sent straight back. It moves back
+along the line in weight space to its anchor, halving its step up to K times (w_anchor +
+2^-k·(w - w_anchor), TRPO's backtracking line search with ‖Γ‖∞ ≤ 1 as its acceptance test), and
+stays at the first string-stable point, validated there (accepted as the anchor if it then
+scores best; α unchanged: the step was shortened, not refused). Only when no point of the K is
+string stable does it go back to the anchor, as above. ``check`` (a policy file's worst ‖Γ‖∞) is
 given by the command line (:func:`carl_sumo.experiments.string_stability.worst_hinf`, the
 gate's frequencies and amplitudes): this layer does not run the experiment itself.
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Callable
 
@@ -33,28 +41,48 @@ SHRINK = 0.5
 class StableTrust:
     """The trust region of the module docstring; ``check(policy file) -> worst ‖Γ‖∞``."""
 
-    def __init__(self, check: Callable[[Path], float], shrink: float = SHRINK):
+    def __init__(self, check: Callable[[Path], float], shrink: float = SHRINK,
+                 backtrack: int = 0):
         self.check = check
         self.shrink = shrink
+        self.backtrack = backtrack
         self.rejected = 0
         self.accepted: list[int] = []  # the steps accepted as anchors
+        self.shortened: list[int] = []  # the steps whose actor backtracking moved
 
-    def judge(self, agent, candidate: Path, step: int, best_score: bool) -> float:
-        """Check the actor just validated (written to ``candidate``) and act on the outcome;
-        its worst ‖Γ‖∞. ``best_score``: it scores better than every earlier checkpoint."""
+    def judge(self, agent, candidate: Path, step: int, best_score: bool,
+              rewrite: Callable[[], Path] | None = None) -> tuple[float, float, float]:
+        """Check the actor just validated (written to ``candidate``) and act on the outcome:
+        (its worst ‖Γ‖∞, κ, the ‖Γ‖∞ where it stays). κ = 1: it stays where it was; 0: it went
+        back to its anchor; 2^-k: the backtracking of ``backtrack`` moved it to a string-stable
+        point (each point written by ``rewrite()``, which returns its file), which the caller
+        validates and then accepts (:meth:`accept`) if it scores best. ``best_score``: the
+        actor as validated scores better than every earlier checkpoint."""
         hinf = float(self.check(candidate))
-        if hinf > 1.0:
-            agent.revert_to_anchor()
-            agent.bc_alpha *= self.shrink
-            self.rejected += 1
-        elif best_score:
-            agent.anchor(agent.bc_alpha)  # a frozen copy of the actor as it is now
-            self.accepted.append(step)
-        return hinf
+        if hinf <= 1.0:
+            if best_score:
+                self.accept(agent, step)
+            return hinf, 1.0, hinf
+        for k in range(1, self.backtrack + 1 if rewrite is not None else 1):
+            agent.blend_toward_anchor(0.5)  # half of what is left of the step
+            point = float(self.check(rewrite()))
+            if point <= 1.0:
+                self.shortened.append(step)
+                return hinf, 0.5 ** k, point
+        agent.revert_to_anchor()
+        agent.bc_alpha *= self.shrink
+        self.rejected += 1
+        return hinf, 0.0, math.nan
+
+    def accept(self, agent, step: int) -> None:
+        """The actor as it is now becomes the anchor (a frozen copy; α unchanged)."""
+        agent.anchor(agent.bc_alpha)
+        self.accepted.append(step)
 
     def state(self) -> list[int]:
-        """What a checkpoint keeps: [rejections, accepted steps...]."""
+        """What a checkpoint keeps: [rejections, accepted steps...] (and :attr:`shortened`)."""
         return [self.rejected, *self.accepted]
 
-    def restore(self, state: list[int]) -> None:
+    def restore(self, state: list[int], shortened: list[int] | None = None) -> None:
         self.rejected, self.accepted = int(state[0]), [int(s) for s in state[1:]]
+        self.shortened = [int(s) for s in shortened or []]
