@@ -60,6 +60,9 @@ DESIGNS = (  # (label, CA file stem, CA-off file stem or None, commit holding it
      "learned_test_ca_td3_real_mpf_10", None, "a9f8386"),
     ("`REAL_MPF_160K`: `REAL_MPF` with 160,000 transitions (the product, `ca_td3_real_10`)",
      "learned_test_ca_td3_real_10", "learned_test_ca_td3_real_nocomm_10", "this"),
+    ("`REAL_BACKTRACK`: the product's recipe with `--trust-backtrack 3` (an amplifying "
+     "checkpoint keeps the first string-stable point on the way back to its anchor)",
+     "learned_test_ca_td3_real_bt_10", None, "d6cf41a"),
 )
 
 
