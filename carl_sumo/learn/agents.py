@@ -343,19 +343,14 @@ class Agent(nn.Module):
     def revert_to_anchor(self) -> None:
         """The actor and its target back to the anchor of :meth:`anchor` (the actor it is held
         near), the actor optimiser's moments cleared (they point where the actor went)."""
-        if self.start_actor is None:
-            raise ValueError("revert_to_anchor needs an anchored actor (bc_alpha > 0)")
-        state = self.start_actor.state_dict()
-        self.actor.load_state_dict(state)
-        self.actor_target.load_state_dict(state)
-        self.actor_opt.state.clear()
+        self.blend_toward_anchor(0.0)
 
     def blend_toward_anchor(self, kappa: float) -> None:
         """The actor and its target moved back along the straight line in weight space to the
         anchor of :meth:`anchor`: w ← w_anchor + κ·(w - w_anchor) (κ = 0: :meth:`revert_to_anchor`,
-        1: unchanged); the actor optimiser's moments cleared, as there."""
+        1: unchanged); the actor optimiser's moments cleared (they point where the actor went)."""
         if self.start_actor is None:
-            raise ValueError("blend_toward_anchor needs an anchored actor (bc_alpha > 0)")
+            raise ValueError("going back to the anchor needs an anchored actor (bc_alpha > 0)")
         anchor = self.start_actor.state_dict()
         state = {k: anchor[k] + kappa * (v - anchor[k]) for k, v in self.actor.state_dict().items()}
         self.actor.load_state_dict(state)

@@ -527,7 +527,8 @@ def _validate_and_select(cfg: TrainConfig, agent: Agent, val_env: Validation,
         hinf, kappa, there = trust.judge(agent, candidate, step, score > best, rewrite)
         point.unlink(missing_ok=True)
         val["worst_hinf"] = hinf
-        if 0.0 < kappa < 1.0:  # backtracked to a string-stable point: validate it there
+        moved = 0.0 < kappa < 1.0
+        if moved:  # backtracked to a string-stable point: validate it there
             raw = {"raw_score": score, "raw_worst_hinf": hinf}
             val = _validate(cfg, agent, val_env, val_events, baseline_events)
             score = selection_score(val, cfg.select, baseline)
@@ -539,7 +540,7 @@ def _validate_and_select(cfg: TrainConfig, agent: Agent, val_env: Validation,
         meta["string_stability_gate"] = {
             "plant": cfg.gate_string_stable, "worst_hinf": val["worst_hinf"], "kappa": kappa,
             "candidate": f"step{step:06d}.pt", "checked": "as validated (--trust-string-stable)"}
-        if 0.0 < kappa < 1.0:  # the point kept is the candidate; the amplifying actor a record
+        if moved:  # the point kept is the candidate; the amplifying actor a record
             candidate.replace(candidate.with_name(f"amplifying_{candidate.name}"))
             save_candidate(cfg, agent, out, step, meta)
     # only a trained actor can be the best; the first validation is a fallback
