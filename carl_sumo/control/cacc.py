@@ -84,6 +84,9 @@ kp is small on the real plant (0.0445 1/s²), a bias of -0.07 m/s² in a_adj ope
 term enters the law less its own running mean m_i (m_i(k+1) = m_i(k) + (dt/T)·(a_adj,i - m_i(k)),
 T in s): a_adj,i - m_i(k) has no steady part, so the base alone holds the time gap and the learned
 term only shapes transients (its effect on a constant input decays with time constant T).
+With ``hf=1`` too (``...:wo=5:hf=1``) the head of a chain (no CACC vehicle ahead: the platoon's
+first follower behind a human) takes its term as it is: the learned term may move the head's gap
+(an ACC at ``ha`` with slack to spare) while every follower's stays the base's.
 
 Names (accepted wherever a controller name is): ``ploeg`` (h = 1.0 s, textbook gains),
 ``ploeg:h=0.8``, ``ploeg:h=0.8:kp=0.1:kd=1.5``, and ``ploeg-tuned:h=0.8`` (the gains
@@ -282,7 +285,8 @@ class PloegController:
         a_ahead = None if self._dv is None else obs[:, 1] + (obs[:, 3] - self._dv) / DT_S
         if self.params.washout_s is not None:
             adjustment, adj_mean = washed_adjustment(adjustment, self.adj_mean,
-                                                     self.params.washout_s)
+                                                     self.params.washout_s,
+                                                     [0] if self.params.head_free else None)
         adjustment, sent = with_relays(self.params, np.minimum(self.u, self.brake), adjustment,
                                        mode, received, None if mode is None else self.channel.heard)
         if not commit:
@@ -449,7 +453,8 @@ class PloegChains:
         washout_s = self.controller.params.washout_s
         if washout_s is not None:
             mean = np.array([self.adj_mean.get(v, 0.0) for v in ids])
-            adjustment, mean = washed_adjustment(adjustment, mean, washout_s)
+            heads = [chain[0] for chain in chains] if self.controller.params.head_free else None
+            adjustment, mean = washed_adjustment(adjustment, mean, washout_s, heads)
             if commit:
                 self.adj_mean = dict(zip(ids, mean.tolist()))
         u_new: dict[str, float] = {}

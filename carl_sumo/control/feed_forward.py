@@ -135,10 +135,15 @@ def with_relays(params: PloegParams, sent: np.ndarray, adjustment: np.ndarray | 
     return (extra if adjustment is None else adjustment + extra), messages
 
 
-def washed_adjustment(adjustment: np.ndarray | None, mean: np.ndarray, washout_s: float
+def washed_adjustment(adjustment: np.ndarray | None, mean: np.ndarray, washout_s: float,
+                      free: np.ndarray | list[int] | None = None
                       ) -> tuple[np.ndarray, np.ndarray]:
     """(a_adj - m, m updated with a_adj) for the washout ``wo=T`` (module docstring): the learned
-    term (m/s², shape (n,); None: 0) less its running mean ``mean`` (m/s²), and the new mean."""
+    term (m/s², shape (n,); None: 0) less its running mean ``mean`` (m/s²), and the new mean.
+    The rows ``free`` (the heads of ``hf=1``) take the term as it is, their mean held at 0."""
     adj = np.zeros_like(mean) if adjustment is None else \
         np.asarray(adjustment, dtype=np.float64)
-    return adj - mean, mean + (DT_S / washout_s) * (adj - mean)
+    out, new_mean = adj - mean, mean + (DT_S / washout_s) * (adj - mean)
+    if free is not None and len(free):
+        out[free], new_mean[free] = adj[free], 0.0
+    return out, new_mean

@@ -1,6 +1,6 @@
 """The names of the constant-time-gap laws and their parameters: what ``ploeg:h=0.8:kp=0.1:kd=1``,
 ``ploeg-tuned:h=0.8``, ``acc:h=2.5``, the multi-predecessor ``mpf:r=2:w2=0.3`` and their options
-(``aw``, ``ha``, ``ttc``, ``rb``, ``wo``, ``gs``, ``gn``, ``op``, ``ht``) stand for
+(``aw``, ``ha``, ``ttc``, ``rb``, ``wo``, ``hf``, ``gs``, ``gn``, ``op``, ``ht``) stand for
 (:class:`PloegParams`), and the tuned-gains files of ``carl-sumo tune``. The law itself, and what
 each option does, is :mod:`carl_sumo.control.cacc`.
 """
@@ -40,6 +40,9 @@ class PloegParams:
     washout_s: float | None = None  # wo: a learned term enters the law less its own running mean
                                 # over this time constant (s), so it cannot move the steady gap
                                 # (None: it enters as it is)
+    head_free: bool = False     # hf=1 (with wo): a chain's head (no CACC vehicle ahead: behind a
+                                # human) takes the learned term as it is, without the washout, so
+                                # the learned term can move the head's gap (the followers' stays)
     safe_braking_mps2: float | None = None  # gs: a vehicle without a message keeps Gipps' safe
                                 # speed for the vehicle ahead braking at this (m/s²; None: off)
     safe_new_only: bool = False  # gn (in place of gs): only a vehicle whose vehicle ahead is new
@@ -72,6 +75,7 @@ class PloegParams:
             (f":ttc={self.reaction_ttc_s:g}" if self.reaction_ttc_s is not None else "") + \
             (":rb=1" if self.reaction_braking_ahead else "") + \
             (f":wo={self.washout_s:g}" if self.washout_s is not None else "") + \
+            (":hf=1" if self.head_free else "") + \
             (f":{'gn' if self.safe_new_only else 'gs'}={self.safe_braking_mps2:g}"
              if self.safe_braking_mps2 is not None else "") + \
             (f":op={self.opening_braking_mps2:g}" if self.opening_braking_mps2 is not None else "") + \
@@ -239,11 +243,16 @@ def _switches(name: str, opts: dict[str, float]) -> dict:
     if "gs" in opts and "gn" in opts:
         raise InputError(f"controller {name!r}: give gs (every vehicle without a message) or gn "
                          "(only one with a new vehicle ahead), not both")
+    head_free = _flag(name, opts, "hf", "the head takes the learned term without the washout")
+    if head_free and "wo" not in opts:
+        raise InputError(f"controller {name!r}: hf=1 frees the head from the washout wo; give "
+                         "wo too (e.g. wo=5:hf=1)")
     return {"anti_windup": _flag(name, opts, "aw", "each vehicle's state within its own limits"),
             "alone_gap_s": opts.get("ha"), "reaction_ttc_s": opts.get("ttc"),
             "reaction_braking_ahead": _flag(name, opts, "rb", "the reaction counts the braking "
                                                               "of the vehicle ahead"),
-            "washout_s": opts.get("wo"), "safe_braking_mps2": opts.get("gs", opts.get("gn")),
+            "washout_s": opts.get("wo"), "head_free": head_free,
+            "safe_braking_mps2": opts.get("gs", opts.get("gn")),
             "safe_new_only": "gn" in opts, "opening_braking_mps2": opts.get("op"),
             "heavy_gap_s": opts.get("ht")}
 
@@ -271,14 +280,14 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
                 "write ploeg:", "write mpf:r=R:wJ=W:")) from None
         return replace(p, feed_forward=bool(weights), weights=weights or (1.0,))
     if kind in ("ploeg", "acc"):
-        opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "ttc", "rb", "wo", "gs", "gn",
-                                      "op", "ht"))
+        opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "ttc", "rb", "wo", "hf", "gs",
+                                      "gn", "op", "ht"))
         return PloegParams(opts.get("h", TEXTBOOK.time_gap_s), opts.get("kp", TEXTBOOK.kp),
                            opts.get("kd", TEXTBOOK.kd), feed_forward=law == "ploeg",
                            **_switches(name, opts))
     if kind in ("ploeg-tuned", "acc-tuned"):
-        opts = _parse_options(name, ("h", "aw", "ha", "ttc", "rb", "wo", "gs", "gn", "op",
-                                      "ht"))
+        opts = _parse_options(name, ("h", "aw", "ha", "ttc", "rb", "wo", "hf", "gs", "gn",
+                                      "op", "ht"))
         if "h" not in opts:
             raise InputError(f"controller {name!r}: name the time gap, e.g. {kind}:h=1")
         entries = [e for e in read_tuned_entries(tuned_file) if e.get("law", "ploeg") == law]

@@ -635,3 +635,27 @@ def test_washout_preview_and_chains_carry_the_running_mean():
         chains.adj_mean["b"] == 0.0
     chains.acceleration(eq, [[0]], ["b"], [None], {}, np.array([0.0]))
     assert set(chains.adj_mean) == {"b"}
+
+
+def test_head_free_spares_only_each_chains_head_from_the_washout():
+    """``hf=1``: the head (row 0; a chain's first vehicle) takes a_adj as it is, its mean held at
+    0, while a follower's term is washed as without it; hf without wo is refused in one line."""
+    from carl_sumo.control.cacc import PloegChains
+
+    name = "ploeg:h=1:kp=0.2:kd=0.7:wo=2:hf=1"
+    assert parse_ploeg(name).head_free and parse_ploeg(name).name() == name
+    free, washed = ploeg_controller(name), ploeg_controller("ploeg:h=1:kp=0.2:kd=0.7:wo=2")
+    free.reset(2)
+    washed.reset(2)
+    eq = np.array([[10.0, 0.0, 12.0, 0.0], [10.0, 0.0, 12.0, 0.0]])
+    for _ in range(3):
+        free.acceleration(eq, np.array([1.0, 1.0]))
+        washed.acceleration(eq, np.array([1.0, 1.0]))
+    assert free.adj_mean[0] == 0.0 and washed.adj_mean[0] > 0.0
+    assert free.adj_mean[1] == washed.adj_mean[1] > 0.0
+    assert free.u[0] > washed.u[0]  # the head's whole term reaches its law
+    chains = PloegChains(parse_ploeg(name))
+    chains.acceleration(eq, [[0, 1]], ["a", "b"], [None, ("a", 12.0)], {}, np.array([1.0, 1.0]))
+    assert chains.adj_mean == {"a": 0.0, "b": DT_S / 2.0}
+    with pytest.raises(InputError, match="give wo too"):
+        parse_ploeg("ploeg:h=1:hf=1")
