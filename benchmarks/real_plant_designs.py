@@ -63,6 +63,9 @@ DESIGNS = (  # (label, CA file stem, CA-off file stem or None, commit holding it
     ("`REAL_BACKTRACK`: the product's recipe with `--trust-backtrack 3` (an amplifying "
      "checkpoint keeps the first string-stable point on the way back to its anchor)",
      "learned_test_ca_td3_real_bt_10", None, "d6cf41a"),
+    ("`REAL_HEAD_FREE`: the product's recipe with the head freed from the washout (`hf=1`: "
+     "the first follower takes its learned term as it is)",
+     "learned_test_ca_td3_real_hf_10", None, "10f3ba6"),
 )
 
 
