@@ -30,8 +30,9 @@ from typing import Sequence
 import numpy as np
 
 from carl_sumo.config import DT_S
-from carl_sumo.control.cacc import TEXTBOOK, check_heard, is_ploeg_name, parse_ploeg
-from carl_sumo.control.ploeg_names import tuned_gap
+from carl_sumo.control.cacc import HEAVY_BRAKING_MPS2, TEXTBOOK, check_heard, is_ploeg_name, \
+    parse_ploeg
+from carl_sumo.control.ploeg_names import PloegParams, tuned_gap
 from carl_sumo.control.channel import Impairments, plant_impairments
 from carl_sumo.control.classical import time_gap_of
 from carl_sumo.control.mpc import is_mpc_name
@@ -42,7 +43,7 @@ from carl_sumo.data.events import Event
 from carl_sumo.data.synthetic import sine_event
 from carl_sumo.errors import InputError
 from carl_sumo.sim.sumo import DEFAULT_NET, lane_route, check_fits
-from carl_sumo.sim.vehicle import Plant
+from carl_sumo.sim.vehicle import VEHICLE_CLASSES, Plant
 
 MAX_SINE_RUN_S = 100_000.0
 """The longest run of one frequency (s): a lower frequency is refused before its leader's
@@ -190,6 +191,17 @@ def measure(controller: str, omegas: Sequence[float], n: int, test: SineTest = S
     return out
 
 
+def inner_gap(p: PloegParams, plant: Plant | None) -> float:
+    """The time gap (s) a one-class platoon's followers that hear a message keep: h, or with
+    ``ht`` and ``aw=1`` a heavy class's max(h, ht), as the law's kernel decides
+    (:data:`carl_sumo.control.cacc.HEAVY_BRAKING_MPS2`)."""
+    if plant is None or p.heavy_gap_s is None or not p.anti_windup or len(plant.fleet) != 1:
+        return p.time_gap_s
+    if VEHICLE_CLASSES[plant.fleet[0][0]].b_max_mps2 < HEAVY_BRAKING_MPS2:
+        return max(p.time_gap_s, p.heavy_gap_s)
+    return p.time_gap_s
+
+
 def analytic(controller: str, omegas: Sequence[float], plant: Plant | None,
              comm_delay_s: float, n: int = 5) -> dict | None:
     """Theory for a linear law on one class with fixed τ and dead time (None otherwise): the
@@ -204,11 +216,12 @@ def analytic(controller: str, omegas: Sequence[float], plant: Plant | None,
     dead_steps = int(round((dead or 0.0) / DT_S))
     delay_steps = int(round(comm_delay_s / DT_S))
     p, w, out = parse_ploeg(controller), np.asarray(omegas, dtype=float), {}
+    h = inner_gap(p, plant)
     if p.multi:
-        return links_theory(w, n, p.time_gap_s, p.kp, p.kd, tau or 0.0, dead_steps, delay_steps,
+        return links_theory(w, n, h, p.kp, p.kd, tau or 0.0, dead_steps, delay_steps,
                             p.weights, p.gap_alone_s)
     for name, first in (("first_link", True), ("inner_links", False)):
-        args = (p.gap_alone_s if first else p.time_gap_s, p.kp, p.kd, tau or 0.0)
+        args = (p.gap_alone_s if first else h, p.kp, p.kd, tau or 0.0)
         cont = gamma_continuous(w, *args, phi=dead_steps * DT_S,
                                 theta=0.0 if first else delay_steps * DT_S,
                                 cacc=p.feed_forward, first_link=first)

@@ -204,3 +204,20 @@ def test_shipping_checks_between_the_gates_frequencies():
     gains = measure(policy, [*neighbours, between[0]], 5, SineTest(amplitude_mps=0.5), trucks,
                     str(NET))["gain"]
     assert max(gains[:2]) <= 1.0 < gains[2]
+
+
+def test_the_theory_of_a_heavy_class_uses_its_ht_gap_as_the_law_does():
+    """With ``ht`` and ``aw=1`` a truck (braking below 7 m/s²) that hears a message keeps
+    max(h, ht): the analytic links of a truck-only platoon are those of the law at ht, a car's
+    those at h; without aw the kernel cannot tell the class and keeps h."""
+    from carl_sumo.sim.vehicle import Plant
+
+    truck = Plant(fleet=(("truck", 1.0),), lag_s=0.6, dead_time_s=0.2)
+    car = Plant(fleet=(("car", 1.0),), lag_s=0.5, dead_time_s=0.2)
+    w = np.array([0.05, 0.2, 1.0])
+    law = "mpf:h=0.5:kp=0.0445:kd=1:r=3:w1=0.5:w2=0.4:w3=0.1:aw=1:ha=2.3:ht=0.8"
+    at_ht = law.replace("h=0.5", "h=0.8").replace(":ht=0.8", "")
+    assert analytic(law, w, truck, 0.1) == analytic(at_ht, w, truck, 0.1)
+    assert analytic(law, w, car, 0.1) == analytic(law.replace(":ht=0.8", ""), w, car, 0.1)
+    no_aw = law.replace(":aw=1", "")
+    assert analytic(no_aw, w, truck, 0.1) == analytic(no_aw.replace(":ht=0.8", ""), w, truck, 0.1)
