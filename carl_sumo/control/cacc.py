@@ -115,14 +115,11 @@ from carl_sumo.control.layers import (  # noqa: F401 (the layers' constants are 
 from carl_sumo.control.feed_forward import (  # noqa: F401 (mpf_*: read from here too)
     check_heard, message_size, mpf_feed_forward, mpf_relay, washed_adjustment, with_relays)
 from carl_sumo.control.ploeg_names import (  # noqa: F401 (the names are read from here too)
-    CLASSICAL_KINDS, TEXTBOOK, TUNED_FILE, PloegParams, is_ploeg_name, parse_ploeg, read_tuned,
-    read_tuned_entries, tuned_file_for)
+    CLASSICAL_KINDS, HEAVY_BRAKING_MPS2, TEXTBOOK, TUNED_FILE, PloegParams, is_ploeg_name,
+    parse_ploeg, read_tuned, read_tuned_entries, tuned_file_for)
 from carl_sumo.config import BOUNDS, DT_S, IDM, ControlBounds
 from carl_sumo.errors import InputError
 
-HEAVY_BRAKING_MPS2 = 7.0
-"""``ht=T``: a vehicle whose own largest braking is below this (m/s²; a truck's 6, a car's 9),
-known with ``aw=1``, keeps at least the time gap T in its chain."""
 CRUISE_GAIN_PER_S = 0.4
 """k_cc: cruise-control gain of the speed cap a ≤ k_cc·(v0 - v) (1/s)."""
 
@@ -162,7 +159,7 @@ def _ploeg_law(obs, u, brake, u_lead, adj, numbers, pred_mode, pred_held, u_min,
     for i in range(n):
         alone = without_message(i, pred_mode)  # no message from ahead: ACC at h_alone
         hi = law.h_alone if alone else law.h
-        if not alone and -u_min[i] < HEAVY_BRAKING_MPS2:  # ht: a heavy vehicle keeps h_heavy
+        if not alone and -u_min[i] < HEAVY_BRAKING_MPS2:  # ht (ploeg_names.chain_gap_s, inline)
             hi = max(law.h, law.h_heavy)
         e = obs[i, 2] - law.s0 - hi * obs[i, 0]
         e_dot = obs[i, 3] - hi * obs[i, 1]

@@ -88,11 +88,10 @@ import osqp
 from scipy import sparse
 
 from carl_sumo.config import BOUNDS, DT_S, IDM
-from carl_sumo.control.cacc import CRUISE_GAIN_PER_S, HEAVY_BRAKING_MPS2, REACTION_LAG_S, \
-    REACTION_MARGIN_M
+from carl_sumo.control.cacc import CRUISE_GAIN_PER_S, REACTION_LAG_S, REACTION_MARGIN_M
 from carl_sumo.control.channel import FALLBACK, LIVE, Channel, Impairments, KeyedChannel
 from carl_sumo.control.layers import layer_params, merge_point, safe_speed
-from carl_sumo.control.ploeg_names import OptionSpec, tuned_law
+from carl_sumo.control.ploeg_names import OptionSpec, chain_gap_s, tuned_law
 from carl_sumo.errors import InputError
 from carl_sumo.sim.vehicle import VEHICLE_CLASSES
 
@@ -471,9 +470,7 @@ class MPCLaw:
         p = self.params
         if alone:
             return p.gap_alone_s
-        if p.heavy_gap_s is not None and -low < HEAVY_BRAKING_MPS2:
-            return max(p.time_gap_s, p.heavy_gap_s)
-        return p.time_gap_s
+        return chain_gap_s(p.time_gap_s, p.heavy_gap_s, -low)
 
     def _solve(self, key, o: np.ndarray, z: np.ndarray, model: tuple[float, int],
                limits: tuple[float, float], alone: bool, react: bool, a_ahead: float

@@ -18,6 +18,19 @@ from carl_sumo.resources import policies_dir
 TUNED_FILE = policies_dir() / "ploeg_tuned.json"
 """The tuned gains per time gap, written by ``carl-sumo tune ploeg``."""
 
+HEAVY_BRAKING_MPS2 = 7.0
+"""``ht=T``: a vehicle whose own largest braking is below this (m/s²; a truck's 6, a car's 9),
+known with ``aw=1``, keeps at least the time gap T in its chain."""
+
+
+def chain_gap_s(time_gap_s: float, heavy_gap_s: float | None, b_max_mps2: float | None) -> float:
+    """The time gap (s) a vehicle that hears a message keeps: h, or for a heavy one (its largest
+    braking ``b_max_mps2`` below :data:`HEAVY_BRAKING_MPS2`; None: not known) max(h, ht) where
+    ``ht`` is set. The one rule the CACC kernel (inline, compiled), the MPC and the theory use."""
+    if heavy_gap_s is not None and b_max_mps2 is not None and b_max_mps2 < HEAVY_BRAKING_MPS2:
+        return max(time_gap_s, heavy_gap_s)
+    return time_gap_s
+
 
 @dataclass(frozen=True)
 class PloegParams:
@@ -87,6 +100,12 @@ class PloegParams:
         if self.feed_forward and self.alone_gap_s is not None:
             return self.alone_gap_s
         return self.time_gap_s
+
+    def chain_gap_s(self, b_max_mps2: float | None) -> float:
+        """The time gap (s) of a follower that hears a message and brakes at most ``b_max_mps2``
+        (:func:`chain_gap_s`; its braking is known to the law only with ``aw=1``)."""
+        return chain_gap_s(self.time_gap_s, self.heavy_gap_s,
+                           b_max_mps2 if self.anti_windup else None)
 
 
 TEXTBOOK = PloegParams()

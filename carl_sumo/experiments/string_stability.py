@@ -30,8 +30,7 @@ from typing import Sequence
 import numpy as np
 
 from carl_sumo.config import DT_S
-from carl_sumo.control.cacc import HEAVY_BRAKING_MPS2, TEXTBOOK, check_heard, is_ploeg_name, \
-    parse_ploeg
+from carl_sumo.control.cacc import TEXTBOOK, check_heard, is_ploeg_name, parse_ploeg
 from carl_sumo.control.ploeg_names import PloegParams, tuned_gap
 from carl_sumo.control.channel import Impairments, plant_impairments
 from carl_sumo.control.classical import time_gap_of
@@ -194,12 +193,10 @@ def measure(controller: str, omegas: Sequence[float], n: int, test: SineTest = S
 def inner_gap(p: PloegParams, plant: Plant | None) -> float:
     """The time gap (s) a one-class platoon's followers that hear a message keep: h, or with
     ``ht`` and ``aw=1`` a heavy class's max(h, ht), as the law's kernel decides
-    (:data:`carl_sumo.control.cacc.HEAVY_BRAKING_MPS2`)."""
-    if plant is None or p.heavy_gap_s is None or not p.anti_windup or len(plant.fleet) != 1:
+    (:meth:`carl_sumo.control.ploeg_names.PloegParams.chain_gap_s`)."""
+    if plant is None or len(plant.fleet) != 1:
         return p.time_gap_s
-    if VEHICLE_CLASSES[plant.fleet[0][0]].b_max_mps2 < HEAVY_BRAKING_MPS2:
-        return max(p.time_gap_s, p.heavy_gap_s)
-    return p.time_gap_s
+    return p.chain_gap_s(VEHICLE_CLASSES[plant.fleet[0][0]].b_max_mps2)
 
 
 def analytic(controller: str, omegas: Sequence[float], plant: Plant | None,

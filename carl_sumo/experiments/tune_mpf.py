@@ -39,7 +39,7 @@ from dataclasses import asdict, dataclass, field, replace
 from datetime import date
 from pathlib import Path
 
-from carl_sumo.control.cacc import HEAVY_BRAKING_MPS2, PloegParams, parse_ploeg
+from carl_sumo.control.cacc import PloegParams, parse_ploeg
 from carl_sumo.control.ploeg_names import MAX_HEARD, without_washout
 from carl_sumo.control.transfer import robust_hinf
 from carl_sumo.errors import InputError
@@ -136,9 +136,7 @@ def class_hinf(params: PloegParams, cfg: TuneConfig) -> float:
     worst = 0.0
     for name in classes:
         corners = plant.class_corners(name) if name is not None else [(0.0, 0)]
-        heavy = name is not None and VEHICLE_CLASSES[name].b_max_mps2 < HEAVY_BRAKING_MPS2
-        h = params.heavy_gap_s if heavy and params.heavy_gap_s is not None \
-            else params.time_gap_s
+        h = params.chain_gap_s(VEHICLE_CLASSES[name].b_max_mps2 if name is not None else None)
         worst = max(worst, robust_hinf(h, params.kp, params.kd, corners, delay,
                                        weights=params.weights, n_links=cfg.n_followers))
     return worst

@@ -32,7 +32,7 @@ import numpy as np
 from numba import njit
 
 from carl_sumo.config import DT_S, REWARD, RewardConfig
-from carl_sumo.control.cacc import HEAVY_BRAKING_MPS2
+from carl_sumo.control.ploeg_names import HEAVY_BRAKING_MPS2
 
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
 CRITICAL_TTC_S = 1.5

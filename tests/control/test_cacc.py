@@ -490,9 +490,15 @@ def test_ht_gives_a_heavy_vehicle_its_own_time_gap_in_the_chain():
     base = "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4"
     params = parse_ploeg(base + ":ht=0.8")
     assert params.heavy_gap_s == 0.8 and params.name() == base + ":ht=0.8"
+    # the one rule (ploeg_names.chain_gap_s) the kernel keeps inline: max(h, ht) for a known
+    # heavy vehicle, h for a car, for an unknown braking, and without aw=1
+    assert (params.chain_gap_s(6.0), params.chain_gap_s(9.0), params.chain_gap_s(None)) == \
+        (0.8, 0.6, 0.6)
+    assert parse_ploeg(base.replace("h=0.6", "h=1") + ":ht=0.8").chain_gap_s(6.0) == 1.0
+    assert parse_ploeg(base.replace(":aw=1", "") + ":ht=0.8").chain_gap_s(6.0) == 0.6
     v = 15.0
-    obs = np.array([[v, 0.0, 2.0 + 1.4 * v, 0.0], [v, 0.0, 2.0 + 0.8 * v, 0.0],
-                    [v, 0.0, 2.0 + 0.6 * v, 0.0]])  # head, a truck at 0.8 s, a car at 0.6 s
+    obs = np.array([[v, 0.0, 2.0 + 1.4 * v, 0.0], [v, 0.0, 2.0 + params.chain_gap_s(6.0) * v, 0.0],
+                    [v, 0.0, 2.0 + params.chain_gap_s(9.0) * v, 0.0]])  # head, a truck, a car
     out = {}
     for name in (base, base + ":ht=0.8"):
         law = PloegController(parse_ploeg(name))
