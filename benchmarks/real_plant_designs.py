@@ -66,6 +66,9 @@ DESIGNS = (  # (label, CA file stem, CA-off file stem or None, commit holding it
     ("`REAL_HEAD_FREE`: the product's recipe with the head freed from the washout (`hf=1`: "
      "the first follower takes its learned term as it is)",
      "learned_test_ca_td3_real_hf_10", None, "10f3ba6"),
+    ("`REAL_GAP_TRADED`: the same (`hf=1`) started from the gap-traded law (cars 0.5 s, head "
+     "2.3 s, the reward's spacing term at the same gaps)",
+     "learned_test_ca_td3_real_gt_10", None, "c05c2fe"),
 )
 
 
