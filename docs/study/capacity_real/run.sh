@@ -16,6 +16,7 @@ common="--net networks/i80.net.xml --demand-scale 1.5 --duration 600 --warmup 30
 MPF="mpf:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1:gn=6:op=2:ht=0.8:r=2:w2=0.3"
 MPC_GN="mpc:h=0.6:N=30:wq=0.8:wv=0.666667:wu=2:wj=0.2:ha=2:ht=0.8:ttc=2:rb=1:ra=1:go=0.5:gn=6"  # mpc-tuned + gn=6
 MPC_GC="mpc:h=0.6:N=30:wq=0.8:wv=0.666667:wu=2:wj=0.2:ha=2:ht=0.8:ttc=2:rb=1:ra=1:go=0.5:gc=1"  # mpc-tuned + gc=1
+GAP="mpf:h=0.5:kp=0.0445:kd=1:r=3:w1=0.5:w2=0.4:w3=0.1:aw=1:ha=2.3:ttc=2:rb=1:gn=6:op=2:ht=0.8"  # the gap trade
 base() { echo "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=$1:ttc=2:rb=1:wo=5:gn=6:op=2:ht=0.8"; }  # product-base with ha=$1
 out=results/capacity_real
 study() {  # seed out-folder controller penetrations
@@ -37,6 +38,7 @@ for seed in ${SEEDS:-0}; do
   for p in 0.25 0.5 0.75 1; do study $seed mpc_tuned/p$p mpc-tuned $p; done  # tuned for the fleet
   study $seed mpc_tuned_gn/p1 "$MPC_GN" 1  # the same with Ploeg's gn layers (the merge point)
   study $seed mpc_tuned_gc/p0.25 "$MPC_GC" 0.25  # the same closing a long gap at most 1 m/s
+  for p in 0.5 0.75; do study $seed gap_trade/p$p "$GAP" $p; done  # cars 0.5 s, heads at 2.3 s
 done
 # diagnostic: the same law at p = 0.5 with a fleet of cars only (no trucks), seed 0
 $PY -m carl_sumo study $common --seeds 1 --fleet car:1 --penetration 0.5 --controller product-base --out $out/s0/product_base_cars/p0.5

@@ -26,6 +26,7 @@ FOLDERS = {  # folder: the controller as it is named in docs/study.md
     "product_base_ha1.0": "`product-base` with ha = 1.0 s",
     "product_base_ha0.8": "`product-base` with ha = 0.8 s",
     "product_base_cars": "`product-base`, a fleet of cars only (`--fleet car:1`)",
+    "gap_trade": "the gap-traded multi-predecessor law (cars 0.5 s, head `ha` = 2.3 s)",
 }
 
 
