@@ -44,7 +44,8 @@ class RewardConfig:
     r_comfort: -min((jerk / jerk_scale)², 1), jerk = Δa/Δt;
     optionally -w_accel·a² (control effort; 0 = off, the paper's reward);
     optionally -w_spacing·min((e/v)², 1), e = d - s0 - h_s·v (m), the spacing error of a
-    constant-time-gap policy with time gap h_s = spacing_gap_s (0 = off, the paper's reward);
+    constant-time-gap policy with time gap h_s = spacing_gap_s (0 = off, the paper's reward),
+    or with spacing_budget the platoon's mean e/v (a headway budget);
     optionally -w_critical for each step with 0 < TTC < 1.5 s (0 = off, the paper's reward);
     optionally -w_amplify·max(a_i² - a_{i-1}², 0) for a follower whose acceleration exceeds its
     predecessor's in magnitude (not the head: its predecessor is the human leader; 0 = off);
@@ -66,6 +67,10 @@ class RewardConfig:
     spacing_heavy_gap_s: float | None = option(None, "h_s of a vehicle braking below 7 m/s² "
                                                "(none: --spacing-gap)", "reward", unit="s",
                                                low=0.0, high=5.0, flag="spacing-heavy-gap")
+    spacing_budget: bool = option(False, "the spacing term prices the platoon's mean time-gap "
+                                  "error, a headway budget (one follower may keep more than its "
+                                  "h_s where another keeps less), instead of each follower's own",
+                                  "reward")
     spacing_standstill_m: float = option(2.0, "the spacing term's standstill gap s0 (Ploeg's, "
                                          "control/cacc.py)", "reward", unit="m", cli=False)
     w_critical: float = option(0.0, "penalty per follower and step with a time to collision "

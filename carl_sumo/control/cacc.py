@@ -115,8 +115,8 @@ from carl_sumo.control.layers import (  # noqa: F401 (the layers' constants are 
 from carl_sumo.control.feed_forward import (  # noqa: F401 (mpf_*: read from here too)
     check_heard, message_size, mpf_feed_forward, mpf_relay, washed_adjustment, with_relays)
 from carl_sumo.control.ploeg_names import (  # noqa: F401 (the names are read from here too)
-    CLASSICAL_KINDS, HEAVY_BRAKING_MPS2, TEXTBOOK, TUNED_FILE, PloegParams, is_ploeg_name,
-    parse_ploeg, read_tuned, read_tuned_entries, tuned_file_for)
+    CLASSICAL_KINDS, GAP_PER_ADJ_S, HEAVY_BRAKING_MPS2, TEXTBOOK, TUNED_FILE, PloegParams,
+    gap_offset_step, is_ploeg_name, parse_ploeg, read_tuned, read_tuned_entries, tuned_file_for)
 from carl_sumo.config import BOUNDS, DT_S, IDM, ControlBounds
 from carl_sumo.errors import InputError
 
@@ -128,6 +128,7 @@ LAW = np.dtype([
     ("h", np.float64),        # time gap (s)
     ("h_alone", np.float64),  # time gap of a vehicle without a message, ha (s)
     ("h_heavy", np.float64),  # time gap of a heavy vehicle, ht (s; 0: h)
+    ("h_floor", np.float64),  # the least time gap of a car in a chain under ``gp`` (s): gl, or h
     ("kp", np.float64),       # 1/s²
     ("kd", np.float64),       # 1/s
     ("s0", np.float64),       # standstill gap (m)
@@ -142,7 +143,8 @@ LAW = np.dtype([
 
 
 @njit(cache=True)
-def _ploeg_law(obs, u, brake, u_lead, adj, numbers, pred_mode, pred_held, u_min, u_max):
+def _ploeg_law(obs, u, brake, u_lead, adj, numbers, pred_mode, pred_held, u_min, u_max,
+               gap_off):
     """The law alone, every follower (head first): updates ``u`` in place, returns a (m/s²).
     ``adj`` (m/s², shape (n,)) is the learned feed-forward term (zeros for the plain law).
     ``pred_mode`` / ``pred_held`` (shape (n,)): how follower i > 0 hears its predecessor's
@@ -151,7 +153,10 @@ def _ploeg_law(obs, u, brake, u_lead, adj, numbers, pred_mode, pred_held, u_min,
     m/s², inf: none). ``u_min`` / ``u_max`` (m/s², shape (n,)): each vehicle's own limits, which
     its state does not pass (anti-windup; ±inf: none), so the message it sends is a command it
     can follow. ``law.h_alone``: the time gap of the head and of a follower that hears no
-    message; ``law.h_heavy`` that of a heavy vehicle (its braking below 7 m/s²)."""
+    message; ``law.h_heavy`` that of a heavy vehicle (its braking below 7 m/s²). ``gap_off``
+    (s, shape (n,)): each vehicle's time-gap offset under ``gp`` (zeros: none), added to its gap
+    and floored at its class's least gap (a car in a chain ``law.h_floor``, a heavy vehicle its
+    heavy gap, a vehicle without a message ``law.h_alone``)."""
     law = numbers[0]
     n = obs.shape[0]
     out = np.empty(n)
@@ -161,6 +166,9 @@ def _ploeg_law(obs, u, brake, u_lead, adj, numbers, pred_mode, pred_held, u_min,
         hi = law.h_alone if alone else law.h
         if not alone and -u_min[i] < HEAVY_BRAKING_MPS2:  # ht (ploeg_names.chain_gap_s, inline)
             hi = max(law.h, law.h_heavy)
+        if gap_off[i] != 0.0:  # gp: the learned gap, never below the class's least gap
+            floor = hi if (alone or hi > law.h) else law.h_floor
+            hi = max(hi + gap_off[i], floor)
         e = obs[i, 2] - law.s0 - hi * obs[i, 0]
         e_dot = obs[i, 3] - hi * obs[i, 1]
         u_in = u_pred
@@ -180,11 +188,12 @@ def _ploeg_law(obs, u, brake, u_lead, adj, numbers, pred_mode, pred_held, u_min,
 
 @njit(cache=True)
 def _ploeg_step(obs, u, brake, u_lead, adj, law, layers, pred_mode, pred_held, u_min, u_max,
-                armed, a_ahead, merge_m):
+                armed, a_ahead, merge_m, gap_off):
     """One step of a chain: the law (:func:`_ploeg_law`), then its safety layers
     (:func:`carl_sumo.control.layers.apply_layers`: ``armed``, ``a_ahead`` and ``merge_m`` are
     theirs), which bound a and write the braking they applied into ``brake``. Returns a (m/s²)."""
-    out = _ploeg_law(obs, u, brake, u_lead, adj, law, pred_mode, pred_held, u_min, u_max)
+    out = _ploeg_law(obs, u, brake, u_lead, adj, law, pred_mode, pred_held, u_min, u_max,
+                     gap_off)
     apply_layers(obs, out, brake, pred_mode, armed, a_ahead, merge_m, u_min, layers)
     return out
 
@@ -192,7 +201,8 @@ def _ploeg_step(obs, u, brake, u_lead, adj, law, layers, pred_mode, pred_held, u
 def _numbers(p: PloegParams, b: ControlBounds) -> tuple[np.ndarray, np.ndarray]:
     """The kernel's ``law`` (:data:`LAW`) and ``layers`` (:data:`carl_sumo.control.layers.LAYERS`)
     of a law, read-only."""
-    law = np.array([(p.time_gap_s, p.gap_alone_s, p.heavy_gap_s or 0.0, p.kp, p.kd,
+    law = np.array([(p.time_gap_s, p.gap_alone_s, p.heavy_gap_s or 0.0,
+                     p.time_gap_s if p.gap_floor_s is None else p.gap_floor_s, p.kp, p.kd,
                      p.standstill_gap_m, DT_S, b.acc_min_mps2, b.acc_max_mps2,
                      IDM.desired_speed_mps, CRUISE_GAIN_PER_S)], dtype=LAW)
     law.flags.writeable = False
@@ -208,6 +218,14 @@ def _no_limits(n: int) -> tuple[np.ndarray, np.ndarray]:
     low, high = np.full(n, -np.inf), np.full(n, np.inf)
     low.flags.writeable = high.flags.writeable = False
     return low, high
+
+
+@lru_cache(maxsize=64)
+def _no_offsets(n: int) -> np.ndarray:
+    """No learned time-gap offset for ``n`` vehicles (s), read-only (shared)."""
+    zero = np.zeros(n)
+    zero.flags.writeable = False
+    return zero
 
 
 @lru_cache(maxsize=64)
@@ -240,12 +258,13 @@ class PloegController:
         self.channel: Channel | None = None
         self._k = 0
         self.adj_mean = np.zeros(0)  # each follower's running mean of a_adj (m/s², ``wo=T``)
+        self.gap_off = np.zeros(0)  # each follower's learned time-gap offset (s, ``gp=T``)
         self._numbers: tuple = (None, None)  # (params, bounds, law, layers) of the kernel
 
     def reset(self, n_followers: int) -> None:
         check_heard(self.params, n_followers, self.name)
         self.u, self.brake = np.zeros(n_followers), np.full(n_followers, np.inf)
-        self.adj_mean = np.zeros(n_followers)
+        self.adj_mean, self.gap_off = np.zeros(n_followers), np.zeros(n_followers)
         self.u_min, self.u_max = np.full(n_followers, -np.inf), np.full(n_followers, np.inf)
         self._leader_speed, self._dv = None, None
         self.channel, self._k = None, 0
@@ -284,19 +303,27 @@ class PloegController:
             adjustment, adj_mean = washed_adjustment(adjustment, self.adj_mean,
                                                      self.params.washout_s,
                                                      [0] if self.params.head_free else None)
+        gap_off = self.gap_off
+        if self.params.gap_policy_s is not None:  # the learned term is a gap, not an acceleration
+            if adjustment is not None:
+                gap_off = gap_offset_step(self.gap_off, GAP_PER_ADJ_S * np.asarray(adjustment),
+                                          self.params.gap_policy_s, DT_S)
+            adjustment = None
         adjustment, sent = with_relays(self.params, np.minimum(self.u, self.brake), adjustment,
                                        mode, received, None if mode is None else self.channel.heard)
         if not commit:
             return self.step(obs, self.u.copy(), a_lead, adjustment, mode, held,
-                             self.brake.copy(), a_ahead=a_ahead)
+                             self.brake.copy(), a_ahead=a_ahead, gap_off=gap_off)
         if self.params.washout_s is not None:
             self.adj_mean = adj_mean
+        self.gap_off = gap_off
         self._leader_speed = leader_speed
         if self.params.reaction_braking_ahead:  # the radar's Δv, for the next step's a_ahead
             self._dv = np.array(obs[:, 3], dtype=np.float64)
         if self.channel is not None:  # follower j hears j - 1's message of step k: its state,
             messages = np.vstack([np.zeros((1, sent.shape[1])), sent[:-1]])  # or its braking
-        out = self.step(obs, self.u, a_lead, adjustment, mode, held, self.brake, a_ahead=a_ahead)
+        out = self.step(obs, self.u, a_lead, adjustment, mode, held, self.brake, a_ahead=a_ahead,
+                        gap_off=gap_off)
         if self.channel is not None:
             self.channel.send(self._k, messages)
             self._k += 1
@@ -306,7 +333,8 @@ class PloegController:
              adjustment: np.ndarray | None = None, pred_mode: np.ndarray | None = None,
              pred_held: np.ndarray | None = None, brake: np.ndarray | None = None,
              armed: np.ndarray | None = None, a_ahead: np.ndarray | None = None,
-             merge_m: np.ndarray | None = None) -> np.ndarray:
+             merge_m: np.ndarray | None = None, gap_off: np.ndarray | None = None
+             ) -> np.ndarray:
         """One step of the law on a chain (head first): updates the states ``u`` in place; the
         head hears ``u_lead`` (m/s²); ``adjustment``: the learned feed-forward term (m/s²);
         ``pred_mode`` / ``pred_held``: how each follower hears its predecessor (default: this
@@ -334,7 +362,9 @@ class PloegController:
         return _ploeg_step(obs, u, brake, u_lead, adj, law, layers,
                            np.ascontiguousarray(pred_mode, dtype=np.int64),
                            np.ascontiguousarray(pred_held, dtype=np.float64), *self._limits(n),
-                           armed, a_ahead, merge_m)
+                           armed, a_ahead, merge_m,
+                           _no_offsets(n) if gap_off is None or gap_off.shape[0] != n else
+                           np.ascontiguousarray(gap_off, dtype=np.float64))
 
     @staticmethod
     def _reaction_inputs(n: int, armed: np.ndarray | None, a_ahead: np.ndarray | None,
@@ -384,11 +414,12 @@ class PloegChains:
         self._dv: dict[str, tuple[str | None, float]] = {}
         self._k = 0
         self.adj_mean: dict[str, float] = {}  # ID: its running mean of a_adj (m/s², ``wo=T``)
+        self.gap_off: dict[str, float] = {}  # ID: its learned time-gap offset (s, ``gp=T``)
 
     def reset(self) -> None:
         """Forget every state, limit and link: a new run starts (every vehicle's u at 0)."""
         self.u, self.brake, self.limits, self.links, self._k = {}, {}, {}, None, 0
-        self.adj_mean = {}
+        self.adj_mean, self.gap_off = {}, {}
         self.armed, self.merge_m, self._dv = set(), {}, {}
 
     def arm(self, vehicle_ids: set[str]) -> None:
@@ -454,6 +485,15 @@ class PloegChains:
             adjustment, mean = washed_adjustment(adjustment, mean, washout_s, heads)
             if commit:
                 self.adj_mean = dict(zip(ids, mean.tolist()))
+        gap_off = np.array([self.gap_off.get(v, 0.0) for v in ids])
+        gap_policy_s = self.controller.params.gap_policy_s
+        if gap_policy_s is not None:  # the learned term is each vehicle's gap (``gp=T``)
+            if adjustment is not None:
+                gap_off = gap_offset_step(gap_off, GAP_PER_ADJ_S * np.asarray(adjustment),
+                                          gap_policy_s, DT_S)
+                if commit:
+                    self.gap_off = dict(zip(ids, gap_off.tolist()))
+            adjustment = None
         u_new: dict[str, float] = {}
         brake_new: dict[str, float] = {}
         dv_new: dict[str, tuple[str | None, float]] = {}
@@ -479,7 +519,8 @@ class PloegChains:
             merge_m = [self.merge_m.get(ids[i], np.inf) for i in chain] if self.merge_m else None
             a_ahead = self._radar_ahead(obs, chain, ids, ahead, dv_new)
             out[chain] = self.controller.step(np.ascontiguousarray(obs[chain]), u, a_pred, adj,
-                                              mode, held, brake, armed, a_ahead, merge_m)
+                                              mode, held, brake, armed, a_ahead, merge_m,
+                                              gap_off[chain])
             u_new.update(zip((ids[i] for i in chain), u.tolist()))
             brake_new.update(zip((ids[i] for i in chain), brake.tolist()))
         if commit:

@@ -1,6 +1,7 @@
 """The names of the constant-time-gap laws and their parameters: what ``ploeg:h=0.8:kp=0.1:kd=1``,
 ``ploeg-tuned:h=0.8``, ``acc:h=2.5``, the multi-predecessor ``mpf:r=2:w2=0.3`` and their options
-(``aw``, ``ha``, ``ttc``, ``rb``, ``wo``, ``hf``, ``gs``, ``gn``, ``op``, ``ht``) stand for
+(``aw``, ``ha``, ``ttc``, ``rb``, ``wo``, ``hf``, ``gs``, ``gn``, ``op``, ``ht``, ``gp``,
+``gl``) stand for
 (:class:`PloegParams`), and the tuned-gains files of ``carl-sumo tune``. The law itself, and what
 each option does, is :mod:`carl_sumo.control.cacc`.
 """
@@ -30,6 +31,17 @@ def chain_gap_s(time_gap_s: float, heavy_gap_s: float | None, b_max_mps2: float 
     if heavy_gap_s is not None and b_max_mps2 is not None and b_max_mps2 < HEAVY_BRAKING_MPS2:
         return max(time_gap_s, heavy_gap_s)
     return time_gap_s
+
+
+GAP_PER_ADJ_S = 1.0
+"""``gp=T``: the time gap (s) a learned term of 1 m/s² asks for on top of a vehicle's own (the
+actor's range ±adj_max m/s² is a gap offset of ±adj_max s)."""
+
+
+def gap_offset_step(offset, target, time_constant_s: float, dt_s: float):
+    """``gp=T``: each vehicle's time-gap offset (s) one step of ``dt_s`` later, low-passed towards
+    ``target`` (s) with the time constant ``time_constant_s``."""
+    return offset + (dt_s / time_constant_s) * (target - offset)
 
 
 @dataclass(frozen=True)
@@ -64,6 +76,11 @@ class PloegParams:
                                 # braking below 7 m/s², known with aw=1; None: h for every class)
     opening_braking_mps2: float | None = None  # op: an armed vehicle at the front of its chain
                                 # opens its gap to 0.8 s braking at up to this (m/s²; None: off)
+    gap_policy_s: float | None = None  # gp: the learned term sets each vehicle's time gap (an
+                                # offset of GAP_PER_ADJ_S s per m/s², low-passed with this time
+                                # constant, s) instead of entering as an acceleration (None: off)
+    gap_floor_s: float | None = None  # gl (with gp): the least time gap of a car in a chain (s;
+                                # None: h); a heavy vehicle keeps at least ht, the head ha
     weights: tuple[float, ...] = (1.0,)  # mpf: w_1..w_r, the weights of the commands of the r
                                 # vehicles ahead in the feed-forward (-; Ploeg: (1,); MPF_OPTIONS)
 
@@ -92,7 +109,9 @@ class PloegParams:
             (f":{'gn' if self.safe_new_only else 'gs'}={self.safe_braking_mps2:g}"
              if self.safe_braking_mps2 is not None else "") + \
             (f":op={self.opening_braking_mps2:g}" if self.opening_braking_mps2 is not None else "") + \
-            (f":ht={self.heavy_gap_s:g}" if self.heavy_gap_s is not None else "")
+            (f":ht={self.heavy_gap_s:g}" if self.heavy_gap_s is not None else "") + \
+            (f":gp={self.gap_policy_s:g}" if self.gap_policy_s is not None else "") + \
+            (f":gl={self.gap_floor_s:g}" if self.gap_floor_s is not None else "")
 
     @property
     def gap_alone_s(self) -> float:
@@ -266,6 +285,15 @@ def _switches(name: str, opts: dict[str, float]) -> dict:
     if head_free and "wo" not in opts:
         raise InputError(f"controller {name!r}: hf=1 frees the head from the washout wo; give "
                          "wo too (e.g. wo=5:hf=1)")
+    if "gp" in opts and "wo" in opts:
+        raise InputError(f"controller {name!r}: gp=T makes the learned term a time gap, which "
+                         "the washout wo would undo; give one of them")
+    if "gl" in opts and "gp" not in opts:
+        raise InputError(f"controller {name!r}: gl is the least gap the learned gap policy gp "
+                         "may set; give gp too (e.g. gp=10:gl=0.5)")
+    if opts.get("gl", 0.0) > opts.get("h", TEXTBOOK.time_gap_s):
+        raise InputError(f"controller {name!r}: gl={opts['gl']:g} is above the time gap h; "
+                         "give gl at most h")
     return {"anti_windup": _flag(name, opts, "aw", "each vehicle's state within its own limits"),
             "alone_gap_s": opts.get("ha"), "reaction_ttc_s": opts.get("ttc"),
             "reaction_braking_ahead": _flag(name, opts, "rb", "the reaction counts the braking "
@@ -273,7 +301,8 @@ def _switches(name: str, opts: dict[str, float]) -> dict:
             "washout_s": opts.get("wo"), "head_free": head_free,
             "safe_braking_mps2": opts.get("gs", opts.get("gn")),
             "safe_new_only": "gn" in opts, "opening_braking_mps2": opts.get("op"),
-            "heavy_gap_s": opts.get("ht")}
+            "heavy_gap_s": opts.get("ht"), "gap_policy_s": opts.get("gp"),
+            "gap_floor_s": opts.get("gl")}
 
 
 def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal") -> PloegParams:
@@ -300,13 +329,13 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
         return replace(p, feed_forward=bool(weights), weights=weights or (1.0,))
     if kind in ("ploeg", "acc"):
         opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "ttc", "rb", "wo", "hf", "gs",
-                                      "gn", "op", "ht"))
+                                      "gn", "op", "ht", "gp", "gl"))
         return PloegParams(opts.get("h", TEXTBOOK.time_gap_s), opts.get("kp", TEXTBOOK.kp),
                            opts.get("kd", TEXTBOOK.kd), feed_forward=law == "ploeg",
                            **_switches(name, opts))
     if kind in ("ploeg-tuned", "acc-tuned"):
         opts = _parse_options(name, ("h", "aw", "ha", "ttc", "rb", "wo", "hf", "gs", "gn",
-                                      "op", "ht"))
+                                      "op", "ht", "gp", "gl"))
         if "h" not in opts:
             raise InputError(f"controller {name!r}: name the time gap, e.g. {kind}:h=1")
         entries = [e for e in read_tuned_entries(tuned_file) if e.get("law", "ploeg") == law]

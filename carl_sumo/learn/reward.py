@@ -9,6 +9,8 @@ An optional control-effort term -w_accel·a² (a in m/s²; w_accel = 0, i.e. off
 this project's addition: it rewards attenuating the leader's accelerations (string stability).
 So is the optional spacing term -w_spacing·min((e/v)², 1) (off by default): e = d - s0 - h_s·v is
 the spacing error of a constant-time-gap policy (m), e/v its time-gap error (s, v floored at 1 m/s);
+with ``spacing_budget`` every follower is priced the platoon's mean e/v instead (a headway budget:
+a learned gap policy may give one follower more than its h_s where another keeps less);
 the head (row 0, which hears no message from a human leader) may have its own time gap h_head
 (the degraded CACC's ``ha``, control/cacc.py), and so may a heavy vehicle, one whose own largest
 braking is below 7 m/s² (the law's ``ht``, control/cacc.py; the head keeps h_head).
@@ -48,11 +50,16 @@ def _headway_reward(h: float, mu: float, sigma: float) -> float:
 
 @njit(cache=True)
 def _platoon_reward(obs, prev_acc, gap_s, w_gap, w_safe, w_comfort, w_accel, w_spacing,
-                    standstill_m, mu, sigma, ttc_max, jerk_scale, penalty, dt,
+                    budget, standstill_m, mu, sigma, ttc_max, jerk_scale, penalty, dt,
                     w_critical, critical_ttc, w_amplify):
     n = obs.shape[0]
     reward = np.empty(n)
     collided = np.zeros(n, dtype=np.bool_)
+    mean_error_s = 0.0  # budget: the platoon's mean time-gap error (s)
+    if budget and n > 0:
+        for i in range(n):
+            mean_error_s += (obs[i, 2] - standstill_m - gap_s[i] * obs[i, 0]) / max(obs[i, 0], 1.0)
+        mean_error_s /= n
     for i in range(n):
         v, a, d, dv = obs[i, 0], obs[i, 1], obs[i, 2], obs[i, 3]
         r = w_gap * _headway_reward(d / max(v, 0.1), mu, sigma)
@@ -65,7 +72,8 @@ def _platoon_reward(obs, prev_acc, gap_s, w_gap, w_safe, w_comfort, w_accel, w_s
         jerk = (a - prev_acc[i]) / dt / jerk_scale
         r -= w_comfort * min(jerk * jerk, 1.0) + w_accel * a * a
         if w_spacing > 0.0:
-            gap_error_s = (d - standstill_m - gap_s[i] * v) / max(v, 1.0)
+            gap_error_s = mean_error_s if budget else \
+                (d - standstill_m - gap_s[i] * v) / max(v, 1.0)
             r -= w_spacing * min(gap_error_s * gap_error_s, 1.0)
         if w_amplify > 0.0 and i > 0:
             excess = a * a - obs[i - 1, 1] * obs[i - 1, 1]
@@ -81,7 +89,7 @@ def _platoon_reward(obs, prev_acc, gap_s, w_gap, w_safe, w_comfort, w_accel, w_s
 @lru_cache(maxsize=16)
 def _params(cfg: RewardConfig) -> tuple[float, ...]:
     return (cfg.w_gap, cfg.w_safe, cfg.w_comfort, cfg.w_accel, cfg.w_spacing,
-            cfg.spacing_standstill_m, cfg.headway_mu, cfg.headway_sigma,
+            cfg.spacing_budget, cfg.spacing_standstill_m, cfg.headway_mu, cfg.headway_sigma,
             cfg.ttc_threshold_s, cfg.jerk_scale_mps3, cfg.collision_penalty, DT_S,
             cfg.w_critical, CRITICAL_TTC_S, cfg.w_amplify)
 

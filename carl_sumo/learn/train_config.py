@@ -121,6 +121,7 @@ class TrainConfig:
     spacing_gap: float = shared(RewardConfig, "spacing_gap_s")
     spacing_head_gap: float | None = shared(RewardConfig, "spacing_head_gap_s")
     spacing_heavy_gap: float | None = shared(RewardConfig, "spacing_heavy_gap_s")
+    spacing_budget: bool = shared(RewardConfig, "spacing_budget")
     w_critical: float = shared(RewardConfig, "w_critical")
     w_amplify: float = shared(RewardConfig, "w_amplify")
     lagrange_lr: float = option(0.0, "RCPO: step of a learned multiplier pricing close calls "

@@ -665,3 +665,46 @@ def test_head_free_spares_only_each_chains_head_from_the_washout():
     assert chains.adj_mean == {"a": 0.0, "b": DT_S / 2.0}
     with pytest.raises(InputError, match="give wo too"):
         parse_ploeg("ploeg:h=1:hf=1")
+
+
+def test_gp_runs_the_law_at_each_vehicles_learned_gap_floored_by_its_class():
+    """``gp=T``: a vehicle's time-gap offset δ (s) runs the law at its gap + δ (its gain-free
+    twin at that gap gives the same command), never below its class's least gap: a car in the
+    chain ``gl``, a truck ``ht``, the head ``ha``; δ follows 1 s per m/s² of the learned term
+    through a low-pass of T s, and the learned term no longer enters as an acceleration."""
+    base = "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:ht=0.8"
+    params = parse_ploeg(base + ":gp=10:gl=0.5")
+    assert (params.gap_policy_s, params.gap_floor_s) == (10.0, 0.5)
+    assert params.name() == base + ":gp=10:gl=0.5"
+    v = 15.0
+    obs = np.array([[v, 0.2, 30.0, 0.3], [v, -0.1, 12.0, -0.2], [v, 0.0, 11.0, 0.1],
+                    [v, 0.1, 9.0, 0.0]])  # head, a truck, a car, a car
+    limits = (np.array([3.0, 1.0, 3.0, 3.0]), np.array([9.0, 6.0, 9.0, 9.0]))
+
+    def command(name, gap_off=None):
+        law = PloegController(parse_ploeg(name))
+        law.reset(4)
+        law.know_vehicles(*limits)
+        u = np.array([0.1, -0.2, 0.05, 0.0])
+        return law.step(obs, u, 0.3, gap_off=gap_off)
+
+    up = command(base + ":gp=10", np.full(4, 0.4))  # every gap 0.4 s longer
+    np.testing.assert_allclose(up[0], command(base.replace("ha=1.4", "ha=1.8"))[0])
+    np.testing.assert_allclose(up[1], command(base.replace("ht=0.8", "ht=1.2"))[1])
+    np.testing.assert_allclose(up[2:], command(base.replace("h=0.6", "h=1"))[2:])
+    down = command(base + ":gp=10:gl=0.5", np.full(4, -0.3))  # floored: head, truck, cars
+    np.testing.assert_allclose(down[:2], command(base)[:2])
+    np.testing.assert_allclose(down[2:], command(base.replace("h=0.6", "h=0.5"))[2:])
+    np.testing.assert_allclose(command(base + ":gp=10", np.zeros(4)), command(base))
+    law = PloegController(parse_ploeg(base + ":gp=10"))  # the term moves δ, not the acceleration
+    law.reset(4)
+    before = law.acceleration(obs, commit=False)
+    law.acceleration(obs, np.full(4, 1.0))
+    np.testing.assert_allclose(law.gap_off, np.full(4, 0.01))  # 1 s · 0.1 s / 10 s
+    law.acceleration(obs)  # no term: δ holds
+    np.testing.assert_allclose(law.gap_off, np.full(4, 0.01))
+    assert np.all(np.abs(law.acceleration(obs, commit=False) - before) < 0.05)
+    for bad, what in ((base + ":gp=10:wo=5", "washout"), (base + ":gl=0.5", "give gp"),
+                      (base + ":gp=10:gl=0.7", "at most h")):
+        with pytest.raises(InputError, match=what):
+            parse_ploeg(bad)

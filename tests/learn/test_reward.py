@@ -64,6 +64,25 @@ def test_the_head_may_have_its_own_spacing_gap():
     assert np.allclose(plain - spaced, [0.0, 0.49])
 
 
+def test_the_spacing_budget_prices_the_platoons_mean_gap_error():
+    """``spacing_budget``: one follower 0.3 s long and one 0.3 s short cost nothing together;
+    every follower pays the square of the mean error (here 0.1 s: all three 0.1 s long)."""
+    from dataclasses import replace
+
+    cfg = replace(REWARD, w_spacing=1.0, spacing_gap_s=0.7, spacing_budget=True)
+    v = 10.0  # the reference 2 + 0.7·10 = 9 m
+    balanced = np.array([[v, 0.0, 12.0, 0.0], [v, 0.0, 6.0, 0.0], [v, 0.0, 9.0, 0.0]])
+    plain, _ = platoon_reward(balanced, balanced[:, 1].copy())
+    spaced, _ = platoon_reward(balanced, balanced[:, 1].copy(), cfg)
+    assert np.allclose(plain - spaced, 0.0)
+    long = balanced + np.array([0.0, 0.0, 1.0, 0.0])
+    plain, _ = platoon_reward(long, long[:, 1].copy())
+    spaced, _ = platoon_reward(long, long[:, 1].copy(), cfg)
+    assert np.allclose(plain - spaced, 0.01)
+    own, _ = platoon_reward(long, long[:, 1].copy(), replace(cfg, spacing_budget=False))
+    assert np.allclose(plain - own, [0.16, 0.04, 0.01])
+
+
 def test_a_heavy_vehicle_may_have_its_own_spacing_gap():
     from dataclasses import replace
 
