@@ -88,6 +88,14 @@ With ``hf=1`` too (``...:wo=5:hf=1``) the head of a chain (no CACC vehicle ahead
 first follower behind a human) takes its term as it is: the learned term may move the head's gap
 (an ACC at ``ha`` with slack to spare) while every follower's stays the base's.
 
+A learned spacing policy (``gp=T``, e.g. ``...:ht=0.8:gp=5:gl=0.5``): the learned term a_adj,i is
+not an acceleration but follower i's time-gap command. Its offset δ_i (s) follows
+GAP_PER_ADJ_S·a_adj,i (1 s per m/s²) through a low-pass of time constant T:
+δ_i(k+1) = δ_i(k) + (dt/T)·(1 s/(m/s²)·a_adj,i - δ_i(k)), held where no term is given, and the
+law runs at h_i + δ_i in e_i, ė_i and the filter (h_i its own gap: h, ht or ha), never below the
+least gap of its class: ``gl`` (s, at most h; default h) for a car in the chain, ht for a heavy
+vehicle, ha for a vehicle without a message. With a_adj = 0 it is the law itself. Not with ``wo``.
+
 Names (accepted wherever a controller name is): ``ploeg`` (h = 1.0 s, textbook gains),
 ``ploeg:h=0.8``, ``ploeg:h=0.8:kp=0.1:kd=1.5``, and ``ploeg-tuned:h=0.8`` (the gains
 ``carl-sumo tune ploeg`` chose for that h, read from :data:`TUNED_FILE`).
