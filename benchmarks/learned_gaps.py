@@ -38,11 +38,8 @@ class Recorder:
 
     def acceleration(self, obs):
         out = self.controller.acceleration(obs)
-        p = self.controller.base.params
-        own = np.array([p.gap_alone_s] + [p.chain_gap_s(b) for b in self.b_max[1:]])
-        floor = np.where(own > p.time_gap_s, own, p.gap_floor_s or p.time_gap_s)
-        floor[0] = own[0]  # the head: ha (cacc._ploeg_law)
-        self.offsets.append(np.maximum(own + self.controller.base.gap_off, floor))
+        own, least = self.controller.base.params.class_gaps(self.b_max)
+        self.offsets.append(np.maximum(own + self.controller.base.gap_off, least))
         return out
 
 

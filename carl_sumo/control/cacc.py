@@ -95,6 +95,9 @@ GAP_PER_ADJ_S·a_adj,i (1 s per m/s²) through a low-pass of time constant T:
 law runs at h_i + δ_i in e_i, ė_i and the filter (h_i its own gap: h, ht or ha), never below the
 least gap of its class: ``gl`` (s, at most h; default h) for a car in the chain, ht for a heavy
 vehicle, ha for a vehicle without a message. With a_adj = 0 it is the law itself. Not with ``wo``.
+With ``gb=1`` (a headway budget) the offsets a chain asks for are shifted by one common amount so
+that they sum to 0, each at or above its floor (:func:`ploeg_names.budgeted_offsets`; the floors
+from the vehicles' braking known with ``aw=1``): RL moves gap between vehicles, never adds it.
 
 Names (accepted wherever a controller name is): ``ploeg`` (h = 1.0 s, textbook gains),
 ``ploeg:h=0.8``, ``ploeg:h=0.8:kp=0.1:kd=1.5``, and ``ploeg-tuned:h=0.8`` (the gains
@@ -124,7 +127,7 @@ from carl_sumo.control.feed_forward import (  # noqa: F401 (mpf_*: read from her
     check_heard, message_size, mpf_feed_forward, mpf_relay, washed_adjustment, with_relays)
 from carl_sumo.control.ploeg_names import (  # noqa: F401 (the names are read from here too)
     CLASSICAL_KINDS, GAP_PER_ADJ_S, HEAVY_BRAKING_MPS2, TEXTBOOK, TUNED_FILE, PloegParams,
-    gap_offset_step, is_ploeg_name, parse_ploeg, read_tuned, read_tuned_entries, tuned_file_for)
+    budgeted_offsets, gap_offset_step, is_ploeg_name, parse_ploeg, read_tuned, read_tuned_entries, tuned_file_for)
 from carl_sumo.config import BOUNDS, DT_S, IDM, ControlBounds
 from carl_sumo.errors import InputError
 
@@ -314,7 +317,7 @@ class PloegController:
         gap_off = self.gap_off
         if self.params.gap_policy_s is not None:  # the learned term is a gap, not an acceleration
             if adjustment is not None:
-                gap_off = gap_offset_step(self.gap_off, GAP_PER_ADJ_S * np.asarray(adjustment),
+                gap_off = gap_offset_step(self.gap_off, self.gap_target(adjustment, -self.u_min),
                                           self.params.gap_policy_s, DT_S)
             adjustment = None
         adjustment, sent = with_relays(self.params, np.minimum(self.u, self.brake), adjustment,
@@ -336,6 +339,16 @@ class PloegController:
             self.channel.send(self._k, messages)
             self._k += 1
         return out
+
+    def gap_target(self, adjustment: np.ndarray, b_max_mps2: np.ndarray) -> np.ndarray:
+        """``gp``: the gap offsets (s) a chain's learned term asks for, head first (with ``gb=1``
+        within the headway budget, :func:`budgeted_offsets`, at the floors of the vehicles whose
+        largest braking is ``b_max_mps2``, m/s², inf: not known)."""
+        target = GAP_PER_ADJ_S * np.asarray(adjustment, dtype=np.float64)
+        if not self.params.gap_budget:
+            return target
+        own, least = self.params.class_gaps(b_max_mps2)
+        return budgeted_offsets(target, least - own)
 
     def step(self, obs: np.ndarray, u: np.ndarray, u_lead: float,
              adjustment: np.ndarray | None = None, pred_mode: np.ndarray | None = None,
@@ -497,8 +510,12 @@ class PloegChains:
         gap_policy_s = self.controller.params.gap_policy_s
         if gap_policy_s is not None:  # the learned term is each vehicle's gap (``gp=T``)
             if adjustment is not None:
-                gap_off = gap_offset_step(gap_off, GAP_PER_ADJ_S * np.asarray(adjustment),
-                                          gap_policy_s, DT_S)
+                target = np.zeros(len(ids))
+                for chain in chains:  # each chain's budget (gb=1) over its own vehicles
+                    b_max = [self.limits.get(ids[i], (np.inf, np.inf))[1] for i in chain]
+                    target[chain] = self.controller.gap_target(np.asarray(adjustment)[chain],
+                                                               np.array(b_max))
+                gap_off = gap_offset_step(gap_off, target, gap_policy_s, DT_S)
                 if commit:
                     self.gap_off = dict(zip(ids, gap_off.tolist()))
             adjustment = None

@@ -1,7 +1,7 @@
 """The names of the constant-time-gap laws and their parameters: what ``ploeg:h=0.8:kp=0.1:kd=1``,
 ``ploeg-tuned:h=0.8``, ``acc:h=2.5``, the multi-predecessor ``mpf:r=2:w2=0.3`` and their options
 (``aw``, ``ha``, ``ttc``, ``rb``, ``wo``, ``hf``, ``gs``, ``gn``, ``op``, ``ht``, ``gp``,
-``gl``) stand for
+``gl``, ``gb``) stand for
 (:class:`PloegParams`), and the tuned-gains files of ``carl-sumo tune``. The law itself, and what
 each option does, is :mod:`carl_sumo.control.cacc`.
 """
@@ -12,6 +12,8 @@ import json
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
+
+import numpy as np
 
 from carl_sumo.errors import InputError
 from carl_sumo.resources import policies_dir
@@ -42,6 +44,24 @@ def gap_offset_step(offset, target, time_constant_s: float, dt_s: float):
     """``gp=T``: each vehicle's time-gap offset (s) one step of ``dt_s`` later, low-passed towards
     ``target`` (s) with the time constant ``time_constant_s``."""
     return offset + (dt_s / time_constant_s) * (target - offset)
+
+
+def budgeted_offsets(target, least):
+    """``gb=1``: the gap offsets (s) nearest to ``target`` (one shift c for all: max(t_i - c,
+    lo_i)) that keep the platoon's headway budget, Σ offsets = 0, each at least its
+    ``least`` lo_i (s, ≤ 0: its class's least gap less its own). Found by bisection on c (the sum
+    falls as c rises); exact to 1e-9 s."""
+    target, least = np.asarray(target, dtype=np.float64), np.asarray(least, dtype=np.float64)
+    if target.size == 0:
+        return target.copy()
+    low, high = float(target.min() - 1.0), float(target.max())  # sum ≥ 0 at low, ≤ 0 at high
+    for _ in range(60):
+        c = 0.5 * (low + high)
+        if np.maximum(target - c, least).sum() > 0.0:
+            low = c
+        else:
+            high = c
+    return np.maximum(target - 0.5 * (low + high), least)
 
 
 @dataclass(frozen=True)
@@ -81,6 +101,8 @@ class PloegParams:
                                 # constant, s) instead of entering as an acceleration (None: off)
     gap_floor_s: float | None = None  # gl (with gp): the least time gap of a car in a chain (s;
                                 # None: h); a heavy vehicle keeps at least ht, the head ha
+    gap_budget: bool = False    # gb=1 (with gp): the offsets of a chain sum to 0 (a headway
+                                # budget: RL moves gap between vehicles, never adds it)
     weights: tuple[float, ...] = (1.0,)  # mpf: w_1..w_r, the weights of the commands of the r
                                 # vehicles ahead in the feed-forward (-; Ploeg: (1,); MPF_OPTIONS)
 
@@ -111,7 +133,8 @@ class PloegParams:
             (f":op={self.opening_braking_mps2:g}" if self.opening_braking_mps2 is not None else "") + \
             (f":ht={self.heavy_gap_s:g}" if self.heavy_gap_s is not None else "") + \
             (f":gp={self.gap_policy_s:g}" if self.gap_policy_s is not None else "") + \
-            (f":gl={self.gap_floor_s:g}" if self.gap_floor_s is not None else "")
+            (f":gl={self.gap_floor_s:g}" if self.gap_floor_s is not None else "") + \
+            (":gb=1" if self.gap_budget else "")
 
     @property
     def gap_alone_s(self) -> float:
@@ -119,6 +142,19 @@ class PloegParams:
         if self.feed_forward and self.alone_gap_s is not None:
             return self.alone_gap_s
         return self.time_gap_s
+
+    def class_gaps(self, b_max_mps2) -> tuple[np.ndarray, np.ndarray]:
+        """(own, least) time gaps (s) of a chain's vehicles, head first, whose largest braking
+        is ``b_max_mps2`` (m/s², inf or nan: not known): the head's ``ha`` (its least too), a
+        follower's :meth:`chain_gap_s`, least ``gl`` for a car and its own for a heavy vehicle
+        (``gp``'s floors, as the kernel keeps them)."""
+        b = [None if not np.isfinite(x) else float(x) for x in np.asarray(b_max_mps2, float)]
+        own = np.array([self.gap_alone_s] + [self.chain_gap_s(x) for x in b[1:]])[:len(b)]
+        least = np.where(own > self.time_gap_s, own, self.time_gap_s
+                         if self.gap_floor_s is None else self.gap_floor_s)
+        if len(b):
+            least[0] = own[0]
+        return own, least
 
     def chain_gap_s(self, b_max_mps2: float | None) -> float:
         """The time gap (s) of a follower that hears a message and brakes at most ``b_max_mps2``
@@ -288,9 +324,10 @@ def _switches(name: str, opts: dict[str, float]) -> dict:
     if "gp" in opts and "wo" in opts:
         raise InputError(f"controller {name!r}: gp=T makes the learned term a time gap, which "
                          "the washout wo would undo; give one of them")
-    if "gl" in opts and "gp" not in opts:
-        raise InputError(f"controller {name!r}: gl is the least gap the learned gap policy gp "
-                         "may set; give gp too (e.g. gp=10:gl=0.5)")
+    for key in ("gl", "gb"):
+        if key in opts and "gp" not in opts:
+            raise InputError(f"controller {name!r}: {key} shapes the gaps the learned gap policy "
+                             "gp sets; give gp too (e.g. gp=5:gl=0.5:gb=1)")
     if opts.get("gl", 0.0) > opts.get("h", TEXTBOOK.time_gap_s):
         raise InputError(f"controller {name!r}: gl={opts['gl']:g} is above the time gap h; "
                          "give gl at most h")
@@ -302,7 +339,8 @@ def _switches(name: str, opts: dict[str, float]) -> dict:
             "safe_braking_mps2": opts.get("gs", opts.get("gn")),
             "safe_new_only": "gn" in opts, "opening_braking_mps2": opts.get("op"),
             "heavy_gap_s": opts.get("ht"), "gap_policy_s": opts.get("gp"),
-            "gap_floor_s": opts.get("gl")}
+            "gap_floor_s": opts.get("gl"),
+            "gap_budget": _flag(name, opts, "gb", "the learned gap offsets sum to 0")}
 
 
 def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal") -> PloegParams:
@@ -329,13 +367,13 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
         return replace(p, feed_forward=bool(weights), weights=weights or (1.0,))
     if kind in ("ploeg", "acc"):
         opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "ttc", "rb", "wo", "hf", "gs",
-                                      "gn", "op", "ht", "gp", "gl"))
+                                      "gn", "op", "ht", "gp", "gl", "gb"))
         return PloegParams(opts.get("h", TEXTBOOK.time_gap_s), opts.get("kp", TEXTBOOK.kp),
                            opts.get("kd", TEXTBOOK.kd), feed_forward=law == "ploeg",
                            **_switches(name, opts))
     if kind in ("ploeg-tuned", "acc-tuned"):
         opts = _parse_options(name, ("h", "aw", "ha", "ttc", "rb", "wo", "hf", "gs", "gn",
-                                      "op", "ht", "gp", "gl"))
+                                      "op", "ht", "gp", "gl", "gb"))
         if "h" not in opts:
             raise InputError(f"controller {name!r}: name the time gap, e.g. {kind}:h=1")
         entries = [e for e in read_tuned_entries(tuned_file) if e.get("law", "ploeg") == law]

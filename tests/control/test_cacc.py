@@ -708,3 +708,34 @@ def test_gp_runs_the_law_at_each_vehicles_learned_gap_floored_by_its_class():
                       (base + ":gp=10:gl=0.7", "at most h")):
         with pytest.raises(InputError, match=what):
             parse_ploeg(bad)
+
+
+def test_gb_keeps_the_headway_budget_within_each_class_floor():
+    """``gb=1``: the learned gap offsets of a chain sum to 0 (RL moves gap between vehicles,
+    never adds it), each at least its class's least gap less its own (the head ha - ha = 0, a
+    truck ht - ht = 0, a car gl - h); an offset asked for by every vehicle alike is no change."""
+    from carl_sumo.control.ploeg_names import budgeted_offsets
+
+    base = "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:ht=0.8:gp=5:gl=0.5"
+    params = parse_ploeg(base + ":gb=1")
+    assert params.gap_budget and params.name() == base + ":gb=1"
+    own, least = params.class_gaps(np.array([9.0, 6.0, 9.0, 9.0, np.inf]))
+    np.testing.assert_allclose(own, [1.4, 0.8, 0.6, 0.6, 0.6])
+    np.testing.assert_allclose(least, [1.4, 0.8, 0.5, 0.5, 0.5])
+    lo = least - own
+    for target in ([0.9, 0.0, 0.0, 0.0, 0.0], [0.5, 0.5, 0.5, 0.5, 0.5], [0.3, -0.2, 0.4, 0.0, -1.0]):
+        off = budgeted_offsets(np.array(target), lo)
+        assert abs(off.sum()) < 1e-8 and np.all(off >= lo - 1e-12)
+    np.testing.assert_allclose(budgeted_offsets(np.full(5, 0.5), lo), 0.0, atol=1e-8)
+    # the head asks for 0.9 s: the three cars give 0.1 s each (their floor), the truck the rest
+    np.testing.assert_allclose(budgeted_offsets(np.array([0.9, 0, 0, 0, 0]), lo),
+                               [0.3, 0.0, -0.1, -0.1, -0.1], atol=1e-8)
+    law = PloegController(params)
+    law.reset(5)
+    law.know_vehicles(np.full(5, 3.0), np.array([9.0, 6.0, 9.0, 9.0, 9.0]))
+    obs = np.tile([15.0, 0.0, 12.0, 0.0], (5, 1))
+    for _ in range(200):
+        law.acceleration(obs, np.array([1.0, -1.0, -1.0, -1.0, -1.0]))
+    assert abs(law.gap_off.sum()) < 1e-6 and law.gap_off[0] > 0.25
+    with pytest.raises(InputError, match="give gp"):
+        parse_ploeg("ploeg:h=0.6:gb=1")
