@@ -27,9 +27,11 @@ def test_the_kernel_is_the_law_then_its_layers_bit_for_bit():
         merge = np.array([np.inf, 80.0, np.inf, 5.0])
         u1, u2 = np.full(4, 0.3), np.full(4, 0.3)
         b1, b2 = np.full(4, -0.5), np.full(4, -0.5)
+        gap_off = np.array([0.0, 0.3, -0.2, 0.1])  # gp: each vehicle's learned gap offset (s)
         whole = _ploeg_step(obs, u1, b1, 0.2, np.zeros(4), law, layers, mode, held, u_min,
-                            u_max, armed, a_ahead, merge)
-        parts = _ploeg_law(obs, u2, b2, 0.2, np.zeros(4), law, mode, held, u_min, u_max)
+                            u_max, armed, a_ahead, merge, gap_off)
+        parts = _ploeg_law(obs, u2, b2, 0.2, np.zeros(4), law, mode, held, u_min, u_max,
+                           gap_off)
         apply_layers(obs, parts, b2, mode, armed, a_ahead, merge, u_min, layers)
         assert whole.tobytes() == parts.tobytes() and u1.tobytes() == u2.tobytes()
         assert b1.tobytes() == b2.tobytes()
