@@ -98,6 +98,9 @@ vehicle, ha for a vehicle without a message. With a_adj = 0 it is the law itself
 With ``gb=1`` (a headway budget) the offsets a chain asks for are shifted by one common amount so
 that they sum to 0, each at or above its floor (:func:`ploeg_names.budgeted_offsets`; the floors
 from the vehicles' braking known with ``aw=1``): RL moves gap between vehicles, never adds it.
+With ``gh=S`` the target is chosen only every S s from a run's first step and held in between
+(the term given at the other steps is not read): the learned gap is a decision of its own time
+scale, and a trainer steps the environment S s per decision (a semi-MDP, ``PlatoonEnv.hold_steps``).
 
 Names (accepted wherever a controller name is): ``ploeg`` (h = 1.0 s, textbook gains),
 ``ploeg:h=0.8``, ``ploeg:h=0.8:kp=0.1:kd=1.5``, and ``ploeg-tuned:h=0.8`` (the gains
@@ -127,7 +130,8 @@ from carl_sumo.control.feed_forward import (  # noqa: F401 (mpf_*: read from her
     check_heard, message_size, mpf_feed_forward, mpf_relay, washed_adjustment, with_relays)
 from carl_sumo.control.ploeg_names import (  # noqa: F401 (the names are read from here too)
     CLASSICAL_KINDS, GAP_PER_ADJ_S, HEAVY_BRAKING_MPS2, TEXTBOOK, TUNED_FILE, PloegParams,
-    budgeted_offsets, gap_offset_step, is_ploeg_name, parse_ploeg, read_tuned, read_tuned_entries, tuned_file_for)
+    budgeted_offsets, gap_offset_step, is_ploeg_name, parse_ploeg, read_tuned, read_tuned_entries,
+    tuned_file_for)
 from carl_sumo.config import BOUNDS, DT_S, IDM, ControlBounds
 from carl_sumo.errors import InputError
 
@@ -270,12 +274,16 @@ class PloegController:
         self._k = 0
         self.adj_mean = np.zeros(0)  # each follower's running mean of a_adj (m/s², ``wo=T``)
         self.gap_off = np.zeros(0)  # each follower's learned time-gap offset (s, ``gp=T``)
+        self.gap_held = np.zeros(0)  # each follower's held gap target (s, ``gh=S``)
+        self._steps = 0  # committed steps since reset (``gh``'s decision steps: every S s)
         self._numbers: tuple = (None, None)  # (params, bounds, law, layers) of the kernel
+        self._gap_floors: dict = {}  # gb=1: a chain's gap floors less its own gaps, by braking
 
     def reset(self, n_followers: int) -> None:
         check_heard(self.params, n_followers, self.name)
         self.u, self.brake = np.zeros(n_followers), np.full(n_followers, np.inf)
         self.adj_mean, self.gap_off = np.zeros(n_followers), np.zeros(n_followers)
+        self.gap_held, self._steps = np.zeros(n_followers), 0
         self.u_min, self.u_max = np.full(n_followers, -np.inf), np.full(n_followers, np.inf)
         self._leader_speed, self._dv = None, None
         self.channel, self._k = None, 0
@@ -314,11 +322,12 @@ class PloegController:
             adjustment, adj_mean = washed_adjustment(adjustment, self.adj_mean,
                                                      self.params.washout_s,
                                                      [0] if self.params.head_free else None)
-        gap_off = self.gap_off
+        gap_off, gap_held = self.gap_off, self.gap_held
         if self.params.gap_policy_s is not None:  # the learned term is a gap, not an acceleration
             if adjustment is not None:
-                gap_off = gap_offset_step(self.gap_off, self.gap_target(adjustment, -self.u_min),
-                                          self.params.gap_policy_s, DT_S)
+                if self._steps % self.params.gap_hold_steps(DT_S) == 0:  # gh: a decision step
+                    gap_held = self.gap_target(adjustment, -self.u_min)
+                gap_off = gap_offset_step(self.gap_off, gap_held, self.params.gap_policy_s, DT_S)
             adjustment = None
         adjustment, sent = with_relays(self.params, np.minimum(self.u, self.brake), adjustment,
                                        mode, received, None if mode is None else self.channel.heard)
@@ -327,7 +336,7 @@ class PloegController:
                              self.brake.copy(), a_ahead=a_ahead, gap_off=gap_off)
         if self.params.washout_s is not None:
             self.adj_mean = adj_mean
-        self.gap_off = gap_off
+        self.gap_off, self.gap_held, self._steps = gap_off, gap_held, self._steps + 1
         self._leader_speed = leader_speed
         if self.params.reaction_braking_ahead:  # the radar's Δv, for the next step's a_ahead
             self._dv = np.array(obs[:, 3], dtype=np.float64)
@@ -347,8 +356,12 @@ class PloegController:
         target = GAP_PER_ADJ_S * np.asarray(adjustment, dtype=np.float64)
         if not self.params.gap_budget:
             return target
-        own, least = self.params.class_gaps(b_max_mps2)
-        return budgeted_offsets(target, least - own)
+        key = (self.params, np.asarray(b_max_mps2, dtype=np.float64).tobytes())
+        floors = self._gap_floors.get(key)
+        if floors is None:  # a chain's (own, least) gaps change only with its vehicles
+            own, least = self.params.class_gaps(b_max_mps2)
+            floors = self._gap_floors[key] = least - own
+        return budgeted_offsets(target, floors)
 
     def step(self, obs: np.ndarray, u: np.ndarray, u_lead: float,
              adjustment: np.ndarray | None = None, pred_mode: np.ndarray | None = None,
@@ -436,11 +449,13 @@ class PloegChains:
         self._k = 0
         self.adj_mean: dict[str, float] = {}  # ID: its running mean of a_adj (m/s², ``wo=T``)
         self.gap_off: dict[str, float] = {}  # ID: its learned time-gap offset (s, ``gp=T``)
+        self.gap_held: dict[str, float] = {}  # ID: its held gap target (s, ``gh=S``)
+        self._steps = 0  # committed steps since reset (``gh``: a choice every S s)
 
     def reset(self) -> None:
         """Forget every state, limit and link: a new run starts (every vehicle's u at 0)."""
         self.u, self.brake, self.limits, self.links, self._k = {}, {}, {}, None, 0
-        self.adj_mean, self.gap_off = {}, {}
+        self.adj_mean, self.gap_off, self.gap_held, self._steps = {}, {}, {}, 0
         self.armed, self.merge_m, self._dv = set(), {}, {}
 
     def arm(self, vehicle_ids: set[str]) -> None:
@@ -510,14 +525,16 @@ class PloegChains:
         gap_policy_s = self.controller.params.gap_policy_s
         if gap_policy_s is not None:  # the learned term is each vehicle's gap (``gp=T``)
             if adjustment is not None:
-                target = np.zeros(len(ids))
-                for chain in chains:  # each chain's budget (gb=1) over its own vehicles
-                    b_max = [self.limits.get(ids[i], (np.inf, np.inf))[1] for i in chain]
-                    target[chain] = self.controller.gap_target(np.asarray(adjustment)[chain],
-                                                               np.array(b_max))
+                target = np.array([self.gap_held.get(v, 0.0) for v in ids])
+                if self._steps % self.controller.params.gap_hold_steps(DT_S) == 0:
+                    for chain in chains:  # each chain's budget (gb=1) over its own vehicles
+                        b_max = [self.limits.get(ids[i], (np.inf, np.inf))[1] for i in chain]
+                        target[chain] = self.controller.gap_target(
+                            np.asarray(adjustment)[chain], np.array(b_max))
                 gap_off = gap_offset_step(gap_off, target, gap_policy_s, DT_S)
                 if commit:
                     self.gap_off = dict(zip(ids, gap_off.tolist()))
+                    self.gap_held = dict(zip(ids, target.tolist()))
             adjustment = None
         u_new: dict[str, float] = {}
         brake_new: dict[str, float] = {}
@@ -550,5 +567,5 @@ class PloegChains:
             brake_new.update(zip((ids[i] for i in chain), brake.tolist()))
         if commit:
             self.u, self.brake, self._dv = u_new, brake_new, dv_new
-            self._k += 1
+            self._k, self._steps = self._k + 1, self._steps + 1
         return out

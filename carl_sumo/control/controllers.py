@@ -117,6 +117,13 @@ def base_controller(name: str) -> PloegController | None:
                      "(ploeg, ploeg:h=H:kp=KP:kd=KD, ploeg-tuned:h=H)")
 
 
+def hold_steps(name: str) -> int:
+    """Simulation steps (0.1 s) per decision of the learned term on base ``name``: S/0.1 for a
+    base whose learned gap is held ``gh=S`` s (:mod:`carl_sumo.control.cacc`), else 1."""
+    base = base_controller(name)
+    return 1 if base is None else base.params.gap_hold_steps()
+
+
 def check_base(name: str) -> str:
     """``name`` if it names a base model (``idm`` or a Ploeg controller name); InputError if not."""
     base_controller(name)

@@ -49,19 +49,24 @@ def gap_offset_step(offset, target, time_constant_s: float, dt_s: float):
 def budgeted_offsets(target, least):
     """``gb=1``: the gap offsets (s) nearest to ``target`` (one shift c for all: max(t_i - c,
     lo_i)) that keep the platoon's headway budget, Σ offsets = 0, each at least its
-    ``least`` lo_i (s, ≤ 0: its class's least gap less its own). Found by bisection on c (the sum
-    falls as c rises); exact to 1e-9 s."""
+    ``least`` lo_i (s, ≤ 0: its class's least gap less its own). Exact: the sum is piecewise
+    linear in c with breakpoints t_i - lo_i; with the k largest breakpoints above c it is zero at
+    c = (Σ_k t + Σ_rest lo)/k, the first k whose c lies in its own interval (none: Σ lo = 0, and
+    every offset is its floor)."""
     target, least = np.asarray(target, dtype=np.float64), np.asarray(least, dtype=np.float64)
     if target.size == 0:
         return target.copy()
-    low, high = float(target.min() - 1.0), float(target.max())  # sum ≥ 0 at low, ≤ 0 at high
-    for _ in range(60):
-        c = 0.5 * (low + high)
-        if np.maximum(target - c, least).sum() > 0.0:
-            low = c
-        else:
-            high = c
-    return np.maximum(target - 0.5 * (low + high), least)
+    order = np.argsort(least - target)  # breakpoints t_i - lo_i, largest first
+    t, lo = target[order], least[order]
+    brk = t - lo
+    k = np.arange(1, t.size + 1)
+    lo_rest = lo.sum() - np.cumsum(lo)
+    c = (np.cumsum(t) + lo_rest) / k
+    below = np.append(brk[1:], -np.inf)  # the next breakpoint: c must lie in [below, brk)
+    valid = (c < brk) & (c >= below)
+    if not valid.any():
+        return least.copy()
+    return np.maximum(target - c[int(np.argmax(valid))], least)
 
 
 @dataclass(frozen=True)
@@ -103,6 +108,9 @@ class PloegParams:
                                 # None: h); a heavy vehicle keeps at least ht, the head ha
     gap_budget: bool = False    # gb=1 (with gp): the offsets of a chain sum to 0 (a headway
                                 # budget: RL moves gap between vehicles, never adds it)
+    gap_hold_s: float | None = None  # gh (with gp): the learned gap target is chosen every gh s
+                                # (from a run's first step) and held in between: a decision
+                                # period, the step of a semi-MDP (None: every 0.1 s step)
     weights: tuple[float, ...] = (1.0,)  # mpf: w_1..w_r, the weights of the commands of the r
                                 # vehicles ahead in the feed-forward (-; Ploeg: (1,); MPF_OPTIONS)
 
@@ -134,7 +142,8 @@ class PloegParams:
             (f":ht={self.heavy_gap_s:g}" if self.heavy_gap_s is not None else "") + \
             (f":gp={self.gap_policy_s:g}" if self.gap_policy_s is not None else "") + \
             (f":gl={self.gap_floor_s:g}" if self.gap_floor_s is not None else "") + \
-            (":gb=1" if self.gap_budget else "")
+            (":gb=1" if self.gap_budget else "") + \
+            (f":gh={self.gap_hold_s:g}" if self.gap_hold_s is not None else "")
 
     @property
     def gap_alone_s(self) -> float:
@@ -142,6 +151,10 @@ class PloegParams:
         if self.feed_forward and self.alone_gap_s is not None:
             return self.alone_gap_s
         return self.time_gap_s
+
+    def gap_hold_steps(self, dt_s: float = 0.1) -> int:
+        """``gh``: the steps of ``dt_s`` between two choices of the learned gap (1: every step)."""
+        return 1 if self.gap_hold_s is None else max(1, round(self.gap_hold_s / dt_s))
 
     def class_gaps(self, b_max_mps2) -> tuple[np.ndarray, np.ndarray]:
         """(own, least) time gaps (s) of a chain's vehicles, head first, whose largest braking
@@ -324,7 +337,7 @@ def _switches(name: str, opts: dict[str, float]) -> dict:
     if "gp" in opts and "wo" in opts:
         raise InputError(f"controller {name!r}: gp=T makes the learned term a time gap, which "
                          "the washout wo would undo; give one of them")
-    for key in ("gl", "gb"):
+    for key in ("gl", "gb", "gh"):
         if key in opts and "gp" not in opts:
             raise InputError(f"controller {name!r}: {key} shapes the gaps the learned gap policy "
                              "gp sets; give gp too (e.g. gp=5:gl=0.5:gb=1)")
@@ -340,7 +353,8 @@ def _switches(name: str, opts: dict[str, float]) -> dict:
             "safe_new_only": "gn" in opts, "opening_braking_mps2": opts.get("op"),
             "heavy_gap_s": opts.get("ht"), "gap_policy_s": opts.get("gp"),
             "gap_floor_s": opts.get("gl"),
-            "gap_budget": _flag(name, opts, "gb", "the learned gap offsets sum to 0")}
+            "gap_budget": _flag(name, opts, "gb", "the learned gap offsets sum to 0"),
+            "gap_hold_s": opts.get("gh")}
 
 
 def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal") -> PloegParams:
@@ -367,13 +381,13 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
         return replace(p, feed_forward=bool(weights), weights=weights or (1.0,))
     if kind in ("ploeg", "acc"):
         opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "ttc", "rb", "wo", "hf", "gs",
-                                      "gn", "op", "ht", "gp", "gl", "gb"))
+                                      "gn", "op", "ht", "gp", "gl", "gb", "gh"))
         return PloegParams(opts.get("h", TEXTBOOK.time_gap_s), opts.get("kp", TEXTBOOK.kp),
                            opts.get("kd", TEXTBOOK.kd), feed_forward=law == "ploeg",
                            **_switches(name, opts))
     if kind in ("ploeg-tuned", "acc-tuned"):
         opts = _parse_options(name, ("h", "aw", "ha", "ttc", "rb", "wo", "hf", "gs", "gn",
-                                      "op", "ht", "gp", "gl", "gb"))
+                                      "op", "ht", "gp", "gl", "gb", "gh"))
         if "h" not in opts:
             raise InputError(f"controller {name!r}: name the time gap, e.g. {kind}:h=1")
         entries = [e for e in read_tuned_entries(tuned_file) if e.get("law", "ploeg") == law]

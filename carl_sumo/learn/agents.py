@@ -65,7 +65,8 @@ class AgentConfig:
     hidden: int = option(64, "hidden layer width", "agent", low=1, high=65_536)
     adj_max: float = option(3.0, "bound of the learned adjustment |a_adj|", "agent",
                             unit="m/s²", low=0.0, open_low=True, high=100.0)
-    gamma: float = option(0.98, "discount per 0.1 s step", "agent", low=0.0, high=1.0,
+    gamma: float = option(0.98, "discount per decision (a 0.1 s step; gh=S s on a base "
+                          "that holds its learned gap)", "agent", low=0.0, high=1.0,
                           open_low=True)
     tau: float = option(0.005, "soft-update rate of the target networks per update", "agent",
                         low=0.0, high=1.0, open_low=True)

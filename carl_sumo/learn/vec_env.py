@@ -40,10 +40,19 @@ class EnvRunner:
     def step(self, data: tuple[np.ndarray, Impairments | None]) -> tuple:
         """(next obs, reward, terminated, truncated, final obs, safety cost) of one step of
         ``data`` = (action, the impairments of the next episode if this one ends); the cost is
-        :func:`carl_sumo.learn.reward.critical_cost` of the true state after the step."""
+        :func:`carl_sumo.learn.reward.critical_cost` of the true state after the step. On a base
+        that holds its decisions (``gh=S``, :attr:`PlatoonEnv.hold_steps`) a step is the S s of
+        one decision (or what is left of the episode): the reward its mean, the cost its max."""
         action, next_impairments = data
-        next_obs, reward, terminated, truncated, _ = self.env.step_array(action)
-        final, cost = next_obs, critical_cost(self.env.true_observation)
+        rewards, costs = [], []
+        for _ in range(self.env.hold_steps):  # a base with gh=S: one decision is S s (a
+            next_obs, reward, terminated, truncated, _ = self.env.step_array(action)  # semi-MDP
+            rewards.append(reward)
+            costs.append(critical_cost(self.env.true_observation))
+            if terminated or truncated:
+                break
+        reward, cost = np.mean(rewards, axis=0), np.max(costs, axis=0)
+        final = next_obs
         if terminated or truncated:
             next_obs = self.env.reset_array(impairments=next_impairments)
         return next_obs, reward, terminated, truncated, final, cost

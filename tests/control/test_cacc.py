@@ -739,3 +739,36 @@ def test_gb_keeps_the_headway_budget_within_each_class_floor():
     assert abs(law.gap_off.sum()) < 1e-6 and law.gap_off[0] > 0.25
     with pytest.raises(InputError, match="give gp"):
         parse_ploeg("ploeg:h=0.6:gb=1")
+
+
+def test_gh_holds_the_learned_gap_between_decisions():
+    """``gh=S``: the learned gap target is chosen every S s from the first step and held in
+    between (the term of the other steps is not read), in the platoon's law and the study's
+    chains alike; gh without gp is refused in one line."""
+    from carl_sumo.control.cacc import PloegChains
+
+    name = "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:ht=0.8:gp=2:gl=0.5:gb=1:gh=0.5"
+    params = parse_ploeg(name)
+    assert params.gap_hold_s == 0.5 and params.gap_hold_steps() == 5 and params.name() == name
+    assert parse_ploeg("ploeg:h=0.6:gp=2").gap_hold_steps() == 1
+    rng = np.random.default_rng(3)
+    terms = rng.uniform(-1.0, 1.0, (12, 3))
+    held = terms[(np.arange(12) // 5) * 5]  # the term of each decision step, repeated
+    obs = np.array([[15.0, 0.0, 30.0, 0.0], [15.0, 0.0, 11.0, 0.0], [15.0, 0.0, 11.0, 0.0]])
+    laws = [PloegController(params) for _ in range(2)]
+    chains = PloegChains(params)
+    chains.reset()
+    for law in laws:
+        law.reset(3)
+        law.know_vehicles(np.full(3, 3.0), np.full(3, 9.0))
+    for k in range(12):
+        a = laws[0].acceleration(obs, terms[k])
+        np.testing.assert_array_equal(a, laws[1].acceleration(obs, held[k]))
+        b = chains.acceleration(obs, [[0, 1, 2]], ["h", "c1", "c2"],
+                                [None, ("h", 11.0), ("c1", 11.0)], {}, terms[k])
+        np.testing.assert_allclose(b, a, atol=1e-12)
+        expected = laws[0].gap_target(terms[5 * (k // 5)], np.full(3, 9.0))
+        np.testing.assert_allclose(laws[0].gap_held, expected)
+        assert abs(laws[0].gap_held.sum()) < 1e-9  # gb=1: the held offsets keep the budget
+    with pytest.raises(InputError, match="give gp"):
+        parse_ploeg("ploeg:h=0.6:gh=5")

@@ -72,6 +72,28 @@ def test_classical_base_at_zero_adjustment_is_that_controller():
     assert np.allclose(a_adj - a_zero, np.array([0.2, -0.2, 0.1]) * 0.1 / 0.8)
 
 
+def test_a_held_gap_decision_is_one_step_of_its_seconds():
+    """A base whose learned gap is held ``gh=S`` s makes one vector step S s of simulation (a
+    semi-MDP): the reward is the mean of its 0.1 s steps, the cost their max, the same
+    trajectory as the env stepped every 0.1 s with that term."""
+    from carl_sumo.config import BOUNDS, REWARD
+    from carl_sumo.learn.vec_env import EnvRunner
+
+    base = "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:gp=2:gl=0.5:gh=0.5"
+    env = PlatoonEnv([braking_event()], n_followers=3, net_path=NET, base=base)
+    env.reset_array(seed=0)
+    term = np.array([0.4, -0.2, -0.2])
+    rewards = [env.step_array(term)[1] for _ in range(5)]
+    after = env._obs.copy()  # libsumo: one simulation per process, so the runner comes second
+    runner = EnvRunner([braking_event()], 3, str(NET), 0, REWARD, base, False, BOUNDS, 0.0)
+    assert runner.env.hold_steps == env.hold_steps == 5
+    obs, reward, terminated, truncated, final, cost = runner.step((term, None))
+    assert runner.env.sim.k == 5 and not (terminated or truncated)
+    np.testing.assert_allclose(reward, np.mean(rewards, axis=0), atol=1e-12)
+    np.testing.assert_allclose(obs, after, atol=1e-12)
+    assert cost.shape == (3,)
+
+
 def test_unknown_base_is_refused():
     import pytest
 
