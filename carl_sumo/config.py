@@ -71,6 +71,11 @@ class RewardConfig:
                                   "error, a headway budget (one follower may keep more than its "
                                   "h_s where another keeps less), instead of each follower's own",
                                   "reward")
+    paired_base: bool = option(False, "on a base that holds its learned gap for whole episodes "
+                               "(gh), a decision's reward is its mean reward less the base's "
+                               "(a_adj = 0) on the same event and fleet, run first in the same "
+                               "worker: common random numbers, an action-free baseline (twice "
+                               "the simulation)", "reward")
     spacing_standstill_m: float = option(2.0, "the spacing term's standstill gap s0 (Ploeg's, "
                                          "control/cacc.py)", "reward", unit="m", cli=False)
     w_critical: float = option(0.0, "penalty per follower and step with a time to collision "

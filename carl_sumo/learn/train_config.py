@@ -122,6 +122,7 @@ class TrainConfig:
     spacing_head_gap: float | None = shared(RewardConfig, "spacing_head_gap_s")
     spacing_heavy_gap: float | None = shared(RewardConfig, "spacing_heavy_gap_s")
     spacing_budget: bool = shared(RewardConfig, "spacing_budget")
+    paired_base: bool = shared(RewardConfig, "paired_base")
     w_critical: float = shared(RewardConfig, "w_critical")
     w_amplify: float = shared(RewardConfig, "w_amplify")
     lagrange_lr: float = option(0.0, "RCPO: step of a learned multiplier pricing close calls "
@@ -469,7 +470,22 @@ def held_out_split(events: Sequence[Event], cfg: TrainConfig) -> tuple[list[Even
     if cfg.warmup:  # every episode first settles; validation scores the recorded part
         train = [e.with_warmup(cfg.warmup) for e in train]
         val = [e.with_warmup(cfg.warmup) for e in val]
+    _check_paired(cfg, train)
     return train, val
+
+
+def _check_paired(cfg: TrainConfig, train: Sequence[Event]) -> None:
+    """``--paired-base`` measures a decision against the base from its episode's start: the
+    base must hold its learned gap (``gh``) for longer than every training episode."""
+    if not cfg.paired_base:
+        return
+    from carl_sumo.control.controllers import hold_steps
+
+    longest = max(e.n_samples for e in train)
+    if hold_steps(cfg.base) < longest:
+        raise InputError(f"--paired-base measures each decision against the base over its "
+                         f"whole episode: name the base with a gh of at least "
+                         f"{longest * 0.1:.0f} s (its longest training episode), e.g. ...:gh=1000")
 
 
 def validation_conditions(cfg: TrainConfig) -> tuple:

@@ -19,6 +19,7 @@ from carl_sumo.control.channel import Impairments
 from carl_sumo.config import BOUNDS, REWARD, ControlBounds, RewardConfig
 from carl_sumo.data.events import Event
 from carl_sumo.interrupts import die_with_parent
+from carl_sumo.errors import InputError
 from carl_sumo.learn.reward import critical_cost
 from carl_sumo.scale.workers import WorkerError
 
@@ -35,7 +36,9 @@ class EnvRunner:
         self.env = PlatoonEnv(events, n, net_path, reward=reward, base=base, bounds=bounds,
                               observe_ahead=observe_ahead, shield_ttc_s=shield_ttc_s,
                               command_history=command_history)
+        self.paired = reward.paired_base  # a decision's reward less the base's on its episode
         self.env.reset_array(seed=seed)
+        self._episode = (self.env.event, None)  # (event, impairments) of the episode under way
 
     def step(self, data: tuple[np.ndarray, Impairments | None]) -> tuple:
         """(next obs, reward, terminated, truncated, final obs, safety cost) of one step of
@@ -44,6 +47,9 @@ class EnvRunner:
         that holds its decisions (``gh=S``, :attr:`PlatoonEnv.hold_steps`) a step is the S s of
         one decision (or what is left of the episode): the reward its mean, the cost its max."""
         action, next_impairments = data
+        if self.paired and self.env.sim.k != 0:
+            raise InputError("--paired-base measures a decision against the base from its "
+                             "episode's start: give the base a gh longer than every event")
         rewards, costs = [], []
         for _ in range(self.env.hold_steps):  # a base with gh=S: one decision is S s (a
             next_obs, reward, terminated, truncated, _ = self.env.step_array(action)  # semi-MDP
@@ -53,14 +59,33 @@ class EnvRunner:
                 break
         reward, cost = np.mean(rewards, axis=0), np.max(costs, axis=0)
         final = next_obs
+        if self.paired:  # the base on the same event and fleet, as long: its mean reward
+            reward = reward - self._base_reward(len(rewards))
         if terminated or truncated:
             next_obs = self.env.reset_array(impairments=next_impairments)
+            self._episode = (self.env.event, next_impairments)
         return next_obs, reward, terminated, truncated, final, cost
+
+    def _base_reward(self, steps: int) -> np.ndarray:
+        """The mean reward of the base alone (a_adj = 0) over the first ``steps`` steps of the
+        episode under way (its event and impairments, so its fleet, noise and links), run again
+        from its start (a collision ends it early)."""
+        event, impairments = self._episode
+        self.env.reset_array(event=event, impairments=impairments)
+        zero, rewards = np.zeros(self.env.n_followers), []
+        for _ in range(steps):
+            _, reward, terminated, truncated, _ = self.env.step_array(zero)
+            rewards.append(reward)
+            if terminated or truncated:
+                break
+        return np.mean(rewards, axis=0)
 
     def reset(self, data: tuple[int, Impairments | None]) -> np.ndarray:
         """Start an episode: ``data`` = (seed, its impairments)."""
         seed, impairments = data
-        return self.env.reset_array(seed=seed, impairments=impairments)
+        obs = self.env.reset_array(seed=seed, impairments=impairments)
+        self._episode = (self.env.event, impairments)
+        return obs
 
 
 def _worker(conn, *args) -> None:

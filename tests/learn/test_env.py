@@ -94,6 +94,40 @@ def test_a_held_gap_decision_is_one_step_of_its_seconds():
     assert cost.shape == (3,)
 
 
+def test_a_paired_decision_is_measured_against_the_base_on_its_own_episode():
+    """``paired_base``: a decision held for the whole episode gets its mean reward less the
+    base's (a_adj = 0) on the same event, run again from its start: 0 for the base itself; a
+    base that would not hold a decision for the whole episode is refused before training."""
+    from dataclasses import replace
+
+    from carl_sumo.config import BOUNDS, REWARD
+    from carl_sumo.errors import InputError
+    from carl_sumo.learn.train_config import TrainConfig, held_out_split
+    from carl_sumo.learn.vec_env import EnvRunner
+
+    base = "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:gp=2:gl=0.5:gh=1000"
+    event, term = braking_event(), np.array([0.6, -0.1, -0.1])
+    env = PlatoonEnv([event], n_followers=3, net_path=NET, base=base)
+    means = []
+    for action in (term, np.zeros(3)):
+        env.reset_array(seed=0)
+        rewards, done = [], False
+        while not done:
+            _, reward, terminated, truncated, _ = env.step_array(action)
+            rewards.append(reward)
+            done = terminated or truncated
+        means.append(np.mean(rewards, axis=0))
+    paired = replace(REWARD, paired_base=True)
+    runner = EnvRunner([event], 3, str(NET), 0, paired, base, False, BOUNDS, 0.0)
+    _, reward, _, truncated, _, _ = runner.step((term, None))
+    assert truncated and runner.env.sim.k == 0  # one decision was the episode; the next began
+    np.testing.assert_allclose(reward, means[0] - means[1], atol=1e-12)
+    assert np.all(runner.step((np.zeros(3), None))[1] == 0.0)
+    cfg = TrainConfig(base=base.replace("gh=1000", "gh=5"), paired_base=True, eval_events=1)
+    with pytest.raises(InputError, match="gh of at least"):
+        held_out_split([braking_event(event_id=f"e{i}") for i in range(3)], cfg)
+
+
 def test_unknown_base_is_refused():
     import pytest
 
