@@ -10,7 +10,6 @@ import time
 from pathlib import Path
 from typing import Sequence, TextIO
 
-from carl_sumo.control import controllers
 from carl_sumo.errors import InputError
 from carl_sumo.files import atomic_path
 from carl_sumo.learn.curve import LOG_COLUMNS, LearningCurve
@@ -134,8 +133,7 @@ class Report:
                                    start_step if resume is not None else None)
         self.png, self.title = out.with_suffix(".png"), f"{cfg.algo}: {out.name}"
         self.board = tensorboard_writer(tensorboard) if tensorboard is not None else None
-        # the curve's transitions are platoon steps of 0.1 s (a decision held gh=S s is S/0.1)
-        self.num_envs = cfg.num_envs * controllers.hold_steps(cfg.base)
+        self.num_envs = cfg.num_envs  # transitions: decisions (0.1 s steps, or held gh s)
         self.losses: dict[str, list[float]] = {}
         self.bar = None
         if not isinstance(progress, bool):
