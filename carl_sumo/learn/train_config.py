@@ -21,7 +21,7 @@ from typing import Sequence
 
 import numpy as np
 
-from carl_sumo.config import REWARD, RewardConfig
+from carl_sumo.config import DT_S, REWARD, RewardConfig
 from carl_sumo.control.channel import Impairments, plant_impairments
 from carl_sumo.data.events import MAX_WARMUP_S, Event, check_whole_steps, read_event_ids
 from carl_sumo.errors import InputError
@@ -485,7 +485,8 @@ def _check_paired(cfg: TrainConfig, train: Sequence[Event]) -> None:
     if hold_steps(cfg.base) < longest:
         raise InputError(f"--paired-base measures each decision against the base over its "
                          f"whole episode: name the base with a gh of at least "
-                         f"{longest * 0.1:.0f} s (its longest training episode), e.g. ...:gh=1000")
+                         f"{longest * DT_S:.0f} s (its longest training episode), e.g. "
+                         "...:gh=1000")
 
 
 def validation_conditions(cfg: TrainConfig) -> tuple:
