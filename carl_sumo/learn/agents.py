@@ -154,6 +154,18 @@ class AgentConfig:
         return self.base != "idm"
 
     @property
+    def common_mode_void(self) -> bool:
+        """On a base whose learned gaps keep a headway budget (``gp=T:gb=1``) the law removes
+        the platoon's common offset (:func:`carl_sumo.control.ploeg_names.budgeted_offsets` is
+        unchanged when every target moves alike), so the critics see the actions without it."""
+        if not self.residual:
+            return False
+        from carl_sumo.control.cacc import parse_ploeg
+
+        params = parse_ploeg(self.base)
+        return params.gap_policy_s is not None and params.gap_budget
+
+    @property
     def adjustment_gain(self) -> float:
         """da/da_adj within one step (-): 1 on IDM (a = a_IDM + a_adj); dt/h on a Ploeg base,
         whose first-order law lets that share of a_adj through at once."""
@@ -231,6 +243,7 @@ class Agent(nn.Module):
         self.cfg = cfg
         self.actor, self.critic1 = _networks(cfg)
         self._adjustment_gain = cfg.adjustment_gain
+        self._common_mode_void = cfg.common_mode_void
         if cfg.residual:
             for net in getattr(self.actor, "nets", [self.actor]):  # MADDPG: one per vehicle
                 zero_action_output(net)
@@ -273,6 +286,8 @@ class Agent(nn.Module):
            mask: torch.Tensor | None, detach_params: bool = False) -> torch.Tensor:
         """Q (G, batch, n) of G critics on normalised observations x and actions (m/s²); the CA
         critics run as one fused pass (``detach_params``: no gradient to their weights)."""
+        if self._common_mode_void:  # what the law applies: the platoon's mean action removed
+            action = without_common_mode(action, mask)
         inp = torch.cat([x, (action / self.cfg.adj_max).unsqueeze(-1)], dim=-1)
         if self.cfg.communication_aware:
             return ca_forward(critics, inp, mask, detach_params).squeeze(-1)
@@ -554,6 +569,15 @@ def links_tensors(links: Sequence[np.ndarray]) -> Links:
     f_mode, f_held, b_mode, b_held = links
     return (torch.as_tensor(f_mode, dtype=torch.long), torch.as_tensor(f_held, dtype=torch.float32),
             torch.as_tensor(b_mode, dtype=torch.long), torch.as_tensor(b_held, dtype=torch.float32))
+
+
+def without_common_mode(action: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+    """Each vehicle's action (batch, n) less the mean over the platoon's vehicles in ``mask``."""
+    if mask is None:
+        return action - action.mean(dim=-1, keepdim=True)
+    m = mask.to(action.dtype)
+    mean = (action * m).sum(dim=-1, keepdim=True) / m.sum(dim=-1, keepdim=True).clamp(min=1.0)
+    return (action - mean) * m
 
 
 def _masked_mse(q: torch.Tensor, y: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

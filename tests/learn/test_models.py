@@ -151,3 +151,30 @@ def test_detached_params_give_input_gradients_only():
     x_ref = x.detach().clone().requires_grad_(True)
     reference_ca(nets[0], x_ref).sum().backward()
     torch.testing.assert_close(x.grad, x_ref.grad, rtol=1e-4, atol=1e-5)
+
+
+def test_a_budgeted_gap_policys_critic_does_not_see_the_platoons_common_mode():
+    """``gp=T:gb=1``: the law removes the platoon's common gap offset, so the critics see each
+    action less the platoon's mean (over the vehicles present): Q is the same when every action
+    moves alike, and is not without the budget."""
+    import torch
+
+    from carl_sumo.learn.agents import Agent, AgentConfig
+
+    base = "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:gp=2:gl=0.5:gb=1"
+    torch.manual_seed(0)
+    budgeted = Agent(AgentConfig(algo="ca-td3", n_vehicles=3, base=base, adj_max=1.0, hidden=16))
+    free = Agent(AgentConfig(algo="ca-td3", n_vehicles=3, base=base.replace(":gb=1", ""),
+                             adj_max=1.0, hidden=16))
+    assert budgeted.cfg.common_mode_void and not free.cfg.common_mode_void
+    x = torch.randn(4, 3, budgeted.cfg.obs_dim)
+    a = torch.rand(4, 3) - 0.5
+    mask = torch.ones(4, 3, dtype=torch.bool)
+    for agent, same in ((budgeted, True), (free, False)):
+        q, moved = (agent._q([agent.critic1], x, act, mask) for act in (a, a + 0.3))
+        assert torch.allclose(q, moved, atol=1e-6) == same
+    mask[:, 2] = False  # two vehicles present: their common mode is theirs alone
+    shifted = a.clone()
+    shifted[:, :2] += 0.3
+    q, moved = (budgeted._q([budgeted.critic1], x, act, mask) for act in (a, shifted))
+    assert torch.allclose(q[..., :2], moved[..., :2], atol=1e-6)
