@@ -263,6 +263,7 @@ class PloegController:
             raise InputError(f"the Ploeg time gap h must be a positive number of seconds, "
                              f"got {params.time_gap_s}")
         self.params = params
+        self.hold_steps = params.gap_hold_steps(DT_S)  # steps per learned-gap decision (gh)
         self.name = name or params.name()
         self.bounds = bounds
         self.u = np.zeros(0)
@@ -325,7 +326,7 @@ class PloegController:
         gap_off, gap_held = self.gap_off, self.gap_held
         if self.params.gap_policy_s is not None:  # the learned term is a gap, not an acceleration
             if adjustment is not None:
-                if self._steps % self.params.gap_hold_steps(DT_S) == 0:  # gh: a decision step
+                if self._steps % self.hold_steps == 0:  # gh: a decision step
                     gap_held = self.gap_target(adjustment, -self.u_min)
                 gap_off = gap_offset_step(self.gap_off, gap_held, self.params.gap_policy_s, DT_S)
             adjustment = None
@@ -526,7 +527,7 @@ class PloegChains:
         if gap_policy_s is not None:  # the learned term is each vehicle's gap (``gp=T``)
             if adjustment is not None:
                 target = np.array([self.gap_held.get(v, 0.0) for v in ids])
-                if self._steps % self.controller.params.gap_hold_steps(DT_S) == 0:
+                if self._steps % self.controller.hold_steps == 0:
                     for chain in chains:  # each chain's budget (gb=1) over its own vehicles
                         b_max = [self.limits.get(ids[i], (np.inf, np.inf))[1] for i in chain]
                         target[chain] = self.controller.gap_target(

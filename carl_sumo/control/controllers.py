@@ -117,11 +117,15 @@ def base_controller(name: str) -> PloegController | None:
                      "(ploeg, ploeg:h=H:kp=KP:kd=KD, ploeg-tuned:h=H)")
 
 
+def decision_steps(base: PloegController | None) -> int:
+    """Simulation steps (0.1 s) per decision of the learned term on ``base`` (None: IDM): S/0.1
+    for a base whose learned gap is held ``gh=S`` s (:mod:`carl_sumo.control.cacc`), else 1."""
+    return 1 if base is None else base.hold_steps
+
+
 def hold_steps(name: str) -> int:
-    """Simulation steps (0.1 s) per decision of the learned term on base ``name``: S/0.1 for a
-    base whose learned gap is held ``gh=S`` s (:mod:`carl_sumo.control.cacc`), else 1."""
-    base = base_controller(name)
-    return 1 if base is None else base.params.gap_hold_steps()
+    """:func:`decision_steps` of the base named ``name``."""
+    return decision_steps(base_controller(name))
 
 
 def check_base(name: str) -> str:

@@ -84,7 +84,7 @@ class PlatoonEnv(ParallelEnv):
         """Steps (0.1 s) per decision of the learned term: a base with ``gh=S`` reads it only
         every S s (:mod:`carl_sumo.control.cacc`), so a trainer steps S s per action (1: every
         step)."""
-        return 1 if self._base is None else self._base.params.gap_hold_steps()
+        return controllers.decision_steps(self._base)
 
     def observation_space(self, agent: str) -> spaces.Box:
         return self._observation_space

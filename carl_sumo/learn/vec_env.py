@@ -19,7 +19,6 @@ from carl_sumo.control.channel import Impairments
 from carl_sumo.config import BOUNDS, REWARD, ControlBounds, RewardConfig
 from carl_sumo.data.events import Event
 from carl_sumo.interrupts import die_with_parent
-from carl_sumo.errors import InputError
 from carl_sumo.learn.reward import critical_cost
 from carl_sumo.scale.workers import WorkerError
 
@@ -37,6 +36,7 @@ class EnvRunner:
                               observe_ahead=observe_ahead, shield_ttc_s=shield_ttc_s,
                               command_history=command_history)
         self.paired = reward.paired_base  # a decision's reward less the base's on its episode
+        self.hold = self.env.hold_steps  # steps (0.1 s) per decision: S/0.1 on a gh=S base
         self.env.reset_array(seed=seed)
         self._episode = (self.env.event, None)  # (event, impairments) of the episode under way
 
@@ -47,24 +47,31 @@ class EnvRunner:
         that holds its decisions (``gh=S``, :attr:`PlatoonEnv.hold_steps`) a step is the S s of
         one decision (or what is left of the episode): the reward its mean, the cost its max."""
         action, next_impairments = data
-        if self.paired and self.env.sim.k != 0:
-            raise InputError("--paired-base measures a decision against the base from its "
-                             "episode's start: give the base a gh longer than every event")
-        rewards, costs = [], []
-        for _ in range(self.env.hold_steps):  # a base with gh=S: one decision is S s (a
-            next_obs, reward, terminated, truncated, _ = self.env.step_array(action)  # semi-MDP
-            rewards.append(reward)
-            costs.append(critical_cost(self.env.true_observation))
-            if terminated or truncated:
-                break
-        reward, cost = np.mean(rewards, axis=0), np.max(costs, axis=0)
+        if self.hold == 1:  # a decision every step
+            next_obs, reward, terminated, truncated, _ = self.env.step_array(action)
+            cost, steps = critical_cost(self.env.true_observation), 1
+        else:
+            next_obs, reward, cost, terminated, truncated, steps = self._held(action)
         final = next_obs
         if self.paired:  # the base on the same event and fleet, as long: its mean reward
-            reward = reward - self._base_reward(len(rewards))
+            reward = reward - self._base_reward(steps)
         if terminated or truncated:
             next_obs = self.env.reset_array(impairments=next_impairments)
             self._episode = (self.env.event, next_impairments)
         return next_obs, reward, terminated, truncated, final, cost
+
+    def _held(self, action: np.ndarray) -> tuple:
+        """(next obs, mean reward, max cost, terminated, truncated, steps) of one held decision:
+        ``hold`` steps of ``action``, or what is left of the episode (a semi-MDP)."""
+        rewards, costs = [], []
+        for _ in range(self.hold):
+            next_obs, reward, terminated, truncated, _ = self.env.step_array(action)
+            rewards.append(reward)
+            costs.append(critical_cost(self.env.true_observation))
+            if terminated or truncated:
+                break
+        return (next_obs, np.mean(rewards, axis=0), np.max(costs, axis=0), terminated,
+                truncated, len(rewards))
 
     def _base_reward(self, steps: int) -> np.ndarray:
         """The mean reward of the base alone (a_adj = 0) over the first ``steps`` steps of the
