@@ -4,6 +4,8 @@ here): per design the CA seeds' mean ± std (NGSIM test split, 10 followers, ``-
 --warmup 60``), the worst ‖Γ‖∞ over its seeds (every class, 0.5 and 2 m/s), CA against its
 CA-off ablation paired by seed (relative difference of the means, paired t-test p), and the
 commit whose tree holds its recipe, seed files and policy (the shipped product's: this one).
+The former product's files are ``learned_test_*_mpf160k_*.json``; their rows keep the names its
+seed files had at its commit (``ca_td3_real_10_seed*``).
 
 Usage: python benchmarks/real_plant_designs.py   (prints a markdown table)
 """
@@ -58,17 +60,23 @@ DESIGNS = (  # (label, CA file stem, CA-off file stem or None, commit holding it
      "ecbde40"),
     ("`REAL_MPF`: the same regime on `mpf-tuned`, 16,000 transitions",
      "learned_test_ca_td3_real_mpf_10", None, "a9f8386"),
-    ("`REAL_MPF_160K`: `REAL_MPF` with 160,000 transitions (the product, `ca_td3_real_10`)",
-     "learned_test_ca_td3_real_10", "learned_test_ca_td3_real_nocomm_10", "this"),
-    ("`REAL_BACKTRACK`: the product's recipe with `--trust-backtrack 3` (an amplifying "
+    ("`REAL_MPF_160K`: `REAL_MPF` with 160,000 transitions (the former product)",
+     "learned_test_ca_td3_real_mpf160k_10", "learned_test_ca_td3_real_mpf160k_nocomm_10",
+     "b619a00"),
+    ("`REAL_BACKTRACK`: the former product's recipe with `--trust-backtrack 3` (an amplifying "
      "checkpoint keeps the first string-stable point on the way back to its anchor)",
      "learned_test_ca_td3_real_bt_10", None, "d6cf41a"),
-    ("`REAL_HEAD_FREE`: the product's recipe with the head freed from the washout (`hf=1`: "
+    ("`REAL_HEAD_FREE`: the former product's recipe with the head freed from the washout (`hf=1`: "
      "the first follower takes its learned term as it is)",
      "learned_test_ca_td3_real_hf_10", None, "10f3ba6"),
     ("`REAL_GAP_TRADED`: the same (`hf=1`) started from the gap-traded law (cars 0.5 s, head "
      "2.3 s, the reward's spacing term at the same gaps)",
      "learned_test_ca_td3_real_gt_10", None, "c05c2fe"),
+    ("`REAL_GAP_BANDIT`: each vehicle's gap on `mpf-tuned` within its headway budget, chosen "
+     "once per episode against the base on the same event (`gp=2:gl=0.5:gb=1:gh=1000`, "
+     "`--paired-base`), the critics blind to the budget's common mode (the product, "
+     "`ca_td3_real_10`)", "learned_test_ca_td3_real_10", "learned_test_ca_td3_real_nocomm_10",
+     "this"),
 )
 
 

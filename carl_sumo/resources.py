@@ -24,10 +24,10 @@ EVENT_LISTS = PACKAGE / "data" / "event_lists"
 ``val_hard_real.txt`` (benchmarks/hard_events.py writes them)."""
 
 PRODUCT = "ca_td3_real_10.pt"
-"""The file of the real-plant product (``--controller product``): CA-TD3 learning on the
-multi-predecessor CACC tuned for the fleet (``mpf-tuned``: ``product-base`` plus the commands of 3
-vehicles ahead) at the product's time gaps (cars 0.6 s, trucks 0.8 s), with its safety layers
-(policies/README.md)."""
+"""The file of the real-plant product (``--controller product``): CA-TD3 setting each vehicle's
+time gap, once per run and within the platoon's headway budget, in the multi-predecessor CACC
+tuned for the fleet (``mpf-tuned``: ``product-base`` plus the commands of 3 vehicles ahead) at the
+product's time gaps (cars 0.6 s, trucks 0.8 s), with its safety layers (policies/README.md)."""
 
 PRESET_POLICIES = {"product": PRODUCT}
 """Controller names that stand for a shipped policy file."""

@@ -412,9 +412,9 @@ def _rank_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--string-stable", choices=("ideal", "real"),
                    help="the best run must also be string stable on this plant: ‖Γ‖∞ <= 1 on "
                         "every class of its fleet at leader amplitudes 0.5 and 2 m/s (5 "
-                        "followers, 8 frequencies 0.05-3 rad/s, a synthetic leader: no test "
-                        "event); runs are checked in rank order until one passes, about a "
-                        "minute each on the real plant")
+                        "followers, 24 frequencies 0.05-3 rad/s, a synthetic leader: no test "
+                        "event); runs are checked in rank order until one passes, a few "
+                        "minutes each on the real plant")
 
 
 def cmd_rank(args: argparse.Namespace) -> None:
