@@ -80,8 +80,9 @@ def test_collisions_and_close_calls_count_only_where_the_reference_has_none():
 
 def test_the_suites_product_start_is_the_shipped_products_base():
     """The scenario suite's row for the product's start (``mpf-tuned`` at its gap) is the law the
-    shipped product runs its learned term on (its washout ``wo`` acts on that term alone), so the
-    two rows differ by that term alone; the one-predecessor law it extends comes before it."""
+    shipped product runs its learned term on (the options that shape that term alone: a washout
+    ``wo``, ``hf``, or a learned gap ``gp``, ``gl``, ``gb``, ``gh``), so the two rows differ by that
+    term alone; the one-predecessor law it extends comes before it."""
     from carl_sumo.control.channel import plant_impairments
     from carl_sumo.control.ploeg_names import tuned_law
     from carl_sumo.experiments.suite import PRODUCT_MPF
@@ -90,7 +91,9 @@ def test_the_suites_product_start_is_the_shipped_products_base():
     payload = read_policy_payload(Path("policies") / PRODUCT)
     base = payload["agent_config"]["base"].split(":")
     start = tuned_law(PRODUCT_MPF, plant=plant_impairments("real").plant_key).split(":")
-    assert [p for p in base if p != "wo=5"] == start
-    assert set(PRODUCT_BASE.split(":")[1:]) < set(base)  # the one-predecessor law's keys
+    learned_term_only = ("wo", "hf", "gp", "gl", "gb", "gh")
+    assert [p for p in base if p.split("=")[0] not in learned_term_only] == start
+    law = {p for p in PRODUCT_BASE.split(":")[1:] if p.split("=")[0] not in learned_term_only}
+    assert law < set(base)  # the one-predecessor law's keys
     real = PLANT_CONTROLLERS["real"]
     assert real.index(PRODUCT_BASE) + 1 == real.index(PRODUCT_MPF) == real.index(PRODUCT) - 1
