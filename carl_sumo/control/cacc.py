@@ -350,6 +350,16 @@ class PloegController:
             self._k += 1
         return out
 
+    def hold_decision(self, offsets: np.ndarray) -> None:
+        """``gh``: start as if the decision of the first step had been ``offsets`` (s, one per
+        follower, head first, after the budget): every gap offset in place and held, the next
+        decision S s on (the string-stability test of a policy's chosen gaps,
+        :mod:`carl_sumo.experiments.held_gaps`). Call after :meth:`reset`."""
+        offsets = np.asarray(offsets, dtype=np.float64)
+        if offsets.shape != self.gap_off.shape:
+            raise InputError(f"{offsets.size} gap offsets for a platoon of {self.gap_off.size}")
+        self.gap_off, self.gap_held, self._steps = offsets.copy(), offsets.copy(), 1
+
     def gap_target(self, adjustment: np.ndarray, b_max_mps2: np.ndarray) -> np.ndarray:
         """``gp``: the gap offsets (s) a chain's learned term asks for, head first (with ``gb=1``
         within the headway budget, :func:`budgeted_offsets`, at the floors of the vehicles whose

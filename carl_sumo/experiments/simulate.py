@@ -82,11 +82,13 @@ def human_trajectory(event: Event) -> PlatoonTrajectory:
 def run_event(sim: PlatoonSim, event: Event, n_followers: int,
               controller: Controller | AccelerationController | None,
               fcd_path: Path | None = None,
-              impairments: Impairments | None = None) -> PlatoonTrajectory:
+              impairments: Impairments | None = None,
+              start_gaps_m: np.ndarray | None = None) -> PlatoonTrajectory:
     """Run one event in SUMO to its end or to the first collision; the trajectory (from the
     event's ``scored_from`` on: a warm-up is run but not returned). With
     ``impairments`` (:mod:`carl_sumo.control.channel`) the controller's V2V messages cross impaired links
-    and it sees noisy own measurements; the trajectory is the true one."""
+    and it sees noisy own measurements; the trajectory is the true one. ``start_gaps_m``: each
+    follower's own start gap (m; :meth:`PlatoonSim.reset`)."""
     if controller is not None:
         controller.reset(n_followers)
     sensors = None
@@ -96,7 +98,8 @@ def run_event(sim: PlatoonSim, event: Event, n_followers: int,
         sensors = Sensors.of(impairments, event.event_id)
     plant = impairments.plant if impairments is not None else None
     sim.reset(event, n_followers, fcd_path, plant=plant,
-              plant_seed=impairments.seed if impairments is not None else 0)
+              plant_seed=impairments.seed if impairments is not None else 0,
+              start_gaps_m=start_gaps_m)
     if controller is not None and sim.powertrains is not None and \
             hasattr(controller, "know_vehicles"):
         controller.know_vehicles(sim.powertrains.a_max, sim.powertrains.b_max)

@@ -139,13 +139,21 @@ def equilibrium_gap(controller: str, speed_mps: float) -> float:
 
 
 def run_frequency(controller: str, omega: float, n: int, test: SineTest, net: str,
-                  impairments: Impairments | None) -> list[float]:
-    """The link gains (n,) of one frequency, run in this process."""
+                  impairments: Impairments | None, decision: tuple[float, ...] = ()
+                  ) -> list[float]:
+    """The link gains (n,) of one frequency, run in this process; a held-gap policy with its
+    first ``decision`` (gap offsets, s) in place (:mod:`carl_sumo.experiments.held_gaps`)."""
+    from carl_sumo.experiments.held_gaps import HeldDecision, start_gaps_m
     from carl_sumo.experiments.simulate import cached_sim, plant_of, resolve_controller, run_event
 
     follower_model, ctrl = resolve_controller(controller, plant_of(impairments))
+    start = None
+    if decision:  # each follower at its own held gap from the start
+        ctrl = HeldDecision(ctrl, decision)
+        start = start_gaps_m(ctrl, decision, impairments, test.base_speed_mps)
     event = test.event(omega, equilibrium_gap(controller, test.base_speed_mps))
-    traj = run_event(cached_sim(net, follower_model), event, n, ctrl, impairments=impairments)
+    traj = run_event(cached_sim(net, follower_model), event, n, ctrl, impairments=impairments,
+                     start_gaps_m=start)
     if traj.collisions:
         raise InputError(f"{controller} collided at {omega:g} rad/s; string stability is "
                          "measured on a platoon that stays safe")
@@ -169,12 +177,14 @@ def check_run(controller: str, omegas: Sequence[float], n: int, test: SineTest,
 
 def measure(controller: str, omegas: Sequence[float], n: int, test: SineTest = SineTest(),
             impairments: Impairments | None = None, net: str = str(DEFAULT_NET),
-            workers: int = 1) -> dict:
+            workers: int = 1, decision: Sequence[float] = ()) -> dict:
     """The measured curve of one controller: ``per_link`` (one list of gains per link),
-    ``gain`` (the max over links per frequency) and ``hinf``."""
+    ``gain`` (the max over links per frequency) and ``hinf``; ``decision``: see
+    :func:`run_frequency`."""
     from carl_sumo.scale.workers import run_parallel
 
-    items = [(controller, float(w), n, test, net, impairments) for w in omegas]
+    decision = tuple(float(x) for x in decision)
+    items = [(controller, float(w), n, test, net, impairments, decision) for w in omegas]
     if workers > 1:
         rows = list(run_parallel(run_frequency, items, workers,
                                  describe=lambda a: f"{a[0]} at {a[1]:g} rad/s"))
@@ -253,10 +263,17 @@ def string_stability(controllers: Sequence[str], plant: Plant | None,
                      test: SineTest = SineTest(), net: str = str(DEFAULT_NET),
                      workers: int = 1) -> dict:
     """The whole check: every controller on every class of the plant (see :func:`plant_cases`),
-    measured and, for the linear laws, in theory."""
+    measured and, for the linear laws, in theory. A held-gap policy runs with the gaps it chose
+    on events held, at the number of followers it was trained with (``decision`` in its rows,
+    :mod:`carl_sumo.experiments.held_gaps`)."""
+    from carl_sumo.experiments.held_gaps import held_decision
+
     omegas = log_frequencies() if omegas is None else np.asarray(omegas, dtype=float)
+    held = {name: held_decision(name, impairments, net) for name in controllers}
+    sizes = {name: n if held[name] is None else len(held[name]["offsets_s"])
+             for name in controllers}
     for name in controllers:
-        check_run(name, omegas, n, test, net)
+        check_run(name, omegas, sizes[name], test, net)
     comm_delay = impairments.delay_s if impairments is not None else 0.0
     # a -tuned law runs the gains tuned for this plant (the fleet), on every class of it
     fleet_key = impairments.plant_key if impairments is not None else "ideal"
@@ -265,11 +282,14 @@ def string_stability(controllers: Sequence[str], plant: Plant | None,
     for cls, case in plant_cases(plant):
         imp = replace(impairments or Impairments(), plant=case)
         for name in controllers:
+            decision = held[name]["offsets_s"] if held[name] else ()
             entry = {"controller": name, "class": cls,
                      "plant": "ideal" if case is None else case.describe(),
                      "comm_delay_s": comm_delay,
-                     **measure(gains[name], omegas, n, test, imp if imp.active else None, net,
-                               workers)}
+                     **measure(gains[name], omegas, sizes[name], test,
+                               imp if imp.active else None, net, workers, decision)}
+            if held[name]:
+                entry["decision"] = held[name]
             theory = analytic(gains[name], omegas, case, comm_delay, n)
             if theory is not None:
                 entry["analytic"] = theory

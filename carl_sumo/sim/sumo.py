@@ -200,6 +200,18 @@ def check_fits(route: LaneRoute, event: Event, n_followers: int,
                          "fewer --vehicles")
 
 
+def start_gaps(event: Event, n_followers: int, given: np.ndarray | None = None) -> np.ndarray:
+    """Each follower's bumper gap at t = 0 (m): the event's recorded one, or ``given`` (shape
+    (n,), negative ones as 0); InputError for another shape."""
+    gap0 = max(event.initial_gap_m, 0.0)
+    if given is None:
+        return np.full(n_followers, gap0)
+    gaps = np.maximum(np.asarray(given, dtype=np.float64), 0.0)
+    if gaps.shape != (n_followers,):
+        raise InputError(f"{gaps.size} start gaps for {n_followers} followers")
+    return gaps
+
+
 def sumo_args(net_path: Path, fcd_path: Path | None = None, seed: int = 0) -> list[str]:
     """Command-line options of every carl-sumo simulation."""
     args = ["-n", str(net_path), "-a", str(VTYPES_FILE), "--step-length", str(DT_S),
@@ -374,12 +386,15 @@ class PlatoonSim:
         return sumo_args(self.route.net_path, fcd_path, seed)
 
     def reset(self, event: Event, n_followers: int, fcd_path: Path | None = None,
-              seed: int = 0, plant: Plant | None = None, plant_seed: int = 0) -> None:
+              seed: int = 0, plant: Plant | None = None, plant_seed: int = 0,
+              start_gaps_m: np.ndarray | None = None) -> None:
         """Load SUMO afresh and place the leader and ``n_followers`` at the event's t = 0 state.
 
         Followers start at the recorded follower's initial speed, one behind the other with the
-        recorded initial bumper gap. ``plant``: their vehicle dynamics (None: the ideal plant),
-        drawn for this event with ``plant_seed`` (:meth:`carl_sumo.sim.vehicle.Plant.draw`).
+        recorded initial bumper gap, or each with its own ``start_gaps_m`` (m, shape (n,), head
+        first: e.g. each at its own equilibrium). ``plant``: their vehicle dynamics (None: the
+        ideal plant), drawn for this event with ``plant_seed``
+        (:meth:`carl_sumo.sim.vehicle.Plant.draw`).
         """
         if n_followers < 1:
             raise InputError(f"a platoon needs at least 1 follower, got {n_followers}")
@@ -392,7 +407,9 @@ class PlatoonSim:
         length = self.scenario.vehicle_length_m
         lengths = np.full(n_followers, length) if self.powertrains is None \
             else self.powertrains.length_m
-        extra = float(np.sum(lengths - length)) if self.powertrains is not None else 0.0
+        gaps = start_gaps(event, n_followers, start_gaps_m)
+        longer = float(np.sum(lengths - length)) if self.powertrains is not None else 0.0
+        extra = longer + float(np.sum(gaps - max(event.initial_gap_m, 0.0)))
         check_fits(self.route, event, n_followers, self.scenario, extra)
         ls = _libsumo()
         start_sumo(self._sumo_args(fcd_path, seed))
@@ -402,12 +419,11 @@ class PlatoonSim:
         for i in range(len(self.route.edges)):  # one route per edge a vehicle may start on
             ls.route.add(f"platoon{i}", list(self.route.edges[i:]))
         x_leader = platoon_start_m(event, n_followers, self.scenario, extra)
-        gap0 = max(event.initial_gap_m, 0.0)
-        if extra == 0.0:
-            offsets = np.arange(n_followers) * (length + gap0)
+        if longer == 0.0 and start_gaps_m is None:
+            offsets = np.arange(n_followers) * (length + gaps[0])
         else:
-            offsets = np.concatenate([[0.0], np.cumsum(lengths[:-1] + gap0)])
-        starts = x_leader - event.leader_length_m - gap0 - offsets
+            offsets = np.concatenate([[0.0], np.cumsum(lengths[:-1] + gaps[1:])])
+        starts = x_leader - event.leader_length_m - gaps[0] - offsets
         self.lengths = lengths
         self._leader_offset = x_leader
         self._starts = starts
