@@ -1,0 +1,89 @@
+"""The best rule of the product's own design space: its base (``mpf-tuned`` with the learned-gap
+terms ``gp=2:gl=0.5:gb=1:gh=1000``) whose one decision per run is the corner of the headway budget
+(the head's gap as high as the budget lets it, every car at its 0.5 s floor, trucks at their own
+0.8 s), with no learning. Did RL find more than that corner?
+
+Run as an external controller by any command, e.g. the test split:
+
+    carl-sumo simulate --data DATA --split test --plant real --warmup 60 --vehicles 10 \\
+        --controller benchmarks/budget_corner.py:BudgetCorner --workers 2 --json OUT.json
+
+The decision is the base's own (``PloegController.gap_target``): a learned term of +1 s for the
+head and -1 s for each follower, shifted by one common amount to keep the budget, each at its
+floor. The base is read from the shipped product's file, so the rule follows it.
+"""
+from pathlib import Path
+
+import numpy as np
+
+from carl_sumo.control.cacc import ploeg_controller
+from carl_sumo.learn.policy import read_policy_payload
+from carl_sumo.resources import PRODUCT, policies_dir
+
+
+def product_base() -> str:
+    """The base law of the shipped product (its learned-gap options included)."""
+    return read_policy_payload(Path(policies_dir()) / PRODUCT)["agent_config"]["base"]
+
+
+class BudgetCorner:
+    """The product's base with its one gap decision at the budget's corner (see the module)."""
+
+    def __init__(self):
+        self.law = ploeg_controller(product_base())
+        self.corner = np.zeros(0)
+
+    def reset(self, n_followers: int) -> None:
+        self.law.reset(n_followers)
+        self.corner = np.full(n_followers, -1.0)
+        self.corner[0] = 1.0
+
+    def know_vehicles(self, a_max_mps2, b_max_mps2) -> None:
+        self.law.know_vehicles(a_max_mps2, b_max_mps2)
+
+    def connect(self, impairments, event_id: str) -> None:
+        self.law.connect(impairments, event_id)
+
+    def acceleration(self, obs: np.ndarray) -> np.ndarray:
+        return self.law.acceleration(obs, self.corner)
+
+
+def budget_used(policy: str) -> dict:
+    """How much of the budget's room a held-gap policy's first decision uses on its validation
+    events (the head's offset over the cars' total room to their floor), with the mean gaps of
+    the head and of the cars it chose."""
+    from dataclasses import replace
+
+    from carl_sumo.control.channel import plant_impairments
+    from carl_sumo.experiments.held_gaps import DECISION_SAMPLES, decision_events
+    from carl_sumo.experiments.simulate import cached_sim, resolve_controller, run_event
+    from carl_sumo.resources import DEFAULT_NET
+
+    imp = plant_impairments("real")
+    events, _ = decision_events(policy)
+    model, ctrl = resolve_controller(policy, "real")
+    sim, used, heads, cars = cached_sim(str(DEFAULT_NET), model), [], [], []
+    for e in events:
+        k = DECISION_SAMPLES
+        run_event(sim, replace(e, leader_pos_m=e.leader_pos_m[:k],
+                               leader_speed_mps=e.leader_speed_mps[:k],
+                               follower_speed_mps=e.follower_speed_mps[:k], gap_m=e.gap_m[:k],
+                               scored_from=0), 10, ctrl, impairments=imp)
+        off = ctrl.base.gap_held
+        own, least = ctrl.base.params.class_gaps(sim.powertrains.b_max)
+        room = float((own - least)[1:].sum())
+        used.append(off[0] / room if room > 0 else np.nan)
+        heads.append(own[0] + off[0])
+        car = (own - least)[1:] > 0
+        cars.append(float((own[1:] + off[1:])[car].mean()))
+    return {"budget_used": float(np.nanmean(used)), "head_s": float(np.mean(heads)),
+            "cars_s": float(np.mean(cars)), "events": len(events)}
+
+
+if __name__ == "__main__":
+    import sys
+
+    for path in sys.argv[1:]:
+        r = budget_used(path)
+        print(f"{path}: budget used {100 * r['budget_used']:.0f} % on {r['events']} events; "
+              f"head {r['head_s']:.3f} s, cars {r['cars_s']:.3f} s")
