@@ -20,6 +20,7 @@ heard"); the head, which hears no message, is an ACC, whose gain also falls with
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import lru_cache
 from pathlib import Path
 from typing import Sequence
 
@@ -120,13 +121,20 @@ def held_decision(policy: str, impairments: Impairments | None, net: str
                   ) -> dict | None:
     """For a held-gap policy (None for anything else): the decision its string-stability test
     holds, ``offsets_s`` (the smallest chosen at each position), with ``events``, ``source`` and
-    the chosen offsets' ``mean_s``; n = the followers it was trained with."""
+    the chosen offsets' ``mean_s``; n = the followers it was trained with. Kept per file version,
+    plant and network for this process (a check runs it once per amplitude)."""
     if not is_held_gap_policy(policy):
         return None
+    return dict(_held_decision(str(policy), Path(policy).stat().st_mtime_ns, impairments, net))
+
+
+@lru_cache(maxsize=32)
+def _held_decision(policy: str, _version: int, impairments: Impairments | None, net: str
+                   ) -> tuple:
     from carl_sumo.learn.policy import read_policy_payload
 
     n = int(read_policy_payload(Path(policy))["agent_config"]["n_vehicles"])
     events, source = decision_events(policy)
     chosen = first_decisions(policy, events, n, impairments, net)
-    return {"offsets_s": chosen.min(axis=0).tolist(), "mean_s": chosen.mean(axis=0).tolist(),
-            "events": len(events), "source": source}
+    return (("offsets_s", chosen.min(axis=0).tolist()), ("mean_s", chosen.mean(axis=0).tolist()),
+            ("events", len(events)), ("source", source))
