@@ -16,7 +16,7 @@ from carl_sumo.experiments.string_stability import SineTest, equilibrium_gap, li
 from carl_sumo.resources import PRODUCT as PRODUCT_FILE, policies_dir
 from carl_sumo.sim.vehicle import Plant
 
-from conftest import NET
+from conftest import NET, REPO_ROOT
 
 LAW = "mpf:h=0.6:kp=0.0445:kd=1:r=3:w1=0.5:w2=0.4:w3=0.1:aw=1:ha=1.4:ttc=2:rb=1"
 PRODUCT = policies_dir() / PRODUCT_FILE
@@ -76,3 +76,24 @@ def test_the_product_decides_a_role_within_its_budget():
     assert np.allclose(chosen.sum(axis=1), 0.0, atol=1e-9)
     assert (chosen >= -0.1 - 1e-9).all()
     assert (chosen[:, 0] > 0.02).all() and (chosen[:, 1:] <= 0.0).all()
+
+
+def test_the_budget_corner_rule_holds_every_car_at_its_floor_and_the_head_at_the_rest():
+    """benchmarks/budget_corner.py, the product's design without learning: at its one decision
+    every car at the 0.5 s floor (offset -0.1 s), trucks at their own gap, the head given all the
+    room that frees (the budget kept)."""
+    from dataclasses import replace
+
+    from carl_sumo.control.external import load_external
+    corner = load_external(f"{REPO_ROOT / 'benchmarks' / 'budget_corner.py'}:BudgetCorner")
+    imp = plant_impairments("real")
+    sim = cached_sim(NET, "external")
+    for e in load_events("default", "test")[:2]:
+        short = replace(e, leader_pos_m=e.leader_pos_m[:3], leader_speed_mps=e.leader_speed_mps[:3],
+                        follower_speed_mps=e.follower_speed_mps[:3], gap_m=e.gap_m[:3],
+                        scored_from=0)
+        run_event(sim, short, 10, corner, impairments=imp)
+        law = corner.inner.law
+        own, least = law.params.class_gaps(sim.powertrains.b_max)
+        assert np.allclose(law.gap_held[1:], (least - own)[1:])
+        assert law.gap_held[0] == pytest.approx((own - least)[1:].sum())
