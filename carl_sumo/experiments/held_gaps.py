@@ -54,7 +54,7 @@ def start_gaps_m(controller, offsets: Sequence[float], impairments: Impairments 
     """Each follower's equilibrium gap (m) at ``speed_mps`` under the held ``offsets`` (s):
     s0 + h_i·v with h_i its class's own gap plus its offset, at least its class's least gap (as
     the law keeps it), for a one-class plant (a string-stability run's); each starts there, so
-    that the run measures the held gaps' response, not the way to them (a head 0.7 s behind its
+    that the run measures the held gaps' response, not the way to them (a head 0.9 s behind its
     gap needs minutes at ``mpf-tuned``'s gains to settle)."""
     from carl_sumo.sim.vehicle import VEHICLE_CLASSES
 
