@@ -104,6 +104,11 @@ def cmd_string_stability(args: argparse.Namespace) -> None:
             cont, disc = (max(max(theory[k][kind]) for k in ("first_link", "inner_links"))
                           for kind in ("continuous", "discrete"))
             line += f"  theory: continuous {cont:.4f}, discrete {disc:.4f}"
+        if "decision" in run:  # a held-gap policy: the gaps it chose, held
+            d = run["decision"]
+            line += (f"  at its chosen gap offsets held, {len(d['offsets_s'])} followers (the "
+                     f"smallest of {d['events']} events, s): "
+                     + " ".join(f"{x:+.3f}" for x in d["offsets_s"]))
         print(line)
     if args.json is not None:
         write_text_atomic(args.json, json.dumps(result, indent=1))

@@ -65,6 +65,32 @@ def test_a_held_decision_runs_the_law_at_the_chosen_gaps(tmp_path):
     assert np.allclose(gains[0], gains[1], atol=1e-6)
 
 
+def test_the_command_tests_a_held_gap_policy_at_the_gaps_of_its_validation_events(tmp_path,
+                                                                                 capsys):
+    """`string-stability` on a held-gap policy: its decision found on the validation events its
+    metadata names (here two of the default set), held, at the followers it was trained with;
+    printed and in the JSON."""
+    import json
+
+    from carl_sumo.cli import main
+    from carl_sumo.learn.agents import Agent, AgentConfig
+    from carl_sumo.learn.policy import save_policy
+
+    policy = tmp_path / "held.pt"
+    ids = [e.event_id for e in load_events("default", "train")[:2]]
+    save_policy(Agent(AgentConfig(algo="ca-td3", n_vehicles=4, adj_max=1.0,
+                                  base=LAW + ":gp=2:gl=0.5:gb=1:gh=1000")), policy,
+                {"validation_events": ids, "data": "default"})
+    out = tmp_path / "ss.json"
+    main(["string-stability", "--controller", str(policy), "--frequencies", "1",
+          "--min-frequency", "1", "--max-frequency", "1", "--json", str(out), "--workers", "1"])
+    assert "chosen gap offsets held, 4 followers (the smallest of 2 events" in \
+        capsys.readouterr().out
+    run = json.loads(out.read_text())["runs"][0]
+    assert len(run["per_link"]) == 4 and run["decision"]["events"] == 2
+    assert run["decision"]["source"].startswith("its 2 validation events")
+
+
 def test_the_product_decides_a_role_within_its_budget():
     """The shipped product's first decision on real-plant events: offsets that keep the headway
     budget (sum 0, each at least its floor: cars -0.1 s, trucks and the head 0), the head's gap
