@@ -51,28 +51,19 @@ class BudgetCorner:
         return self.law.acceleration(obs, self.corner)
 
 
-class BudgetShare:
+class BudgetShare(BudgetCorner):
     """The same base with its one decision a ``share`` of the way from the start (0) to the
     corner (1): every car ``share`` of the way to its floor, trucks at their own gap, the head
     given what that frees; held from the first step (the oracle below)."""
 
     share = 1.0
 
-    def __init__(self):
-        self.law = ploeg_controller(product_base())
-
-    def reset(self, n_followers: int) -> None:
-        self.law.reset(n_followers)
-
     def know_vehicles(self, a_max_mps2, b_max_mps2) -> None:
-        self.law.know_vehicles(a_max_mps2, b_max_mps2)
+        super().know_vehicles(a_max_mps2, b_max_mps2)
         own, least = self.law.params.class_gaps(np.asarray(b_max_mps2))
         offsets = self.share * (least - own)
         offsets[0] = -offsets[1:].sum()
         self.law.hold_decision(offsets)
-
-    def connect(self, impairments, event_id: str) -> None:
-        self.law.connect(impairments, event_id)
 
     def acceleration(self, obs: np.ndarray) -> np.ndarray:
         return self.law.acceleration(obs)
@@ -111,25 +102,18 @@ def budget_used(policy: str) -> dict:
     """How much of the budget's room a held-gap policy's first decision uses on its validation
     events (the head's offset over the cars' total room to their floor), with the mean gaps of
     the head and of the cars it chose."""
-    from dataclasses import replace
-
     from carl_sumo.control.channel import plant_impairments
-    from carl_sumo.experiments.held_gaps import DECISION_SAMPLES, decision_events
-    from carl_sumo.experiments.simulate import cached_sim, resolve_controller, run_event
+    from carl_sumo.experiments.held_gaps import decision_events, first_decisions
     from carl_sumo.resources import DEFAULT_NET
 
-    imp = plant_impairments("real")
+    n = int(read_policy_payload(Path(policy))["agent_config"]["n_vehicles"])
     events, _ = decision_events(policy)
-    model, ctrl = resolve_controller(policy, "real")
-    sim, used, heads, cars = cached_sim(str(DEFAULT_NET), model), [], [], []
-    for e in events:
-        k = DECISION_SAMPLES
-        run_event(sim, replace(e, leader_pos_m=e.leader_pos_m[:k],
-                               leader_speed_mps=e.leader_speed_mps[:k],
-                               follower_speed_mps=e.follower_speed_mps[:k], gap_m=e.gap_m[:k],
-                               scored_from=0), 10, ctrl, impairments=imp)
-        off = ctrl.base.gap_held
-        own, least = ctrl.base.params.class_gaps(sim.powertrains.b_max)
+    chosen, braking = first_decisions(policy, events, n, plant_impairments("real"),
+                                      str(DEFAULT_NET))
+    params = ploeg_controller(read_policy_payload(Path(policy))["agent_config"]["base"]).params
+    used, heads, cars = [], [], []
+    for off, b_max in zip(chosen, braking):
+        own, least = params.class_gaps(b_max)
         room = float((own - least)[1:].sum())
         used.append(off[0] / room if room > 0 else np.nan)
         heads.append(own[0] + off[0])

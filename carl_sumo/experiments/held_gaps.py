@@ -99,22 +99,32 @@ def decision_events(policy: str) -> tuple[list[Event], str]:
     return events, f"the {len(events)} events of the default leader set (its data: unread)"
 
 
+def first_steps(event: Event) -> Event:
+    """The first :data:`DECISION_SAMPLES` samples of ``event``, all scored: enough to see a
+    held-gap policy's first decision."""
+    k = min(DECISION_SAMPLES, event.n_samples)
+    return replace(event, leader_pos_m=event.leader_pos_m[:k],
+                   leader_speed_mps=event.leader_speed_mps[:k],
+                   follower_speed_mps=event.follower_speed_mps[:k], gap_m=event.gap_m[:k],
+                   scored_from=0)
+
+
 def first_decisions(policy: str, events: Sequence[Event], n: int,
-                    impairments: Impairments | None, net: str) -> np.ndarray:
+                    impairments: Impairments | None, net: str) -> tuple[np.ndarray, np.ndarray]:
     """The gap offsets (s, shape (events, n), head first, after the budget) a held-gap policy
-    chooses at the first step of each event, n followers, on the plant of ``impairments``."""
+    chooses at the first step of each event, n followers, on the plant of ``impairments``, and
+    each follower's largest braking there (m/s², same shape; inf on the ideal plant), which sets
+    its class's gaps (:meth:`carl_sumo.control.ploeg_names.PloegParams.class_gaps`)."""
     from carl_sumo.experiments.simulate import cached_sim, plant_of, resolve_controller, run_event
 
     follower_model, ctrl = resolve_controller(policy, plant_of(impairments))
-    sim, out = cached_sim(net, follower_model), []
+    sim, offsets, braking = cached_sim(net, follower_model), [], []
     for e in events:
-        k = min(DECISION_SAMPLES, e.n_samples)
-        short = replace(e, leader_pos_m=e.leader_pos_m[:k], leader_speed_mps=e.leader_speed_mps[:k],
-                        follower_speed_mps=e.follower_speed_mps[:k], gap_m=e.gap_m[:k],
-                        scored_from=0)
-        run_event(sim, short, n, ctrl, impairments=impairments)
-        out.append(ctrl.base.gap_held.copy())
-    return np.array(out)
+        run_event(sim, first_steps(e), n, ctrl, impairments=impairments)
+        offsets.append(ctrl.base.gap_held.copy())
+        braking.append(np.full(n, np.inf) if sim.powertrains is None else
+                       np.array(sim.powertrains.b_max, dtype=np.float64))
+    return np.array(offsets), np.array(braking)
 
 
 def held_decision(policy: str, impairments: Impairments | None, net: str
@@ -135,6 +145,6 @@ def _held_decision(policy: str, _version: int, impairments: Impairments | None, 
 
     n = int(read_policy_payload(Path(policy))["agent_config"]["n_vehicles"])
     events, source = decision_events(policy)
-    chosen = first_decisions(policy, events, n, impairments, net)
+    chosen, _ = first_decisions(policy, events, n, impairments, net)
     return (("offsets_s", chosen.min(axis=0).tolist()), ("mean_s", chosen.mean(axis=0).tolist()),
             ("events", len(events)), ("source", source))

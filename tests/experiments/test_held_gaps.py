@@ -9,8 +9,8 @@ import pytest
 
 from carl_sumo.control.channel import Impairments, plant_impairments
 from carl_sumo.data import load_events
-from carl_sumo.experiments.held_gaps import (HeldDecision, first_decisions, is_held_gap_policy,
-                                             start_gaps_m)
+from carl_sumo.experiments.held_gaps import (HeldDecision, first_decisions, first_steps,
+                                             is_held_gap_policy, start_gaps_m)
 from carl_sumo.experiments.simulate import cached_sim, resolve_controller, run_event
 from carl_sumo.experiments.string_stability import SineTest, equilibrium_gap, link_gains
 from carl_sumo.resources import PRODUCT as PRODUCT_FILE, policies_dir
@@ -97,8 +97,8 @@ def test_the_product_decides_a_role_within_its_budget():
     up and the followers' down."""
     imp = plant_impairments("real")
     events = load_events("default", "test")[:3]
-    chosen = first_decisions(str(PRODUCT), events, 10, imp, str(NET))
-    assert chosen.shape == (3, 10)
+    chosen, braking = first_decisions(str(PRODUCT), events, 10, imp, str(NET))
+    assert chosen.shape == (3, 10) and braking.shape == (3, 10)
     assert np.allclose(chosen.sum(axis=1), 0.0, atol=1e-9)
     assert (chosen >= -0.1 - 1e-9).all()
     assert (chosen[:, 0] > 0.02).all() and (chosen[:, 1:] <= 0.0).all()
@@ -108,17 +108,13 @@ def test_the_budget_corner_rule_holds_every_car_at_its_floor_and_the_head_at_the
     """benchmarks/budget_corner.py, the product's design without learning: at its one decision
     every car at the 0.5 s floor (offset -0.1 s), trucks at their own gap, the head given all the
     room that frees (the budget kept)."""
-    from dataclasses import replace
-
     from carl_sumo.control.external import load_external
+
     corner = load_external(f"{REPO_ROOT / 'benchmarks' / 'budget_corner.py'}:BudgetCorner")
     imp = plant_impairments("real")
     sim = cached_sim(NET, "external")
     for e in load_events("default", "test")[:2]:
-        short = replace(e, leader_pos_m=e.leader_pos_m[:3], leader_speed_mps=e.leader_speed_mps[:3],
-                        follower_speed_mps=e.follower_speed_mps[:3], gap_m=e.gap_m[:3],
-                        scored_from=0)
-        run_event(sim, short, 10, corner, impairments=imp)
+        run_event(sim, first_steps(e), 10, corner, impairments=imp)
         law = corner.inner.law
         own, least = law.params.class_gaps(sim.powertrains.b_max)
         assert np.allclose(law.gap_held[1:], (least - own)[1:])
