@@ -69,6 +69,14 @@ by m = s_open - d_i > 0, it asks for the vehicle ahead to draw away at m/3 s and
 (Δv_i - m/3 s)/1 s, never below -B; its follower hears it as a reaction's braking. Behind a
 human who signals (``cut-in:signal=S``) it so makes room before he is in the lane.
 
+The head's own law (``pa=KP``, ``da=KD``, ``fa=W`` in a name of a CACC): a vehicle that hears no
+message (a chain's head behind a human, an ACC at ``ha``) runs the law with the gains kp = KP and
+kd = KD instead of the chain's, and the head feeds forward W·a_0 (0 < W ≤ 1) of the leader's
+measured acceleration instead of all of it. With a long ``ha``, a small KD and W below 1 the head
+follows the leader's speed through its spacing terms alone, lets its gap breathe and passes on
+less of the leader's motion (docs/baselines.md, "A soft head"); the followers' law is unchanged.
+Theory: the first link's Γ with those gains and W·a_0 (:mod:`carl_sumo.control.transfer`).
+
 Heavy vehicles (``ht=T`` in a name, with ``aw=1``): a vehicle whose own largest braking is below
 7 m/s² (a truck) keeps the time gap T instead of h in its chain (in e_i, ė_i and the filter); a
 car keeps h, a vehicle without a message ha.
@@ -146,6 +154,10 @@ LAW = np.dtype([
     ("h_floor", np.float64),  # the least time gap of a car in a chain under ``gp`` (s): gl, or h
     ("kp", np.float64),       # 1/s²
     ("kd", np.float64),       # 1/s
+    ("kp_alone", np.float64),  # kp of a vehicle without a message, pa (1/s²; kp when not given)
+    ("kd_alone", np.float64),  # kd of a vehicle without a message, da (1/s; kd when not given)
+    ("lead_weight", np.float64),  # fa: the weight of the leader's measured acceleration in the
+                                  # head's law (-; 1 when not given)
     ("s0", np.float64),       # standstill gap (m)
     ("dt", np.float64),       # step (s)
     ("acc_min", np.float64),  # the vehicle's bounds (m/s²)
@@ -175,10 +187,11 @@ def _ploeg_law(obs, u, brake, u_lead, adj, numbers, pred_mode, pred_held, u_min,
     law = numbers[0]
     n = obs.shape[0]
     out = np.empty(n)
-    u_pred = u_lead
+    u_pred = law.lead_weight * u_lead  # fa: the head's feed-forward of the leader's acceleration
     for i in range(n):
         alone = without_message(i, pred_mode)  # no message from ahead: ACC at h_alone
         hi = law.h_alone if alone else law.h
+        kp, kd = (law.kp_alone, law.kd_alone) if alone else (law.kp, law.kd)
         if not alone and -u_min[i] < HEAVY_BRAKING_MPS2:  # ht (ploeg_names.chain_gap_s, inline)
             hi = max(law.h, law.h_heavy)
         if gap_off[i] != 0.0:  # gp: the learned gap, never below the class's least gap
@@ -193,7 +206,7 @@ def _ploeg_law(obs, u, brake, u_lead, adj, numbers, pred_mode, pred_held, u_min,
             u_in = 0.0
         sent_old = min(u[i], brake[i])  # its message of step k: u, or its layers' braking
         u_old = u[i]
-        u[i] = min(u_old + (law.dt / hi) * (-u_old + law.kp * e + law.kd * e_dot + u_in + adj[i]),
+        u[i] = min(u_old + (law.dt / hi) * (-u_old + kp * e + kd * e_dot + u_in + adj[i]),
                    law.k_cc * (law.v0 - obs[i, 0]))
         u[i] = min(max(u[i], u_min[i]), u_max[i])
         u_pred = sent_old
@@ -218,6 +231,9 @@ def _numbers(p: PloegParams, b: ControlBounds) -> tuple[np.ndarray, np.ndarray]:
     of a law, read-only."""
     law = np.array([(p.time_gap_s, p.gap_alone_s, p.heavy_gap_s or 0.0,
                      p.time_gap_s if p.gap_floor_s is None else p.gap_floor_s, p.kp, p.kd,
+                     p.kp if p.alone_kp is None else p.alone_kp,
+                     p.kd if p.alone_kd is None else p.alone_kd,
+                     1.0 if p.lead_weight is None else p.lead_weight,
                      p.standstill_gap_m, DT_S, b.acc_min_mps2, b.acc_max_mps2,
                      IDM.desired_speed_mps, CRUISE_GAIN_PER_S)], dtype=LAW)
     law.flags.writeable = False

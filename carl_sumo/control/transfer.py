@@ -36,29 +36,31 @@ from carl_sumo.config import DT_S
 
 def gamma_continuous(omega: np.ndarray, h: float, kp: float, kd: float, tau: float,
                      phi: float = 0.0, theta: float = 0.0, cacc: bool = True,
-                     first_link: bool = False) -> np.ndarray:
+                     first_link: bool = False, lead_weight: float = 1.0) -> np.ndarray:
     """Γ(jω) (complex, shape of ``omega`` in rad/s) of the continuous law: time gap ``h`` (s),
     gains ``kp`` (1/s²), ``kd`` (1/s), lag ``tau`` (s), dead time ``phi`` (s), V2V delay ``theta``
     (s), with (``cacc``) or without the feed-forward. ``first_link``: the feed-forward is the
     leader's realised acceleration, not its command, so D(s) is the follower's own e^{-φs}/(τs+1)
-    (the head of a carl-sumo platoon measures the leader's acceleration)."""
+    (the head of a carl-sumo platoon measures the leader's acceleration), weighted by
+    ``lead_weight`` (``fa``)."""
     s = 1j * np.asarray(omega, dtype=float)
     lag = np.exp(-phi * s) / (tau * s + 1.0)
     g = lag / s ** 2
     gk = g * (kp + kd * s)
-    d = (lag if first_link else np.exp(-theta * s)) if cacc else 0.0
+    d = (lead_weight * lag if first_link else np.exp(-theta * s)) if cacc else 0.0
     return (gk + d) / ((1.0 + h * s) * (1.0 + gk))
 
 
 def gamma_discrete(omega: np.ndarray, h: float, kp: float, kd: float, tau: float,
                    dead_steps: int = 0, delay_steps: int = 0, cacc: bool = True,
                    pred_tau: float | None = None, pred_dead_steps: int | None = None,
-                   first_link: bool = False, dt: float = DT_S) -> np.ndarray:
+                   first_link: bool = False, dt: float = DT_S,
+                   lead_weight: float = 1.0) -> np.ndarray:
     """Γ(e^{jωdt}) of a link as carl-sumo runs it (see the module docstring): the follower's lag
     ``tau`` (s) and dead time ``dead_steps``, its predecessor's (default: the same; they set how
     the predecessor's message u relates to its acceleration), the V2V delay ``delay_steps``.
     ``first_link``: the predecessor is the leader, whose measured acceleration over the last step
-    is the head's feed-forward (not a V2V message)."""
+    is the head's feed-forward (not a V2V message), weighted by ``lead_weight`` (``fa``)."""
     z = np.exp(1j * np.asarray(omega, dtype=float) * dt)
     integ = dt * z / (z - 1.0)                    # v from a, x from v (SUMO's Euler update)
     f = kp * integ ** 2 + kd * integ              # kp·e + kd·ė on the predecessor's a
@@ -68,7 +70,7 @@ def gamma_discrete(omega: np.ndarray, h: float, kp: float, kd: float, tau: float
     if not cacc:
         feed = 0.0
     elif first_link:
-        feed = 1.0                                # the leader's measured acceleration
+        feed = lead_weight                        # the leader's measured acceleration
     else:
         pred = _plant(z, tau if pred_tau is None else pred_tau,
                       dead_steps if pred_dead_steps is None else pred_dead_steps, dt)
@@ -88,22 +90,26 @@ def heard_weights(weights: tuple[float, ...], i: int) -> list[float]:
 def gamma_links_discrete(omega: np.ndarray, n: int, h: float, kp: float, kd: float, tau: float,
                          dead_steps: int = 0, delay_steps: int = 0,
                          weights: tuple[float, ...] = (1.0,), h_first: float | None = None,
-                         dt: float = DT_S) -> np.ndarray:
+                         dt: float = DT_S, first_gains: tuple[float, float] | None = None,
+                         lead_weight: float = 1.0) -> np.ndarray:
     """Γ_i(e^{jωdt}) (complex, shape (n, len(omega))) of the n links of a homogeneous platoon
     that feeds forward the commands of the r = len(weights) vehicles ahead with weights w_j, the
     j-th delayed by j·``delay_steps`` (the module docstring); ``weights`` () is the ACC. The
-    head's link is :func:`gamma_discrete`'s first link at ``h_first`` (default h)."""
+    head's link is :func:`gamma_discrete`'s first link at ``h_first`` (default h) with the gains
+    ``first_gains`` (kp, kd; default the others') and the leader's acceleration weighted by
+    ``lead_weight``."""
     z = np.exp(1j * np.asarray(omega, dtype=float) * dt)
     integ = dt * z / (z - 1.0)
-    f = kp * integ ** 2 + kd * integ
     plant = _plant(z, tau, dead_steps, dt)
 
-    def den(gap: float) -> np.ndarray:
-        return (z - 1.0 + dt / gap) / plant + (dt / gap) * (f + gap * (kp * integ + kd))
+    def law(gap: float, p: float, d: float) -> tuple[np.ndarray, np.ndarray]:
+        f = p * integ ** 2 + d * integ
+        return f, (z - 1.0 + dt / gap) / plant + (dt / gap) * (f + gap * (p * integ + d))
 
     gap0 = h if h_first is None else h_first
-    x = [(dt / gap0) * (f + (1.0 if weights else 0.0)) / den(gap0)]  # X_0 over the leader
-    inner = den(h)
+    f0, den0 = law(gap0, *(first_gains or (kp, kd)))
+    x = [(dt / gap0) * (f0 + (lead_weight if weights else 0.0)) / den0]  # X_0 over the leader
+    f, inner = law(h, kp, kd)
     for i in range(1, n):
         feed = sum(c * z ** (-j * delay_steps) * x[i - j] / plant
                    for j, c in enumerate(heard_weights(weights, i) if weights else [], 1))
@@ -114,16 +120,19 @@ def gamma_links_discrete(omega: np.ndarray, n: int, h: float, kp: float, kd: flo
 
 def gamma_links_continuous(omega: np.ndarray, n: int, h: float, kp: float, kd: float,
                            tau: float, phi: float = 0.0, theta: float = 0.0,
-                           weights: tuple[float, ...] = (1.0,), h_first: float | None = None
-                           ) -> np.ndarray:
+                           weights: tuple[float, ...] = (1.0,), h_first: float | None = None,
+                           first_gains: tuple[float, float] | None = None,
+                           lead_weight: float = 1.0) -> np.ndarray:
     """The continuous counterpart of :func:`gamma_links_discrete`: H·(1 + G·K)·X_i =
     G·K·X_{i-1} + Σ_j c_{i,j}·e^{-jθs}·X_{i-j}, the head's link :func:`gamma_continuous`'s
-    first link (at ``h_first``, default h)."""
+    first link (at ``h_first``, default h, with the gains ``first_gains``, default kp, kd)."""
     s = 1j * np.asarray(omega, dtype=float)
     lag = np.exp(-phi * s) / (tau * s + 1.0)
     gk = lag / s ** 2 * (kp + kd * s)
     gap0 = h if h_first is None else h_first
-    x = [(gk + (lag if weights else 0.0)) / ((1.0 + gap0 * s) * (1.0 + gk))]
+    p0, d0 = first_gains or (kp, kd)
+    gk0 = lag / s ** 2 * (p0 + d0 * s)
+    x = [(gk0 + (lead_weight * lag if weights else 0.0)) / ((1.0 + gap0 * s) * (1.0 + gk0))]
     for i in range(1, n):
         feed = sum(c * np.exp(-j * theta * s) * x[i - j]
                    for j, c in enumerate(heard_weights(weights, i) if weights else [], 1))
@@ -134,14 +143,18 @@ def gamma_links_continuous(omega: np.ndarray, n: int, h: float, kp: float, kd: f
 
 def links_theory(omega: np.ndarray, n: int, h: float, kp: float, kd: float, tau: float,
                  dead_steps: int, delay_steps: int, weights: tuple[float, ...],
-                 h_first: float | None = None, dt: float = DT_S) -> dict:
+                 h_first: float | None = None, dt: float = DT_S,
+                 first_gains: tuple[float, float] | None = None, lead_weight: float = 1.0
+                 ) -> dict:
     """|Γ_i| of a multi-predecessor platoon of ``n`` followers, discrete and continuous (lists,
     for JSON): ``per_link`` (n lists each), ``first_link`` and ``inner_links`` (the largest over
-    the links behind a follower; a platoon of one: its link)."""
+    the links behind a follower; a platoon of one: its link). ``first_gains``: the head's
+    (kp, kd) where they differ (``pa``, ``da``), ``lead_weight`` its ``fa``."""
     disc = np.abs(gamma_links_discrete(omega, n, h, kp, kd, tau, dead_steps, delay_steps, weights,
-                                       h_first, dt))
+                                       h_first, dt, first_gains, lead_weight))
     cont = np.abs(gamma_links_continuous(omega, n, h, kp, kd, tau, dead_steps * dt,
-                                         delay_steps * dt, weights, h_first))
+                                         delay_steps * dt, weights, h_first, first_gains,
+                                         lead_weight))
     inner = slice(1, None) if n > 1 else slice(0, 1)
     return {"per_link": {"continuous": cont.tolist(), "discrete": disc.tolist()},
             "first_link": {"continuous": cont[0].tolist(), "discrete": disc[0].tolist()},

@@ -224,16 +224,20 @@ def analytic(controller: str, omegas: Sequence[float], plant: Plant | None,
     delay_steps = int(round(comm_delay_s / DT_S))
     p, w, out = parse_ploeg(controller), np.asarray(omegas, dtype=float), {}
     h = inner_gap(p, plant)
+    head = (p.kp if p.alone_kp is None else p.alone_kp,
+            p.kd if p.alone_kd is None else p.alone_kd)  # pa, da: the head's own gains
+    lead = 1.0 if p.lead_weight is None else p.lead_weight  # fa
     if p.multi:
         return links_theory(w, n, h, p.kp, p.kd, tau or 0.0, dead_steps, delay_steps,
-                            p.weights, p.gap_alone_s)
+                            p.weights, p.gap_alone_s, first_gains=head,
+                            lead_weight=lead)
     for name, first in (("first_link", True), ("inner_links", False)):
-        args = (p.gap_alone_s if first else h, p.kp, p.kd, tau or 0.0)
+        args = (p.gap_alone_s, *head, tau or 0.0) if first else (h, p.kp, p.kd, tau or 0.0)
         cont = gamma_continuous(w, *args, phi=dead_steps * DT_S,
                                 theta=0.0 if first else delay_steps * DT_S,
-                                cacc=p.feed_forward, first_link=first)
+                                cacc=p.feed_forward, first_link=first, lead_weight=lead)
         disc = gamma_discrete(w, *args, dead_steps=dead_steps, delay_steps=delay_steps,
-                              cacc=p.feed_forward, first_link=first)
+                              cacc=p.feed_forward, first_link=first, lead_weight=lead)
         out[name] = {"continuous": np.abs(cont).tolist(), "discrete": np.abs(disc).tolist()}
     return out
 

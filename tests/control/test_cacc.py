@@ -710,6 +710,32 @@ def test_gp_runs_the_law_at_each_vehicles_learned_gap_floored_by_its_class():
             parse_ploeg(bad)
 
 
+def test_pa_da_fa_set_only_the_head_of_a_chain():
+    """``pa``/``da``: the gains of a vehicle that hears no message (the chain's head, an ACC at
+    ``ha``), ``fa``: the weight of the leader's measured acceleration it feeds forward. The head
+    with them is the law with those gains and that feed-forward scaled; a follower that hears
+    its predecessor keeps kp and kd; bad values are one line."""
+    base = "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=2.3:ht=0.8"
+    soft = parse_ploeg(base + ":pa=0.02:da=0.3:fa=0.5")
+    assert (soft.alone_kp, soft.alone_kd, soft.lead_weight) == (0.02, 0.3, 0.5)
+    assert soft.name() == "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=2.3:pa=0.02:da=0.3:fa=0.5:ht=0.8"
+    obs = np.array([[15.0, 0.2, 40.0, 0.3], [15.0, -0.1, 12.0, -0.2], [15.0, 0.0, 11.0, 0.1]])
+
+    def command(name, u_lead):
+        law = PloegController(parse_ploeg(name))
+        law.reset(3)
+        return law.step(obs, np.array([0.1, -0.2, 0.05]), u_lead)
+
+    head_gains = command(base.replace("kp=0.0445:kd=1", "kp=0.02:kd=0.3"), 0.25)
+    got = command(base + ":pa=0.02:da=0.3:fa=0.5", 0.5)
+    assert got[0] == pytest.approx(head_gains[0], abs=1e-12)  # the head: its gains, fa·a_lead
+    np.testing.assert_allclose(got[1:], command(base, 0.5)[1:])  # the followers: the law's
+    for bad, what in ((base + ":fa=1.5", "in \\(0, 1\\]"), ("acc:h=2:da=0.3", "no V2V"),
+                      (base + ":da=-1", "positive")):
+        with pytest.raises(InputError, match=what):
+            parse_ploeg(bad)
+
+
 def test_gb_keeps_the_headway_budget_within_each_class_floor():
     """``gb=1``: the learned gap offsets of a chain sum to 0 (RL moves gap between vehicles,
     never adds it), each at least its class's least gap less its own (the head ha - ha = 0, a

@@ -69,6 +69,30 @@ def test_multi_predecessor_gains_match_the_recurrence_within_1e_5(controller, ve
     assert len({tuple(np.round(link, 6)) for link in disc[1:]}) == n - 1  # a gain per link
 
 
+@pytest.mark.parametrize("controller,n", [
+    ("ploeg:h=0.8:ha=1.2:pa=0.1:da=0.4:fa=0.5", 3),
+    ("mpf:h=0.6:kp=0.3:kd=0.9:ha=1.2:pa=0.1:da=0.4:fa=0.5:r=3:w1=0.5:w2=0.3:w3=0.2", 4),
+])
+def test_a_soft_head_matches_the_exact_discrete_gamma_within_1e_5(controller, n):
+    """The head's own gains (``pa``, ``da``) and the weight of the leader's acceleration it feeds
+    forward (``fa``) in the first link's exact discrete Γ are what SUMO measures, the links behind
+    it unchanged (measured: 3e-10 after 90 s of settling; the head starts at h, not ha)."""
+    plant = Plant((("car", 1.0),), 0.3, 0.1)
+    imp = Impairments(delay_s=0.1, plant=plant)
+    measured = np.array(measure(controller, OMEGAS, n, SineTest(discard_s=90.0), imp,
+                                str(NET))["per_link"])
+    theory = analytic(controller, OMEGAS, plant, 0.1, n)
+    if "per_link" in theory:
+        disc = np.array(theory["per_link"]["discrete"])
+    else:
+        disc = np.array([theory["first_link"]["discrete"]] + [theory["inner_links"]["discrete"]]
+                        * (n - 1))
+    assert np.max(np.abs(measured - disc)) < 1e-5
+    plain = analytic(controller.replace(":pa=0.1:da=0.4:fa=0.5", ""), OMEGAS, plant, 0.1, n)
+    first = plain.get("per_link", {"discrete": [plain["first_link"]["discrete"]]})["discrete"][0]
+    assert np.max(np.abs(np.array(first) - disc[0])) > 0.01  # the head's options change it
+
+
 def test_the_recurrence_with_one_vehicle_heard_is_ploegs_link_and_with_none_the_accs():
     w = np.geomspace(0.01, 3.0, 40)
     links = gamma_links_discrete(w, 4, 0.8, 0.2, 0.7, 0.3, 1, 2, (1.0,), h_first=1.4)
