@@ -34,9 +34,10 @@ for seed in ${SEEDS:-0}; do
     study $seed mpf_r2/p$p "$MPF" $p
   done
   for p in 0.25 1; do study $seed mpf_r2/p$p "$MPF" $p; done
+  for p in 0.25 0.5 0.75 1; do study $seed mpf_tuned/p$p mpf-tuned $p; done  # its weights tuned for the fleet (r = 3)
   for p in 0.5 0.75; do study $seed mpc/p$p mpc $p; done  # the distributed MPC, its defaults
   for p in 0.25 0.5 0.75 1; do study $seed mpc_tuned/p$p mpc-tuned $p; done  # tuned for the fleet
-  study $seed mpc_tuned_gn/p1 "$MPC_GN" 1  # the same with Ploeg's gn layers (the merge point)
+  for p in 0.25 0.5 0.75 1; do study $seed mpc_tuned_gn/p$p "$MPC_GN" $p; done  # the same with Ploeg's gn layers (the merge point)
   study $seed mpc_tuned_gc/p0.25 "$MPC_GC" 0.25  # the same closing a long gap at most 1 m/s
   for p in 0.5 0.75; do study $seed gap_trade/p$p "$GAP" $p; done  # cars 0.5 s, heads at 2.3 s
 done

@@ -19,6 +19,7 @@ HUMANS = "product_base"  # the folder whose p = 0 runs are the human-only road
 FOLDERS = {  # folder: the controller as it is named in docs/study.md
     "product_base": "one-predecessor CACC, `product-base` (ha = 1.4 s)",
     "mpf_r2": "multi-predecessor `mpf` r = 2 (ha = 1.4 s)",
+    "mpf_tuned": "multi-predecessor law tuned for the fleet, `mpf-tuned` (r = 3, ha = 1.4 s)",
     "mpc": "`mpc` (hand-picked weights)",
     "mpc_tuned": "distributed MPC tuned for the fleet, `mpc-tuned` (ha = 2 s)",
     "mpc_tuned_gn": "the same MPC with Ploeg's `gn=6` layers (the merge-point bound)",
