@@ -41,6 +41,8 @@ for seed in ${SEEDS:-0}; do
   study $seed mpc_tuned_gc/p0.25 "$MPC_GC" 0.25  # the same closing a long gap at most 1 m/s
   for p in 0.5 0.75; do study $seed gap_trade/p$p "$GAP" $p; done  # cars 0.5 s, heads at 2.3 s
 done
+# p = 1 at a higher demand (x1.75: 3,500 veh/h offered per mainline lane, 875 on the ramp), seed 0
+$PY -m carl_sumo study ${common/--demand-scale 1.5/--demand-scale 1.75} --seeds 1 --penetration 1 --controller product-base --out $out/s0/product_base_d1.75/p1
 # diagnostic: the same law at p = 0.5 with a fleet of cars only (no trucks), seed 0
 $PY -m carl_sumo study $common --seeds 1 --fleet car:1 --penetration 0.5 --controller product-base --out $out/s0/product_base_cars/p0.5
 # seed 1 where the table has it beyond the reused runs: p = 0.5, product-base and its 0.8 s fallback

@@ -26,6 +26,7 @@ FOLDERS = {  # folder: the controller as it is named in docs/study.md
     "mpc_tuned_gc": "the same MPC closing a long gap at most 1 m/s (`gc=1`)",
     "product_base_ha1.0": "`product-base` with ha = 1.0 s",
     "product_base_ha0.8": "`product-base` with ha = 0.8 s",
+    "product_base_d1.75": "`product-base` at demand x1.75 (3,646 veh/h per lane of `i80_main` offered)",
     "product_base_cars": "`product-base`, a fleet of cars only (`--fleet car:1`)",
     "gap_trade": "the gap-traded multi-predecessor law (cars 0.5 s, head `ha` = 2.3 s)",
 }
