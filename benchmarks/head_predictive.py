@@ -15,7 +15,8 @@ first ``REPLAN`` steps to a double integrator behind the real leader and plans a
 feasible plan it brakes at 3 m/s². Its ‖a_1‖/‖a_0‖, jerk, mean gap and smallest time gap against
 the classical head's and the bound's on the same events.
 
-    python benchmarks/head_predictive.py DATA [EVENTS] [W_S] [FLOOR_S]   # first EVENTS training events
+    python benchmarks/head_predictive.py DATA [EVENTS] [W_S] [FLOOR_S] [PREDICT]
+    # the first EVENTS training events; PREDICT 0: the leader predicted to keep its speed
 
 Training events only (the first EVENTS scored, the predictor fitted on the others).
 """
@@ -117,10 +118,12 @@ def run_head(v0, v_start, d_start, h_floor, W, w_s, dt=0.1):
     return v, d, failed
 
 
-def main(data: str, n_events: int = 100, w_s: float = 0.01, floor_s: float | None = None
-         ) -> None:
+def main(data: str, n_events: int = 100, w_s: float = 0.01, floor_s: float | None = None,
+         predict: float = 1.0) -> None:
+    """``predict`` 0: the same head planning against a leader that keeps its speed (what the
+    predictor adds)."""
     train = load_events(data, "train")
-    W = fit_predictor(train[n_events:])
+    W = predict * fit_predictor(train[n_events:])
     events = [e.with_warmup(60.0) for e in train[:n_events]]
     rows = []
     for e, traj in event_trajectories(GAP_TRADE, events, 10, impairments=plant_impairments("real")):
@@ -143,7 +146,7 @@ def main(data: str, n_events: int = 100, w_s: float = 0.01, floor_s: float | Non
                      "min_gap_s": float(gap_s.min()) if gap_s.size else np.nan,
                      "floor_s": h_floor, "failed": failed})
     m = {k: float(np.nanmean([r[k] for r in rows])) for k in rows[0]}
-    print(f"first {len(rows)} training events, w_s = {w_s:g}: ‖a1‖/‖a0‖ law {m['law']:.3f}, "
+    print(f"first {len(rows)} training events, w_s = {w_s:g}, predictor x{predict:g}: ‖a1‖/‖a0‖ law {m['law']:.3f}, "
           f"predictive head {m['predictive']:.3f} ({100 * (m['predictive'] / m['law'] - 1):+.1f} "
           f"%), bound {m['bound']:.3f}; head jerk {m['jerk_law']:.4f} / {m['jerk_predictive']:.4f}"
           f" m/s³; mean gap {m['gap_law']:.1f} / {m['gap_predictive']:.1f} m; smallest time gap "
