@@ -17,6 +17,7 @@ the classical head's and the bound's on the same events.
 
     python benchmarks/head_predictive.py DATA [EVENTS] [W_S] [FLOOR_S] [PREDICT]
     # the first EVENTS training events; PREDICT 0: the leader predicted to keep its speed
+    python benchmarks/head_predictive.py --sine W_S   # its first link's gain on a sine leader
 
 Training events only (the first EVENTS scored, the predictor fitted on the others).
 """
@@ -154,6 +155,21 @@ def main(data: str, n_events: int = 100, w_s: float = 0.01, floor_s: float | Non
           f"solution {m['failed']:.1f} per event")
 
 
+def sine_gains(w_s: float, omegas=(0.02, 0.05, 0.1, 0.2, 0.4, 0.8), dt: float = 0.1) -> dict:
+    """The planning head (a leader predicted to keep its speed) behind a leader at 20 m/s ±
+    0.5 m/s: its peak acceleration over the leader's at each ω (rad/s), after 120 s, over three
+    periods (a first link's |Γ|; above 1: it amplifies)."""
+    out = {}
+    for om in omegas:
+        t = np.arange(int((3 * 2 * np.pi / om + 120) / dt)) * dt
+        v0 = 20.0 + 0.5 * np.sin(om * t)
+        v, _, _ = run_head(v0, 20.0, STANDSTILL_M + HEAD_GAP_S * 20.0, 1.5,
+                           np.zeros((len(PAST) + 2, HORIZON)), w_s)
+        k = int(120 / dt)
+        out[om] = float(np.abs(np.diff(v)[k:]).max() / np.abs(np.diff(v0)[k:]).max())
+    return out
+
+
 def predictability(data: str) -> None:
     """R² of the predictor on held-out training events (every other event), per horizon."""
     train = load_events(data, "train")
@@ -173,6 +189,8 @@ def predictability(data: str) -> None:
 if __name__ == "__main__":
     if sys.argv[1:2] == ["--predictability"]:
         predictability(sys.argv[2])
+    elif sys.argv[1:2] == ["--sine"]:  # --sine W_S
+        print({om: round(g, 3) for om, g in sine_gains(float(sys.argv[2])).items()})
     else:
         main(sys.argv[1], *(int(a) if i == 0 else float(a) for i, a in enumerate(sys.argv[2:])))
 
