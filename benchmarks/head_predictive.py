@@ -4,9 +4,9 @@ past can take: a receding-horizon plan against the leader's speed as predicted f
 
 The predictor: least squares of the leader's speed change over the next 1-10 s on its speed now
 and its changes over the last 0.5-10 s (:data:`PAST`), fitted on training events that are not
-scored here. On held-out training events it explains 66 % of the variance of the change over
-1 s, 45 % over 2 s, 24 % over 5 s and 21 % over 10 s (constant-acceleration extrapolation: 34 %,
--4 %, -106 %, -304 %; ``python benchmarks/head_predictive.py --predictability DATA``).
+scored here. Fitted on every other training event and tested on the rest it explains 51 % of
+the variance of the change over 1 s, 36 % over 2 s, 22 % over 5 s and 19 % over 10 s
+(``python benchmarks/head_predictive.py --predictability DATA``).
 
 The head: every ``REPLAN`` steps it plans its next :data:`HORIZON` steps as a quadratic programme
 (OSQP), least Σ a² + w_j Σ j² + w_s Σ (d - s0 - h·v)² against the predicted leader, never closer
