@@ -2,8 +2,10 @@
 that carries what a vehicle's neighbours heard when its own message is lost (issue 55).
 
 Every law holds a lost message for its timeout (1 s), fades it over 1 s into its fallback, then
-drives as an ACC at ``ha`` (docs/robustness.md, the channel). This runs ``mpf-tuned``, the
-gap-traded law and ``product-base`` on all 773 training events (real plant, its 0.1 s V2V
+drives as an ACC at ``ha`` (docs/robustness.md, the channel); with ``df=1`` it feeds forward
+the acceleration ahead its radar measures in place of the lost message (a degraded CACC). This
+runs ``mpf-tuned``, the gap-traded law and ``product-base``, and the first two with ``df=1``, on
+all 773 training events (real plant, its 0.1 s V2V
 delay, 10 followers, 60 s settled start) with Gilbert-Elliott losses of 0-50 % in bursts of 5
 steps (0.5 s) on average, and writes ``docs/results_real/loss_train.json``.
 
@@ -28,7 +30,11 @@ OUT = Path("docs/results_real/loss_train.json")
 LAWS = {"mpf-tuned": "mpf-tuned",
         "gap-traded": "mpf:h=0.5:kp=0.0445:kd=1:r=3:w1=0.5:w2=0.4:w3=0.1:aw=1:ha=2.3:ttc=2:rb=1:"
                       "gn=6:op=2:ht=0.8",
-        "product-base": PRESETS["product-base"]}
+        "product-base": PRESETS["product-base"],
+        "mpf-tuned df=1": "mpf:h=0.6:kp=0.0445:kd=1:r=3:w1=0.5:w2=0.4:w3=0.1:aw=1:ha=1.4:ttc=2:"
+                          "rb=1:gn=6:op=2:ht=0.8:df=1",
+        "gap-traded df=1": "mpf:h=0.5:kp=0.0445:kd=1:r=3:w1=0.5:w2=0.4:w3=0.1:aw=1:ha=2.3:ttc=2:"
+                           "rb=1:gn=6:op=2:ht=0.8:df=1"}
 LOSSES = (0.0, 0.1, 0.3, 0.5)
 """The share of messages lost (-)."""
 BURST = 5.0

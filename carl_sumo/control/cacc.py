@@ -77,6 +77,12 @@ follows the leader's speed through its spacing terms alone, lets its gap breathe
 less of the leader's motion (docs/baselines.md, "A soft head"); the followers' law is unchanged.
 Theory: the first link's Γ with those gains and W·a_0 (:mod:`carl_sumo.control.transfer`).
 
+A degraded CACC (``df=W`` in a name, with ``rb=1``): a follower whose predecessor's message is
+lost (past the channel's timeout) feeds forward W times the acceleration ahead its radar
+measures (a + the change of Δv over the step) instead of nothing, as the head does with the
+leader's; while the held message fades (weight w) the feed-forward is w·held + (1 - w)·W·a_ahead.
+It keeps its fallback gap ``ha``. (Ploeg et al. 2015, "Graceful degradation of CACC".)
+
 Heavy vehicles (``ht=T`` in a name, with ``aw=1``): a vehicle whose own largest braking is below
 7 m/s² (a truck) keeps the time gap T instead of h in its chain (in e_i, ė_i and the filter); a
 car keeps h, a vehicle without a message ha.
@@ -202,8 +208,8 @@ def _ploeg_law(obs, u, brake, u_lead, adj, numbers, pred_mode, pred_held, u_min,
         u_in = u_pred
         if i > 0 and pred_mode[i] == 1:
             u_in = pred_held[i]
-        elif i > 0 and pred_mode[i] == 2:
-            u_in = 0.0
+        elif i > 0 and pred_mode[i] == 2:  # no message: its fallback (0, or df's radar term)
+            u_in = pred_held[i]
         sent_old = min(u[i], brake[i])  # its message of step k: u, or its layers' braking
         u_old = u[i]
         u[i] = min(u_old + (law.dt / hi) * (-u_old + kp * e + kd * e_dot + u_in + adj[i]),
@@ -241,6 +247,18 @@ def _numbers(p: PloegParams, b: ControlBounds) -> tuple[np.ndarray, np.ndarray]:
                           p.safe_braking_mps2 or 0.0, p.safe_new_only,
                           p.opening_braking_mps2 or 0.0, p.standstill_gap_m, b.acc_min_mps2)
     return law, layers
+
+
+def lost_feed_forward(mode: np.ndarray, held: np.ndarray, weight: np.ndarray | None,
+                      radar: np.ndarray) -> np.ndarray:
+    """``df``: each follower's feed-forward in place of its predecessor's message (m/s²): the
+    message while it is live, w·held + (1 - w)·radar while it fades (``held`` is already
+    w·held), ``radar`` (df times the acceleration ahead as the radar measures it) once it is
+    lost; the head (row 0) keeps what it had."""
+    w = np.ones(len(mode)) if weight is None else np.asarray(weight, dtype=np.float64)
+    out = np.where(mode == 1, held + (1.0 - w) * radar, np.where(mode == 2, radar, held))
+    out[:1] = held[:1]
+    return np.ascontiguousarray(out, dtype=np.float64)
 
 
 @lru_cache(maxsize=64)
@@ -330,10 +348,10 @@ class PloegController:
         ``commit=False``: what the law would apply, the state left as it is (a preview)."""
         leader_speed = float(obs[0, 0] + obs[0, 3])
         a_lead = 0.0 if self._leader_speed is None else (leader_speed - self._leader_speed) / DT_S
-        mode = held = received = None
+        mode = held = received = heard = None
         if self.channel is not None:
             mode, received = self.channel.receive(self._k)
-            held = received[:, 0]
+            held, heard = received[:, 0], self.channel.heard
         a_ahead = None if self._dv is None else obs[:, 1] + (obs[:, 3] - self._dv) / DT_S
         if self.params.washout_s is not None:
             adjustment, adj_mean = washed_adjustment(adjustment, self.adj_mean,
@@ -350,7 +368,8 @@ class PloegController:
                                        mode, received, None if mode is None else self.channel.heard)
         if not commit:
             return self.step(obs, self.u.copy(), a_lead, adjustment, mode, held,
-                             self.brake.copy(), a_ahead=a_ahead, gap_off=gap_off)
+                             self.brake.copy(), a_ahead=a_ahead, gap_off=gap_off,
+                             pred_weight=heard)
         if self.params.washout_s is not None:
             self.adj_mean = adj_mean
         self.gap_off, self.gap_held, self._steps = gap_off, gap_held, self._steps + 1
@@ -360,7 +379,7 @@ class PloegController:
         if self.channel is not None:  # follower j hears j - 1's message of step k: its state,
             messages = np.vstack([np.zeros((1, sent.shape[1])), sent[:-1]])  # or its braking
         out = self.step(obs, self.u, a_lead, adjustment, mode, held, self.brake, a_ahead=a_ahead,
-                        gap_off=gap_off)
+                        gap_off=gap_off, pred_weight=heard)
         if self.channel is not None:
             self.channel.send(self._k, messages)
             self._k += 1
@@ -394,8 +413,8 @@ class PloegController:
              adjustment: np.ndarray | None = None, pred_mode: np.ndarray | None = None,
              pred_held: np.ndarray | None = None, brake: np.ndarray | None = None,
              armed: np.ndarray | None = None, a_ahead: np.ndarray | None = None,
-             merge_m: np.ndarray | None = None, gap_off: np.ndarray | None = None
-             ) -> np.ndarray:
+             merge_m: np.ndarray | None = None, gap_off: np.ndarray | None = None,
+             pred_weight: np.ndarray | None = None) -> np.ndarray:
         """One step of the law on a chain (head first): updates the states ``u`` in place; the
         head hears ``u_lead`` (m/s²); ``adjustment``: the learned feed-forward term (m/s²);
         ``pred_mode`` / ``pred_held``: how each follower hears its predecessor (default: this
@@ -403,9 +422,11 @@ class PloegController:
         none; its message is min(u, brake)), updated in place (default: none); ``armed``: the
         vehicles whose reaction layer acts although they hear a message (default: none);
         ``a_ahead``: the acceleration of each vehicle's vehicle ahead as its radar measures it
-        (m/s², for the reaction; default: 0); ``merge_m``: each vehicle's distance to a zipper
-        merge's point while its vehicle ahead is still on the other feeding lane (m; inf: none,
-        the default).
+        (m/s², for the reaction and ``df``; default: 0); ``merge_m``: each vehicle's distance to
+        a zipper merge's point while its vehicle ahead is still on the other feeding lane (m;
+        inf: none, the default); ``pred_weight``: the weight w of each held message as it fades
+        (:attr:`carl_sumo.control.channel.Channel.heard`; default 1), with ``df`` the rest
+        (1 - w) of the feed-forward is the radar's term.
         Returns a (m/s²)."""
         p, b = self.params, self.bounds
         n = obs.shape[0]
@@ -417,6 +438,9 @@ class PloegController:
             pred_mode, pred_held = np.zeros(n, dtype=np.int64), np.zeros(n)
         brake = np.full(n, np.inf) if brake is None else brake
         armed, a_ahead, merge_m = self._reaction_inputs(n, armed, a_ahead, merge_m)
+        if p.lost_weight is not None and p.feed_forward:
+            pred_held = lost_feed_forward(pred_mode, pred_held, pred_weight,
+                                          p.lost_weight * a_ahead)
         if self._numbers[0] is not p or self._numbers[1] is not b:  # made once per law
             self._numbers = (p, b, *_numbers(p, b))
         law, layers = self._numbers[2:]
@@ -589,7 +613,7 @@ class PloegChains:
             a_ahead = self._radar_ahead(obs, chain, ids, ahead, dv_new)
             out[chain] = self.controller.step(np.ascontiguousarray(obs[chain]), u, a_pred, adj,
                                               mode, held, brake, armed, a_ahead, merge_m,
-                                              gap_off[chain])
+                                              gap_off[chain], heard)
             u_new.update(zip((ids[i] for i in chain), u.tolist()))
             brake_new.update(zip((ids[i] for i in chain), brake.tolist()))
         if commit:

@@ -92,6 +92,11 @@ class PloegParams:
     lead_weight: float | None = None  # fa: the weight (at most 1) of the leader's measured
                                 # acceleration, the head's feed-forward (None: 1); below 1 the
                                 # head leaves more of the leader's motion to its spacing terms
+    lost_weight: float | None = None  # df (with rb=1): a follower whose predecessor's message is
+                                # lost feeds forward this share (at most 1) of the acceleration
+                                # ahead as its radar measures it, as the head does the leader's
+                                # (a degraded CACC), fading in as the held message fades out
+                                # (None: no feed-forward, an ACC at ha)
     reaction_ttc_s: float | None = None  # ttc: below this time to collision (s) the state brakes
                                 # at least as hard as closing in needs (None: no reaction layer)
     reaction_braking_ahead: bool = False  # rb=1: the reaction adds the braking of the vehicle
@@ -144,6 +149,7 @@ class PloegParams:
             (f":pa={self.alone_kp:g}" if self.alone_kp is not None else "") + \
             (f":da={self.alone_kd:g}" if self.alone_kd is not None else "") + \
             (f":fa={self.lead_weight:g}" if self.lead_weight is not None else "") + \
+            (f":df={self.lost_weight:g}" if self.lost_weight is not None else "") + \
             (f":ttc={self.reaction_ttc_s:g}" if self.reaction_ttc_s is not None else "") + \
             (":rb=1" if self.reaction_braking_ahead else "") + \
             (f":wo={self.washout_s:g}" if self.washout_s is not None else "") + \
@@ -353,9 +359,15 @@ def _switches(name: str, opts: dict[str, float]) -> dict:
         if key in opts and "gp" not in opts:
             raise InputError(f"controller {name!r}: {key} shapes the gaps the learned gap policy "
                              "gp sets; give gp too (e.g. gp=5:gl=0.5:gb=1)")
-    if name.startswith("acc") and {"pa", "da", "fa"} & set(opts):
-        raise InputError(f"controller {name!r}: pa, da and fa set the head of a CACC chain (a "
-                         "vehicle that hears no message); an acc law has no V2V: give kp and kd")
+    if name.startswith("acc") and {"pa", "da", "fa", "df"} & set(opts):
+        raise InputError(f"controller {name!r}: pa, da, fa and df set what a CACC vehicle does "
+                         "without a message; an acc law has no V2V: give kp and kd")
+    if opts.get("df", 0.0) > 1.0:
+        raise InputError(f"controller {name!r}: df={opts['df']:g} weights the radar's "
+                         "acceleration ahead in place of a lost message; give df in (0, 1]")
+    if "df" in opts and "rb" not in opts:
+        raise InputError(f"controller {name!r}: df feeds forward the acceleration ahead that "
+                         "the radar measures for rb=1; give rb=1 too")
     if opts.get("fa", 0.0) > 1.0:
         raise InputError(f"controller {name!r}: fa={opts['fa']:g} weights the leader's "
                          "acceleration in the head's law; give fa in (0, 1]")
@@ -365,6 +377,7 @@ def _switches(name: str, opts: dict[str, float]) -> dict:
     return {"anti_windup": _flag(name, opts, "aw", "each vehicle's state within its own limits"),
             "alone_gap_s": opts.get("ha"), "alone_kp": opts.get("pa"),
             "alone_kd": opts.get("da"), "lead_weight": opts.get("fa"),
+            "lost_weight": opts.get("df"),
             "reaction_ttc_s": opts.get("ttc"),
             "reaction_braking_ahead": _flag(name, opts, "rb", "the reaction counts the braking "
                                                               "of the vehicle ahead"),
@@ -400,13 +413,13 @@ def parse_ploeg(name: str, tuned_file: Path | None = None, plant: str = "ideal")
                 "write ploeg:", "write mpf:r=R:wJ=W:")) from None
         return replace(p, feed_forward=bool(weights), weights=weights or (1.0,))
     if kind in ("ploeg", "acc"):
-        opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "pa", "da", "fa", "ttc", "rb", "wo", "hf", "gs",
+        opts = _parse_options(name, ("h", "kp", "kd", "aw", "ha", "pa", "da", "fa", "df", "ttc", "rb", "wo", "hf", "gs",
                                       "gn", "op", "ht", "gp", "gl", "gb", "gh"))
         return PloegParams(opts.get("h", TEXTBOOK.time_gap_s), opts.get("kp", TEXTBOOK.kp),
                            opts.get("kd", TEXTBOOK.kd), feed_forward=law == "ploeg",
                            **_switches(name, opts))
     if kind in ("ploeg-tuned", "acc-tuned"):
-        opts = _parse_options(name, ("h", "aw", "ha", "pa", "da", "fa", "ttc", "rb", "wo", "hf", "gs", "gn",
+        opts = _parse_options(name, ("h", "aw", "ha", "pa", "da", "fa", "df", "ttc", "rb", "wo", "hf", "gs", "gn",
                                       "op", "ht", "gp", "gl", "gb", "gh"))
         if "h" not in opts:
             raise InputError(f"controller {name!r}: name the time gap, e.g. {kind}:h=1")

@@ -736,6 +736,41 @@ def test_pa_da_fa_set_only_the_head_of_a_chain():
             parse_ploeg(bad)
 
 
+def test_df_feeds_forward_the_radars_acceleration_in_place_of_a_lost_message():
+    """``df=W``: a follower whose predecessor's message is lost feeds forward W times the
+    acceleration ahead its radar measures (a degraded CACC, as the head does with the leader's),
+    blended in as the held message fades (w·held + (1 - w)·radar) and alone once it is lost; a
+    live message and the head are unchanged, and without a loss the law is the law."""
+    from carl_sumo.control.cacc import lost_feed_forward
+
+    mode = np.array([0, 0, 1, 2])
+    held = np.array([0.3, -0.2, 0.25 * 0.8, 0.0])  # the channel's held is already w·held
+    radar = np.array([9.0, -0.5, -0.4, -0.6])
+    out = lost_feed_forward(mode, held, np.array([1.0, 1.0, 0.25, 0.0]), radar)
+    np.testing.assert_allclose(out, [0.3, -0.2, 0.25 * 0.8 + 0.75 * -0.4, -0.6])
+    base = "ploeg:h=0.6:kp=0.0445:kd=1:aw=1:ha=1.4:ttc=2:rb=1"
+    obs = np.array([[15.0, 0.2, 30.0, 0.3], [15.0, -0.1, 12.0, -0.2], [15.0, 0.0, 11.0, 0.1]])
+    a_ahead = np.array([0.0, -0.7, -0.3])
+
+    def command(name, mode_):
+        law = PloegController(parse_ploeg(name))
+        law.reset(3)
+        return law.step(obs, np.array([0.1, -0.2, 0.05]), 0.3, None, np.array(mode_),
+                        np.array([0.0, 0.0, 0.0]), a_ahead=a_ahead)
+
+    lost = command(base + ":df=0.5", [0, 0, 2])
+    plain = command(base, [0, 0, 2])
+    np.testing.assert_allclose(lost[:2], plain[:2])
+    u = 0.05 + (DT_S / 1.4) * (-0.05 + 0.0445 * (11.0 - 2.0 - 1.4 * 15.0) + (0.1 - 1.4 * 0.0)
+                               + 0.5 * -0.3)  # the ACC at ha with half the radar's term
+    assert lost[2] == pytest.approx(u, abs=1e-12) and lost[2] != pytest.approx(plain[2])
+    np.testing.assert_allclose(command(base + ":df=1", [0, 0, 0]), command(base, [0, 0, 0]))
+    for bad, what in ((base + ":df=2", "in \\(0, 1\\]"), ("ploeg:h=0.6:df=1", "rb=1"),
+                      ("acc:h=2:rb=1:df=1", "no V2V")):
+        with pytest.raises(InputError, match=what):
+            parse_ploeg(bad)
+
+
 def test_gb_keeps_the_headway_budget_within_each_class_floor():
     """``gb=1``: the learned gap offsets of a chain sum to 0 (RL moves gap between vehicles,
     never adds it), each at least its class's least gap less its own (the head ha - ha = 0, a
