@@ -7,11 +7,12 @@ the acceleration ahead its radar measures in place of the lost message (a degrad
 runs ``mpf-tuned``, the gap-traded law and ``product-base``, and the first two with ``df=1``, on
 all 773 training events (real plant, its 0.1 s V2V
 delay, 10 followers, 60 s settled start) with Gilbert-Elliott losses of 0-50 % in bursts of 5
-steps (0.5 s) on average, and writes ``docs/results_real/loss_train.json``.
+steps (0.5 s) on average, and writes ``docs/results_real/loss_<SPLIT>.json``.
 
-    python benchmarks/loss_yardstick.py DATA [WORKERS]
+    python benchmarks/loss_yardstick.py DATA [WORKERS] [SPLIT]   # SPLIT: train (default) or test
 
-Training events only: this sizes a design, it scores nothing.
+On the training split it sizes a design; ``test`` scores the laws once on the test split
+(``docs/results_real/loss_test.json``).
 """
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ from carl_sumo.experiments.simulate import simulate
 from carl_sumo.files import write_text_atomic
 from carl_sumo.sim.vehicle import REAL_COMM_DELAY_S, REAL_PLANT
 
-OUT = Path("docs/results_real/loss_train.json")
+OUT = "docs/results_real/loss_{}.json"
 LAWS = {"mpf-tuned": "mpf-tuned",
         "gap-traded": "mpf:h=0.5:kp=0.0445:kd=1:r=3:w1=0.5:w2=0.4:w3=0.1:aw=1:ha=2.3:ttc=2:rb=1:"
                       "gn=6:op=2:ht=0.8",
@@ -42,9 +43,10 @@ BURST = 5.0
 KEYS = ("headway_s", "jerk_mps3", "dampening_ratio", "ttc_lt_1_5s_count", "collisions")
 
 
-def main(data: str, workers: int = 1) -> None:
-    events = [e.with_warmup(60.0) for e in load_events(data, "train")]
-    rows = json.loads(OUT.read_text()) if OUT.exists() else {}
+def main(data: str, workers: int = 1, split: str = "train") -> None:
+    events = [e.with_warmup(60.0) for e in load_events(data, split)]
+    out = Path(OUT.format(split))
+    rows = json.loads(out.read_text()) if out.exists() else {}
     for label, law in LAWS.items():
         for loss in LOSSES:
             key = f"{label} loss {loss:g}"
@@ -53,7 +55,7 @@ def main(data: str, workers: int = 1) -> None:
                                   burst=BURST if loss else 1.0)
                 m = simulate(law, events, 10, workers=workers, impairments=imp)["metrics"]
                 rows[key] = {k: m[k] for k in KEYS}
-                write_text_atomic(OUT, json.dumps(rows, indent=1))
+                write_text_atomic(out, json.dumps(rows, indent=1))
             r = rows[key]
             print(f"{key}: headway {r['headway_s']:.3f} s, jerk {r['jerk_mps3']:.4f}, dampening "
                   f"{r['dampening_ratio']:.4f}, TTC < 1.5 s {r['ttc_lt_1_5s_count']}, collisions "
@@ -61,4 +63,4 @@ def main(data: str, workers: int = 1) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1], *(int(a) for a in sys.argv[2:]))
+    main(sys.argv[1], *(int(a) if i == 0 else a for i, a in enumerate(sys.argv[2:])))
