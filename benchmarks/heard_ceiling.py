@@ -8,7 +8,7 @@ decay with distance) against r = 3 at both classical points of the real plant (`
 cars 0.6 s, head 1.4 s; the gap-traded law, cars 0.5 s, head 2.3 s), on the training events
 (real plant, 10 followers, 60 s settled start), with each law's exact discrete ‖Γ‖∞ (every
 class at the ends of its ranges, 0.1 s V2V delay, the links behind a follower: the head's is the
-same law in every row), and writes
+same law in every row; ``soft_head.hinf``), and writes
 ``docs/results_real/heard_ceiling_train.json``.
 
     python benchmarks/heard_ceiling.py DATA [WORKERS] [EVENTS]   # EVENTS: the first K (all: 773)
@@ -19,15 +19,13 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
+from soft_head import hinf
 
 from carl_sumo.data import load_events
 from carl_sumo.experiments.simulate import simulate
 from carl_sumo.files import write_text_atomic
 from carl_sumo.sim.vehicle import REAL_COMM_DELAY_S, REAL_PLANT
-from carl_sumo.control.channel import Impairments, plant_impairments
-from carl_sumo.experiments.string_stability import analytic
-from carl_sumo.sim.vehicle import Plant
+from carl_sumo.control.channel import Impairments
 
 OUT = Path("docs/results_real/heard_ceiling_train.json")
 POINTS = {"mpf-tuned": (0.6, 1.4), "gap-traded": (0.5, 2.3)}
@@ -51,23 +49,6 @@ KEYS = ("headway_s", "jerk_mps3", "dampening_ratio", "worst_successive_ratio",
         "ttc_lt_1_5s_count", "collisions")
 
 
-OMEGAS = np.geomspace(0.005, 3.0, 400)
-"""Frequencies of the theory's ‖Γ‖∞ (rad/s)."""
-
-
-def follower_hinf(law: str, n: int = 10) -> float:
-    """The largest |Γ_i| of the law's exact discrete theory over the links behind a follower
-    (i ≥ 2), every class of the real plant at both ends of its lag and dead-time ranges."""
-    plant = plant_impairments("real").plant
-    worst = 0.0
-    for cls in plant.classes:
-        for tau, dead in plant.class_corners(cls):
-            corner = Plant(((cls, 1.0),), tau, dead * 0.1)
-            per_link = analytic(law, OMEGAS, corner, REAL_COMM_DELAY_S, n)["per_link"]
-            worst = max(worst, float(np.max(np.asarray(per_link["discrete"])[1:])))
-    return worst
-
-
 def law(point: str, weights: tuple[float, ...]) -> str:
     h, ha = POINTS[point]
     ws = ":".join(f"w{i + 1}={w:g}" for i, w in enumerate(weights))
@@ -84,7 +65,7 @@ def main(data: str, workers: int = 1, first: int | None = None) -> None:
             if key not in rows:
                 name = law(point, weights)
                 m = simulate(name, events, 10, workers=workers, impairments=imp)["metrics"]
-                rows[key] = {"law": name, **{k: m[k] for k in KEYS}, "hinf_followers": follower_hinf(name)}
+                rows[key] = {"law": name, **{k: m[k] for k in KEYS}, "hinf_followers": hinf(name, first=1)}
                 write_text_atomic(OUT, json.dumps(rows, indent=1))
             r, ref = rows[key], rows[f"{point}, r=3 (tuned), {len(events)} events"]
             print(f"{key}: headway {r['headway_s']:.3f} s, jerk {r['jerk_mps3']:.4f} "

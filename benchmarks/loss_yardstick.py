@@ -28,14 +28,15 @@ from carl_sumo.files import write_text_atomic
 from carl_sumo.sim.vehicle import REAL_COMM_DELAY_S, REAL_PLANT
 
 OUT = "docs/results_real/loss_{}.json"
-LAWS = {"mpf-tuned": "mpf-tuned",
-        "gap-traded": "mpf:h=0.5:kp=0.0445:kd=1:r=3:w1=0.5:w2=0.4:w3=0.1:aw=1:ha=2.3:ttc=2:rb=1:"
-                      "gn=6:op=2:ht=0.8",
-        "product-base": PRESETS["product-base"],
-        "mpf-tuned df=1": "mpf:h=0.6:kp=0.0445:kd=1:r=3:w1=0.5:w2=0.4:w3=0.1:aw=1:ha=1.4:ttc=2:"
-                          "rb=1:gn=6:op=2:ht=0.8:df=1",
-        "gap-traded df=1": "mpf:h=0.5:kp=0.0445:kd=1:r=3:w1=0.5:w2=0.4:w3=0.1:aw=1:ha=2.3:ttc=2:"
-                           "rb=1:gn=6:op=2:ht=0.8:df=1"}
+MPF_TUNED = ("mpf:h=0.6:kp=0.0445:kd=1:r=3:w1=0.5:w2=0.4:w3=0.1:aw=1:ha=1.4:ttc=2:rb=1:gn=6:op=2:"
+             "ht=0.8")
+"""``mpf-tuned`` by its full name (an option can be added to it)."""
+GAP_TRADED = ("mpf:h=0.5:kp=0.0445:kd=1:r=3:w1=0.5:w2=0.4:w3=0.1:aw=1:ha=2.3:ttc=2:rb=1:gn=6:op=2:"
+              "ht=0.8")
+"""The gap-traded law (docs/baselines.md): cars 0.5 s, head 2.3 s."""
+LAWS = {"mpf-tuned": "mpf-tuned", "gap-traded": GAP_TRADED,
+        "product-base": PRESETS["product-base"], "mpf-tuned df=1": MPF_TUNED + ":df=1",
+        "gap-traded df=1": GAP_TRADED + ":df=1"}
 LOSSES = (0.0, 0.1, 0.3, 0.5)
 """The share of messages lost (-)."""
 BURST = 5.0

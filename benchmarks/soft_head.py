@@ -54,17 +54,18 @@ def name(pa: float | None, da: float | None, fa: float | None) -> str:
     return LAW.format(head)
 
 
-def hinf(law: str, n: int = 10) -> float:
-    """The largest |Γ_i| of the law's exact discrete theory over its n links, every class of
-    the real plant at both ends of its lag and dead-time ranges (cars in a chain of cars,
-    trucks of trucks: ``ht``), the 0.1 s V2V delay."""
+def hinf(law: str, n: int = 10, first: int = 0) -> float:
+    """The largest |Γ_i| of the law's exact discrete theory over its n links from link
+    ``first`` on (0: the head's; 1: the links behind a follower), every class of the real plant
+    at both ends of its lag and dead-time ranges (cars in a chain of cars, trucks of trucks:
+    ``ht``), the 0.1 s V2V delay."""
     plant = plant_impairments("real").plant
     worst = 0.0
     for cls in plant.classes:
         for tau, dead in plant.class_corners(cls):
             corner = Plant(((cls, 1.0),), tau, dead * 0.1)
             theory = analytic(law, OMEGAS, corner, REAL_COMM_DELAY_S, n)
-            worst = max(worst, float(np.max(theory["per_link"]["discrete"])))
+            worst = max(worst, float(np.max(np.asarray(theory["per_link"]["discrete"])[first:])))
     return worst
 
 
